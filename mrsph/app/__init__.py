@@ -1,0 +1,17 @@
+"""Everything with a window: rendering, recording, mouse interaction.
+
+Nothing heavy happens at import: Taichi, imageio and tqdm are imported inside the
+modules that need them (``render``, ``window``, ``record``), so ``import mrsph.app``
+costs nothing and the physics never pulls in GUI code by accident.
+
+Modules
+-------
+palette   level / kind colours and colormaps (numpy only)
+view      letterboxed 2D view and orbit camera (numpy only; shared by every renderer)
+render    the GGUI renderer used by the window and by offscreen recording
+raster    pure-numpy software rasteriser (fallback when Vulkan is missing)
+record    ``record(sim, out, frames, ...)``: mp4 / gif / png sequence
+mouse     mouse state machine -> ``Disturbance`` (pure logic)
+window    ``run_window(...)``: the interactive app
+fake      a tiny stand-in simulation for tests and demos
+"""

@@ -1,0 +1,731 @@
+"""Scene files: strict, typed TOML with every problem reported at once.
+
+A scene is a TOML file in ``scenes/``; docs/scenes.md lists every key (type, unit,
+default, meaning). ``load_scene`` parses it, applies ``--set KEY=VALUE`` overrides,
+checks each key against ``SCHEMA`` (type, range, vector length, unknown keys with a
+did-you-mean hint), then the cross-field rules (fluid inside the domain and outside the
+obstacles, levels that exist, a capacity that holds the fluid), and raises one
+``SceneError`` holding all problems, one line each:
+``<file>: <key>: <what is wrong> (got <value>; expected <what>)``.
+Pure Python, no Taichi, nothing done at import.
+"""
+from __future__ import annotations
+
+import copy
+import difflib
+import json
+import math
+import numbers
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+SCENES_DIR = Path(__file__).resolve().parent.parent / "scenes"
+
+REQUIRED = object()  # default of a key that the scene must give
+# The level-0 neighbour grid has one cell per h0 in every direction; past ~50e6 cells its
+# per-cell arrays alone take hundreds of MB, so such a domain is almost surely a unit slip.
+MAX_GRID_CELLS = 50e6
+# Automatic capacity = int(CAPACITY_MARGIN * lattice + emitted) + CAPACITY_SLACK: splits
+# turn one particle into 2^d and virtual particles need slots too, hence the margin.
+CAPACITY_MARGIN = 1.5
+CAPACITY_SLACK = 1024
+# An emitter counts for at most this long when sizing automatic capacity (its default
+# stop time of 1e9 s would otherwise ask for unbounded memory).
+EMIT_HORIZON_S = 60.0
+# Slack of floor() in the lattice count, so that 0.3 / 0.1 = 2.9999999999999996 counts 3.
+LATTICE_EPS = 1e-9
+
+
+class SceneError(Exception):
+    """Everything wrong with a scene; ``problems`` has one line per problem."""
+
+    def __init__(self, problems: list[str] | str):
+        self.problems = [problems] if isinstance(problems, str) else list(problems)
+        super().__init__("\n".join(self.problems))
+
+
+# ----------------------------------------------------------------------------- schema
+@dataclass
+class Key:
+    """One scalar or vector key. ``kind``: float int bool str choice vec vec3 path."""
+    kind: str
+    default: Any = REQUIRED   # REQUIRED, None (optional), a value, or a function of dim
+    range: str = ""           # "> 0", ">= 0", "[0, 1]", "(0, 1]"; per component for vectors
+    unit: str = ""
+    doc: str = ""
+    choices: tuple = ()
+    min_items: int = 0        # least number of waypoints of a path
+    default_doc: str = ""     # how docs/scenes.md shows a default that depends on dim
+
+
+@dataclass
+class Table:
+    keys: dict
+    doc: str = ""
+    required: bool = False
+    switch: str = ""          # key whose value picks one of ``variants`` (extra keys)
+    variants: dict = field(default_factory=dict)
+
+
+@dataclass
+class Array:
+    item: Table
+    doc: str = ""
+
+
+ZEROS = dict(default=lambda dim: (0.0,) * dim, default_doc="zeros")
+BOX = Table({"min": Key("vec", unit="m", doc="lower corner"),
+             "max": Key("vec", unit="m", doc="upper corner, > min in every component")})
+SPHERE = Table({"center": Key("vec", unit="m", doc="centre"),
+                "radius": Key("float", range="> 0", unit="m", doc="radius")})
+SHAPES = {"box": BOX, "sphere": SPHERE}
+SHAPE = Key("choice", choices=("box", "sphere"), doc="sphere is a circle in 2D")
+
+SCHEMA = Table(required=True, keys={
+    "description": Key("str", doc="one line saying what the scene shows"),
+    "dim": Key("int", range="[2, 3]", doc="number of space dimensions; y is up"),
+    "domain": Table(required=True, doc="The box holding the fluid; its walls are solid.", keys={
+        "min": Key("vec", unit="m", doc="lower corner"),
+        "max": Key("vec", unit="m", doc="upper corner, > min in every component"),
+        "restitution": Key("float", 0.0, "[0, 1]", doc="fraction of the normal velocity "
+                           "reflected at walls and obstacles"),
+        "friction": Key("float", 0.0, "[0, 1]", doc="fraction of the tangential velocity "
+                        "removed on contact")}),
+    "particles": Table(required=True, keys={
+        "spacing": Key("float", range="> 0", unit="m", doc="initial spacing s0 of the finest "
+                       "level 0; level n has spacing 2^n s0"),
+        "support": Key("float", 2.0, "[1.5, 4]", doc="support radius over spacing: "
+                       "h0 = support * spacing"),
+        "capacity": Key("int", 0, ">= 0", doc="particle slots; 0 = automatic: "
+                        "int(1.5 * lattice count + emitted) + 1024"),
+        "precision": Key("choice", "f32", choices=("f32", "f64"), doc="float precision")}),
+    "fluid": Table(required=True, keys={
+        "rest_density": Key("float", 1000.0, "> 0", "kg/m^3", "rest density rho0"),
+        "viscosity": Key("float", 1.0, ">= 0", "Pa s", "dynamic viscosity mu; it is also the scheme's only dissipation, so it sits far above water's 0.001 (Müller et al. 2003 used 3.5)"),
+        "eos": Key("choice", "linear", choices=("linear", "tait"), doc="equation of state: "
+                   "linear p = k (rho - rho0); tait p = rho0 k / gamma ((rho/rho0)^gamma - 1); "
+                   "both have sound speed sqrt(k) at rest"),
+        "stiffness": Key("float", 1000.0, "> 0", "m^2/s^2", "k, the squared sound speed"),
+        "gamma": Key("float", 7.0, "[1, 10]", doc="exponent of the Tait equation"),
+        "clamp_negative_pressure": Key("bool", True, doc="clamp pressure at 0 (no clumping "
+                                       "at the free surface)"),
+        "blocks": Array(Table({
+            "min": Key("vec", unit="m", doc="lower corner"),
+            "max": Key("vec", unit="m", doc="upper corner, > min in every component"),
+            "velocity": Key("vec", unit="m/s", doc="initial velocity", **ZEROS)}),
+            doc="Boxes filled with level-0 particles on a lattice of spacing s0 at t = 0. "
+                "At least one, unless there is an emitter.")}),
+    "physics": Table({
+        "gravity": Key("vec", lambda dim: (0.0, -9.81, 0.0)[:dim], unit="m/s^2",
+                       doc="gravitational acceleration", default_doc="(0, -9.81[, 0])"),
+        "cfl": Key("float", 0.2, "(0, 1]", doc="lambda of the CFL bound "
+                   "dt <= lambda h / (c_s + max |u|)"),
+        "force_factor": Key("float", 0.25, "(0, 1]", doc="lambda_f of the force bound "
+                            "dt <= lambda_f sqrt(h / max |a|)"),
+        "dt_max": Key("float", 0.002, "> 0", "s", "largest time step"),
+        "dt_min": Key("float", 1e-7, "> 0", "s", "a step needing less is reported as "
+                      "unstable; < dt_max"),
+        "max_speed": Key("float", 50.0, "> 0", "m/s", "a faster particle is reported as a "
+                         "blow-up")}),
+    "obstacles": Array(Table({"shape": SHAPE}, switch="shape", variants=SHAPES),
+                       doc="Static solid shapes. The keys of the other shape are unknown."),
+    "emitters": Array(Table({
+        "center": Key("vec", unit="m", doc="centre of the emitting disc (segment in 2D)"),
+        "radius": Key("float", range="> 0", unit="m", doc="half-width of the disc"),
+        "velocity": Key("vec", unit="m/s", doc="velocity of emitted fluid, non-zero; "
+                        "the disc faces along it"),
+        "start": Key("float", 0.0, ">= 0", "s", "time emission starts"),
+        "stop": Key("float", 1e9, "> 0", "s", "time emission stops, > start"),
+        "level": Key("int", 0, ">= 0", doc="level of emitted particles, < adaptivity.levels")}),
+        doc="Inflows that add fluid while the simulation runs."),
+    "adaptivity": Table({
+        "enabled": Key("bool", False, doc="split and merge particles between levels"),
+        "levels": Key("int", 1, "[1, 6]", doc="number of levels L; >= 2 when enabled"),
+        "interval": Key("int", 4, ">= 1", doc="steps between adaptivity passes"),
+        "hysteresis": Key("float", 0.25, "[0, 0.5]", doc="gap between split and merge "
+                          "thresholds, in level units"),
+        "band": Key("float", 0.0, ">= 0", "m", "width of the distance band per level; "
+                    "0 = automatic: 2 h_(L-1), twice the coarsest support radius"),
+        "spring_rate": Key("float", 50.0, ">= 0", "1/s", "stiffness per unit mass of the "
+                           "springs holding virtual particles"),
+        "release_factor": Key("float", 1.0, "[0.5, 2]", doc="siblings are released when "
+                              "their largest distance exceeds release_factor * h_n"),
+        "merge_min_children": Key("int", 0, ">= 0", doc="least group size that merges; "
+                                  "0 = 2^dim (only full groups); <= 2^dim"),
+        "gather_factor": Key("float", 1.0, "(0, 2]", doc="virtual parents closer than "
+                             "gather_factor * coarse spacing may gather"),
+        "background_level": Key("int", -1, ">= -1", doc="level wanted where no criterion "
+                                "asks for finer; -1 = L-1, the coarsest")}),
+    "criteria": Array(Table(
+        {"type": Key("choice", choices=("region", "obstacles", "disturbance"),
+                     doc="what wants the finer level"),
+         "level": Key("int", 0, ">= 0", doc="level wanted inside, < adaptivity.levels")},
+        switch="type", variants={
+            "region": Table({
+                "shape": SHAPE,
+                "path": Key("path", None, min_items=1, doc="waypoints [t, x, y(, z)]; the "
+                            "region moves by (waypoint at t) - (first waypoint)"),
+                "loop": Key("bool", False, doc="repeat the path")},
+                switch="shape", variants=SHAPES),
+            "obstacles": Table({"distance": Key("float", 0.0, ">= 0", "m", "the level is "
+                                                "wanted within this distance of an obstacle")}),
+            "disturbance": Table({}, doc="Refines where the mouse or a stirrer acts.")}),
+        doc="Refinement criteria: where finer levels are wanted. The finest wins."),
+    "stirrers": Array(Table({
+        "radius": Key("float", range="> 0", unit="m", doc="radius of action"),
+        "strength": Key("float", range=">= 0", unit="1/s", doc="rate at which fluid in the "
+                        "radius is driven toward the stirrer's velocity"),
+        "mode": Key("choice", "push", choices=("push", "pull"), doc="push moves fluid away "
+                    "from the stirrer, pull draws it in"),
+        "path": Key("path", min_items=2, doc="waypoints [t, x, y(, z)] with increasing t"),
+        "loop": Key("bool", True, doc="repeat the path")}),
+        doc="Scripted disturbances for headless runs."),
+    "run": Table({
+        "fps": Key("float", 30.0, "> 0", "1/s", "frames rendered or dumped per simulated second"),
+        "frames": Key("int", 0, ">= 0", doc="frames of a headless run; 0 = none given"),
+        "seed": Key("int", 0, doc="random seed")}),
+    "render": Table({
+        "width": Key("int", 960, "[64, 8192]", "px", "image width"),
+        "height": Key("int", 540, "[64, 8192]", "px", "image height"),
+        "background": Key("vec3", (0.07, 0.08, 0.1), "[0, 1]", doc="RGB background colour"),
+        "camera_position": Key("vec3", None, unit="m", doc="3D only; omitted = automatic"),
+        "camera_lookat": Key("vec3", None, unit="m", doc="3D only; omitted = automatic"),
+        "point_scale": Key("float", 1.0, "> 0", doc="scale of drawn particle radii")}),
+})
+
+
+# ----------------------------------------------------------------------------- values
+def _is_num(x) -> bool:
+    return isinstance(x, numbers.Real) and not isinstance(x, bool)
+
+
+def _in_range(x: float, rng: str) -> bool:
+    if not rng:
+        return True
+    if rng[0] in "[(":
+        lo, hi = (float(s) for s in rng[1:-1].split(","))
+        return (lo < x if rng[0] == "(" else lo <= x) and (x < hi if rng[-1] == ")" else x <= hi)
+    op, bound = rng.split()
+    return x > float(bound) if op == ">" else x >= float(bound)
+
+
+_TYPE_NAMES = {bool: "boolean", int: "integer", float: "float", str: "string", list: "array",
+               tuple: "array", dict: "table"}
+
+
+def _fmt(v, typed: bool = False) -> str:
+    """A value as TOML writes it, shortened; ``typed`` appends its TOML type."""
+    if isinstance(v, bool):
+        s = "true" if v else "false"
+    elif isinstance(v, str):
+        s = json.dumps(v)
+    elif isinstance(v, (list, tuple)):
+        s = "[" + ", ".join(_fmt(x) for x in v) + "]"
+    elif isinstance(v, dict):
+        s = "{" + ", ".join(f"{k} = {_fmt(x)}" for k, x in v.items()) + "}"
+    else:
+        s = repr(v)
+    s = s if len(s) <= 80 else s[:77] + "..."
+    return f"{s} ({_TYPE_NAMES.get(type(v), type(v).__name__)})" if typed else s
+
+
+def _expected(k: Key, dim: int | None) -> str:
+    rng = ("in " + k.range if k.range[:1] in "[(" else k.range) if k.range else ""
+    coords = "x, y" if dim == 2 else "x, y, z" if dim == 3 else "x, y(, z)"
+    base = {"float": "a number", "int": "an integer", "bool": "true or false",
+            "str": "a one-line string", "vec": f"a list of {dim or 'dim'} numbers",
+            "vec3": "a list of 3 numbers",
+            "choice": "one of " + ", ".join(json.dumps(c) for c in k.choices),
+            "path": f"a list of >= {k.min_items} waypoints [t, {coords}] with strictly "
+                    "increasing t"}[k.kind]
+    return f"{base} {rng}".strip()
+
+
+class _Bad(Exception):
+    def __init__(self, what: str, typed: bool = False):
+        self.what, self.typed = what, typed
+
+
+def _convert(k: Key, v, dim: int | None):
+    """``v`` checked against ``k`` and normalised (floats, tuples), or raise _Bad."""
+    v = v.tolist() if hasattr(v, "tolist") else v  # numpy scalars and arrays
+    if k.kind in ("float", "int"):
+        if not _is_num(v) or (k.kind == "int" and not isinstance(v, numbers.Integral)):
+            raise _Bad("wrong type", typed=True)
+        if not math.isfinite(v) or not _in_range(v, k.range):
+            raise _Bad("out of range")
+        return float(v) if k.kind == "float" else v
+    if k.kind == "bool":
+        if not isinstance(v, bool):
+            raise _Bad("wrong type", typed=True)
+        return v
+    if k.kind in ("str", "choice"):
+        if not isinstance(v, str):
+            raise _Bad("wrong type", typed=True)
+        if k.kind == "str" and "\n" in v:
+            raise _Bad("not one line")
+        if k.kind == "choice" and v not in k.choices:
+            hint = difflib.get_close_matches(v, k.choices, 1)
+            raise _Bad("unknown choice" + (f", did you mean '{hint[0]}'?" if hint else ""))
+        return v
+    if k.kind in ("vec", "vec3"):
+        n = 3 if k.kind == "vec3" else dim
+        if not isinstance(v, (list, tuple)) or not all(_is_num(c) for c in v):
+            raise _Bad("wrong type", typed=True)
+        if n is not None and len(v) != n:
+            raise _Bad("wrong length")
+        if not all(math.isfinite(c) and _in_range(c, k.range) for c in v):
+            raise _Bad("out of range")
+        return tuple(float(c) for c in v)
+    # a path: waypoints [t, x, y(, z)]
+    if not isinstance(v, (list, tuple)) or not all(
+            isinstance(w, (list, tuple)) and all(_is_num(c) for c in w) for w in v):
+        raise _Bad("wrong type", typed=True)
+    if len(v) < k.min_items:
+        raise _Bad("too few waypoints")
+    if dim is not None and any(len(w) != dim + 1 for w in v):
+        raise _Bad("waypoint of the wrong length")
+    if not all(math.isfinite(c) for w in v for c in w):
+        raise _Bad("out of range")
+    if any(b[0] <= a[0] for a, b in zip(v, v[1:])):
+        raise _Bad("waypoint times not strictly increasing")
+    return tuple(tuple(float(c) for c in w) for w in v)
+
+
+def _all_keys(t: Table) -> dict:
+    """Every key a table may hold, whatever its variant."""
+    keys = dict(t.keys)
+    for variant in t.variants.values():
+        keys.update(_all_keys(variant))
+    return keys
+
+
+def _hint(name: str, candidates) -> str:
+    close = difflib.get_close_matches(name, list(candidates), 1)
+    if close:
+        return f"did you mean '{close[0]}'?"
+    return "expected one of " + ", ".join(f"'{c}'" for c in candidates)
+
+
+# ------------------------------------------------------------------------- validation
+class _Checker:
+    def __init__(self, label: str, overridden: list[str]):
+        self.label, self.overridden, self.problems = label, overridden, []
+
+    def add(self, key: str, what: str, got: str = "", expected: str = "", note: str = ""):
+        detail = note or "; ".join(s for s in (got and "got " + got,
+                                               expected and "expected " + expected) if s)
+        # a problem in a value given with --set is reported under that label
+        where = next((f"--set {o}" for o in self.overridden
+                      if key == o or key.startswith(o + ".")), f"{self.label}: {key}")
+        self.problems.append(f"{where}: {what}" + (f" ({detail})" if detail else ""))
+
+    def table(self, spec: Table, raw, key: str, dim):
+        if not isinstance(raw, dict):
+            self.add(key, "wrong type", _fmt(raw, True), "a table")
+            return None
+        out: dict = {}
+        allowed = self.fill(spec, raw, key, dim, out)
+        for name in raw:
+            if allowed is not None and name not in allowed:
+                self.add(f"{key}.{name}" if key else name, "unknown key",
+                         note=_hint(name, sorted(allowed)))
+        lo, hi = out.get("min"), out.get("max")
+        if lo is not None and hi is not None and any(b <= a for a, b in zip(lo, hi)):
+            self.add(f"{key}.max", "not above min", _fmt(hi), f"every component > min = {_fmt(lo)}")
+            out["max"] = None  # so that the cross-field rules skip this box
+        return out
+
+    def fill(self, spec: Table, raw: dict, key: str, dim, out: dict):
+        """Check the keys of ``spec`` (and its chosen variant); return the allowed names."""
+        for name, sub in spec.keys.items():
+            k = f"{key}.{name}" if key else name
+            if isinstance(sub, Table):
+                if name not in raw and sub.required:
+                    self.add(k, "missing required key", expected=f"a table [{k}]")
+                    out[name] = None
+                else:
+                    out[name] = self.table(sub, raw.get(name, {}), k, dim)
+            elif isinstance(sub, Array):
+                items = raw.get(name, [])
+                if not isinstance(items, (list, tuple)):
+                    self.add(k, "wrong type", _fmt(items, True), f"an array of tables [[{k}]]")
+                    items = []
+                out[name] = [self.table(sub.item, item, f"{k}.{i}", dim)
+                             for i, item in enumerate(items)]
+            elif name in raw:
+                try:
+                    out[name] = _convert(sub, raw[name], dim)
+                except _Bad as bad:
+                    self.add(k, bad.what, _fmt(raw[name], bad.typed), _expected(sub, dim))
+                    out[name] = None
+            elif sub.default is REQUIRED:
+                self.add(k, "missing required key", expected=_expected(sub, dim))
+                out[name] = None
+            else:
+                out[name] = sub.default(dim) if callable(sub.default) and dim else sub.default
+        allowed = set(spec.keys)
+        if spec.switch:
+            variant = spec.variants.get(out.get(spec.switch))
+            if variant is None:
+                return None  # the switch itself is reported; other keys cannot be judged
+            return allowed | self.fill(variant, raw, key, dim, out)
+        return allowed
+
+
+def _lattice_count(blocks: list[dict], s0: float) -> int:
+    return sum(math.prod(max(0, math.floor((hi - lo) / s0 + LATTICE_EPS))
+                         for lo, hi in zip(b["min"], b["max"])) for b in blocks)
+
+
+def _emitted(emitters: list[dict], s0: float, dim: int) -> int:
+    total = 0
+    for e in emitters:
+        s = s0 * 2 ** e["level"]
+        speed = math.sqrt(sum(c * c for c in e["velocity"]))
+        duration = min(e["stop"] - e["start"], EMIT_HORIZON_S)
+        total += math.ceil((2 * e["radius"] / s) ** (dim - 1) * speed / s * duration)
+    return total
+
+
+def _ok(*values) -> bool:
+    return all(v is not None for v in values)
+
+
+def _block_ok(b) -> bool:
+    return bool(b) and _ok(b["min"], b["max"])
+
+
+def _overlap(b: dict, ob: dict) -> str | None:
+    """How obstacle ``ob`` is described if fluid block ``b`` overlaps it, else None."""
+    if ob["shape"] == "box" and _ok(ob["min"], ob["max"]):
+        pairs = zip(b["min"], b["max"], ob["min"], ob["max"])
+        if all(a0 < b1 and b0 < a1 for a0, a1, b0, b1 in pairs):
+            return f"the box {_fmt(ob['min'])} .. {_fmt(ob['max'])}"
+    elif ob["shape"] == "sphere" and _ok(ob["center"], ob["radius"]):
+        # squared distance from the centre to the nearest point of the block
+        d2 = sum((c - min(max(c, a), b)) ** 2 for a, b, c in zip(b["min"], b["max"], ob["center"]))
+        if d2 < ob["radius"] ** 2:
+            return f"the sphere at {_fmt(ob['center'])} with radius {ob['radius']!r}"
+    return None
+
+
+def _check_places(c: _Checker, d: dict) -> None:
+    """Fluid, emitters and regions inside the domain; fluid outside the obstacles."""
+    dom, fluid, emitters = d["domain"], d["fluid"], d["emitters"]
+    blocks = [(i, b) for i, b in enumerate(fluid["blocks"] if fluid else []) if _block_ok(b)]
+    if fluid is not None and not fluid["blocks"] and not emitters:
+        c.add("fluid.blocks", "no fluid", "no [[fluid.blocks]] and no [[emitters]]",
+              "at least one [[fluid.blocks]] or one [[emitters]]")
+    for i, b in blocks:
+        for j, ob in enumerate(d["obstacles"]):
+            what = ob and _overlap(b, ob)
+            if what:
+                c.add(f"fluid.blocks.{i}", f"overlaps obstacles.{j}",
+                      f"min {_fmt(b['min'])}, max {_fmt(b['max'])}", f"no overlap with {what}")
+    if not (dom and _ok(dom["min"], dom["max"])):
+        return
+    where = f"inside the domain {_fmt(dom['min'])} .. {_fmt(dom['max'])}"
+
+    def inside(p) -> bool:
+        return all(a <= x <= b for a, x, b in zip(dom["min"], p, dom["max"]))
+
+    for i, b in blocks:
+        if not (inside(b["min"]) and inside(b["max"])):
+            c.add(f"fluid.blocks.{i}", "outside the domain",
+                  f"min {_fmt(b['min'])}, max {_fmt(b['max'])}", where)
+    for i, e in enumerate(emitters):
+        if e and e["center"] is not None and not inside(e["center"]):
+            c.add(f"emitters.{i}.center", "outside the domain", _fmt(e["center"]), where)
+    for i, cr in enumerate(d["criteria"]):
+        if not (cr and cr["type"] == "region" and cr["shape"] in SHAPES):
+            continue
+        if cr["shape"] == "sphere":
+            center = cr["center"]
+        else:
+            center = _block_ok(cr) and tuple((a + b) / 2 for a, b in zip(cr["min"], cr["max"]))
+        if center and not inside(center):
+            c.add(f"criteria.{i}", "region centre outside the domain", _fmt(center), where)
+
+
+def _check_values(c: _Checker, d: dict) -> None:
+    """Rules between two keys of one table."""
+    for i, e in enumerate(d["emitters"]):
+        if e and e["velocity"] is not None and not any(e["velocity"]):
+            c.add(f"emitters.{i}.velocity", "zero velocity", _fmt(e["velocity"]),
+                  "a non-zero vector; the emitting disc faces along it")
+        if e and _ok(e["start"], e["stop"]) and e["stop"] <= e["start"]:
+            c.add(f"emitters.{i}.stop", "not after start", _fmt(e["stop"]),
+                  f"a number > start = {e['start']!r}")
+    phys = d["physics"]
+    if phys and _ok(phys["dt_min"], phys["dt_max"]) and phys["dt_min"] >= phys["dt_max"]:
+        c.add("physics.dt_min", "not below dt_max", _fmt(phys["dt_min"]),
+              f"a number < dt_max = {phys['dt_max']!r}")
+    for name in ("camera_position", "camera_lookat"):
+        if d["dim"] == 2 and d["render"] and d["render"][name] is not None:
+            c.add(f"render.{name}", "only for 3D scenes", _fmt(d["render"][name]),
+                  "no camera keys when dim = 2")
+
+
+def _check_levels(c: _Checker, d: dict) -> None:
+    """Every level named exists; resolve the automatic adaptivity values."""
+    ad, dim = d["adaptivity"], d["dim"]
+    if not ad:
+        return
+    levels = ad["levels"]
+    if levels is not None:
+        if ad["enabled"] and levels < 2:
+            c.add("adaptivity.levels", "too few levels for adaptivity", str(levels),
+                  "an integer >= 2 when adaptivity.enabled = true")
+        named = [(f"emitters.{i}.level", e and e["level"]) for i, e in enumerate(d["emitters"])]
+        named += [(f"criteria.{i}.level", cr and cr["level"]) for i, cr in enumerate(d["criteria"])]
+        named += [("adaptivity.background_level", ad["background_level"])]
+        for key, level in named:
+            if level is not None and level >= levels:
+                c.add(key, "no such level", str(level),
+                      f"an integer < adaptivity.levels = {levels}")
+        # with adaptivity off everything stays at level 0: resolve for one level then
+        used = levels if ad["enabled"] else 1
+        if ad["background_level"] == -1:
+            ad["background_level"] = used - 1
+        part = d["particles"]
+        if ad["band"] == 0.0 and part and _ok(part["spacing"], part["support"]):
+            ad["band"] = 2 * part["support"] * part["spacing"] * 2 ** (used - 1)
+    if ad["merge_min_children"] is not None:
+        if ad["merge_min_children"] > 2 ** dim:
+            c.add("adaptivity.merge_min_children", "more children than a parent has",
+                  str(ad["merge_min_children"]), f"an integer <= 2^dim = {2 ** dim}, or 0")
+        ad["merge_min_children"] = ad["merge_min_children"] or 2 ** dim
+
+
+def _check_sizes(c: _Checker, d: dict) -> None:
+    """The neighbour grid and the particle pool are big enough; resolve capacity 0."""
+    dom, part, fluid, emitters = d["domain"], d["particles"], d["fluid"], d["emitters"]
+    if not (part and _ok(part["spacing"], part["support"])):
+        return
+    s0, h0 = part["spacing"], part["spacing"] * part["support"]
+    if dom and _ok(dom["min"], dom["max"]):
+        cells = math.prod(max(0.0, b - a) / h0 for a, b in zip(dom["min"], dom["max"]))
+        if cells > MAX_GRID_CELLS:
+            c.add("domain", "too large for the neighbour grid",
+                  f"{cells:.3g} cells of size h0 = {h0:g} m",
+                  f"<= {MAX_GRID_CELLS:.0e} cells; raise particles.spacing or shrink the domain")
+    if not (fluid and all(_block_ok(b) for b in fluid["blocks"])) or part["capacity"] is None:
+        return
+    need = _lattice_count(fluid["blocks"], s0)
+    if 0 < part["capacity"] < need:
+        c.add("particles.capacity", "too small for the fluid blocks", str(part["capacity"]),
+              f">= {need}, the lattice points of fluid.blocks; "
+              "raise particles.capacity or use 0 for automatic")
+    elif part["capacity"] == 0 and all(e and None not in e.values() for e in emitters):
+        emitted = _emitted(emitters, s0, d["dim"])
+        part["capacity"] = int(CAPACITY_MARGIN * need + emitted) + CAPACITY_SLACK
+
+
+def _validate(raw, label: str, overridden: list[str]) -> tuple[dict | None, list[str]]:
+    c = _Checker(label, overridden)
+    dim = raw.get("dim") if isinstance(raw, dict) else None
+    dim = dim if dim in (2, 3) and isinstance(dim, int) and not isinstance(dim, bool) else None
+    d = c.table(SCHEMA, raw, "", dim)
+    if d is not None and dim is not None:
+        for check in (_check_places, _check_values, _check_levels, _check_sizes):
+            check(c, d)
+    return d, c.problems
+
+
+# -------------------------------------------------------------------------- overrides
+def _parse_value(text: str):
+    """A --set value as TOML ("0.2", "true", "[1, 2]", '"tait"'); a bare word is a string."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"] if "\n" not in text else text
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def _parse_overrides(overrides) -> tuple[list[tuple[str, Any]], list[str]]:
+    if not overrides:
+        return [], []
+    if isinstance(overrides, dict):
+        return [(k, _parse_value(v) if isinstance(v, str) else v) for k, v in overrides.items()], []
+    pairs, problems = [], []
+    for item in overrides:
+        key, eq, value = item.partition("=")
+        if not eq or not key.strip():
+            problems.append(f"--set {item}: not KEY=VALUE (got {_fmt(item)}; "
+                            "expected for example fluid.viscosity=0.2)")
+        else:
+            pairs.append((key.strip(), _parse_value(value.strip())))
+    return pairs, problems
+
+
+def _apply(raw: dict, key: str, value, problems: list[str]) -> bool:
+    """Set ``raw[key]`` for a dotted key ("fluid.blocks.0.max"), checked against SCHEMA."""
+    node, spec = raw, SCHEMA
+    parts = key.split(".")
+    for n, part in enumerate(parts):
+        last = n == len(parts) - 1
+        if isinstance(spec, Array):
+            if not part.isdigit() or int(part) > len(node):
+                problems.append(f"--set {key}: no such entry (got {part}; expected an index "
+                                f"from 0 to {len(node)}, where {len(node)} adds an entry)")
+                return False
+            index = int(part)
+            if index == len(node):
+                node.append({})
+            if last:
+                node[index] = value
+                return True
+            if not isinstance(node[index], dict):
+                node[index] = {}
+            node, spec = node[index], spec.item
+            continue
+        keys = _all_keys(spec)
+        if part not in keys:
+            problems.append(f"--set {key}: unknown key ({_hint(part, keys)})")
+            return False
+        if last:
+            node[part] = value
+            return True
+        sub = keys[part]
+        if isinstance(sub, Key):
+            problems.append(f"--set {key}: unknown key ({'.'.join(parts[:n + 1])} is a value, "
+                            "not a table)")
+            return False
+        kind = list if isinstance(sub, Array) else dict
+        if not isinstance(node.get(part), kind):
+            node[part] = kind()
+        node, spec = node[part], sub
+    return False
+
+
+# ------------------------------------------------------------------------------ scene
+class Node:
+    """Read-only attribute view of a table of a scene: ``scene.fluid.blocks[0].min``."""
+
+    def __init__(self, data: dict, key: str = ""):
+        self._data, self._key = data, key
+
+    def __getattr__(self, name: str):
+        if name.startswith("_"):
+            raise AttributeError(name)
+        try:
+            return self[name]
+        except KeyError as e:
+            raise AttributeError(e.args[0]) from None
+
+    def __getitem__(self, name: str):
+        if name not in self._data:
+            key = f"{self._key}.{name}" if self._key else name
+            raise KeyError(f"{key}: no such key ({_hint(name, sorted(self._data))})")
+        return _wrap(self._data[name], f"{self._key}.{name}" if self._key else name)
+
+    def __contains__(self, name: str) -> bool:
+        return name in self._data
+
+    def __repr__(self) -> str:
+        return f"Node({self._key!r}: {_fmt(self._data)})"
+
+
+def _wrap(value, key: str):
+    if isinstance(value, dict):
+        return Node(value, key)
+    if isinstance(value, list):
+        return tuple(_wrap(v, f"{key}.{i}") for i, v in enumerate(value))
+    return value
+
+
+class Scene(Node):
+    """A validated scene: ``data`` holds every key, defaults and automatic values filled."""
+
+    def __init__(self, name: str, path: str, data: dict, raw: dict):
+        super().__init__(data)
+        self.name, self.path, self.data, self._raw = name, path, data, raw
+
+    def get(self, dotted: str):
+        """The value at a dotted key ("fluid.viscosity", "fluid.blocks.0.min")."""
+        node = self.data
+        for part in dotted.split("."):
+            if isinstance(node, dict) and part in node:
+                node = node[part]
+            elif isinstance(node, list) and part.isdigit() and int(part) < len(node):
+                node = node[int(part)]
+            else:
+                hint = f" ({_hint(part, sorted(node))})" if isinstance(node, dict) else ""
+                raise KeyError(f"{dotted}: no such key{hint}")
+        return node
+
+    def with_overrides(self, overrides) -> Scene:
+        """A re-validated copy with overrides applied to the scene as written."""
+        return _build(self._raw, self.path, self.name, overrides)
+
+    def estimate_particles(self) -> int:
+        """Lattice points (cell centres at spacing s0) inside all fluid blocks."""
+        return _lattice_count(self.data["fluid"]["blocks"], self.data["particles"]["spacing"])
+
+    def __repr__(self) -> str:
+        return f"Scene({self.name!r}, dim={self.data['dim']}, path={self.path!r})"
+
+
+def _label(path: str) -> str:
+    """How problems name the file: relative to the working directory when inside it."""
+    try:
+        return Path(path).resolve().relative_to(Path.cwd().resolve()).as_posix()
+    except (ValueError, OSError):
+        return path
+
+
+def _build(raw: dict, path: str, name: str, overrides) -> Scene:
+    raw = copy.deepcopy(raw)
+    pairs, problems = _parse_overrides(overrides)
+    applied = [key for key, value in pairs if _apply(raw, key, value, problems)]
+    data, found = _validate(raw, "<dict>" if path == "<dict>" else _label(path), applied)
+    if problems or found:
+        raise SceneError(problems + found)
+    return Scene(name, path, data, raw)
+
+
+def list_scenes() -> list[tuple[str, str]]:
+    """(name, description) of every scene in SCENES_DIR, sorted by name."""
+    scenes = []
+    for path in sorted(SCENES_DIR.glob("*.toml")):
+        try:
+            description = tomllib.loads(path.read_text(encoding="utf-8")).get("description", "")
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
+            description = f"(unreadable: {e})"
+        scenes.append((path.stem, str(description)))
+    return scenes
+
+
+def resolve_scene_path(name_or_path: str | Path) -> Path:
+    """A scene name ("dam_break_2d" -> scenes/dam_break_2d.toml) or an existing file."""
+    text = str(name_or_path)
+    for path in (Path(text), SCENES_DIR / text, SCENES_DIR / f"{text}.toml"):
+        if path.is_file():
+            return path
+    names = [name for name, _ in list_scenes()]
+    close = difflib.get_close_matches(Path(text).stem, names, 1)
+    hint = f", did you mean '{close[0]}'?" if close else ""
+    available = ", ".join(names) or f"none in {SCENES_DIR}"
+    raise SceneError(f"{text}: no such scene or file{hint} (expected a scene name or a path "
+                     f"to a .toml file; available scenes: {available})")
+
+
+def load_scene(source: str | Path | dict, overrides: dict | list[str] | None = None) -> Scene:
+    """Load, override and validate a scene; raise SceneError listing every problem.
+
+    ``source``: a scene name, a path, or a dict shaped like the TOML file. ``overrides``:
+    {"fluid.viscosity": "0.2"} (strings parsed as TOML values) or ["fluid.viscosity=0.2"].
+    """
+    if isinstance(source, dict):
+        return _build(source, "<dict>", "custom", overrides)
+    path = resolve_scene_path(source)
+    label = _label(str(path))
+    try:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as e:
+        raise SceneError(f"{label}: cannot read the file ({e})") from None
+    except tomllib.TOMLDecodeError as e:
+        raise SceneError(f"{label}: invalid TOML: {e}") from None
+    return _build(raw, str(path), path.stem, overrides)

@@ -1,0 +1,146 @@
+"""Dense uniform neighbour grids, one per level, and the counting sort that fills them.
+
+Level l has cells of its support radius h_l = 2^l h0, so a particle's neighbours lie in
+the 3^d cells around its own. The grids of all levels are laid end to end in one cell
+array: a particle's key is ``offset[l] + linear cell index``, and a single counting sort
+(count, serial prefix sum, scatter) reorders the whole pool in cell order each step. The
+sort is linear in the number of particles and cells, keeps particles that are close in
+space close in memory, and compacts the holes left by merges (DEAD sorts last).
+
+The rank of a particle inside its cell is taken by a serial pass, so the order (and
+hence every floating-point sum) is the same from run to run.
+"""
+
+import math
+
+import numpy as np
+import taichi as ti
+
+from .particles import DEAD, ParticlePool
+
+PAD_CELLS = 2  # cells of padding around the domain, so that ±2 cell look-ups never leave the grid
+
+
+@ti.data_oriented
+class LevelGrids:
+    def __init__(self, dim: int, levels: int, domain_min, domain_max, h0: float, capacity: int):
+        self.dim = dim
+        self.levels = levels
+        lo = np.asarray(domain_min, dtype=np.float64)
+        hi = np.asarray(domain_max, dtype=np.float64)
+        self.h = [h0 * 2**l for l in range(levels)]
+        res, offsets, total = [], [], 0
+        for l in range(levels):
+            r = [int(math.ceil((hi[k] - lo[k]) / self.h[l])) + 2 * PAD_CELLS for k in range(dim)]
+            res.append(r)
+            offsets.append(total)
+            total += int(np.prod(r))
+        self.total_cells = total
+        self.res_host = res
+        self.origin = ti.Vector.field(dim, float, shape=levels)
+        self.inv_cell = ti.field(float, shape=levels)
+        self.res = ti.Vector.field(dim, ti.i32, shape=levels)
+        self.offset = ti.field(ti.i32, shape=levels)
+        for l in range(levels):
+            self.origin[l] = (lo - PAD_CELLS * self.h[l]).tolist()
+            self.inv_cell[l] = 1.0 / self.h[l]
+            self.res[l] = res[l]
+            self.offset[l] = offsets[l]
+        # count[c] particles in cell c; the last bucket holds DEAD slots.
+        self.count = ti.field(ti.i32, shape=total + 1)
+        self.start = ti.field(ti.i32, shape=total + 2)
+        self.key = ti.field(ti.i32, shape=capacity)
+        self.rank = ti.field(ti.i32, shape=capacity)
+        self.new_index = ti.field(ti.i32, shape=capacity)
+
+    # --- geometry --------------------------------------------------------------------
+    @ti.func
+    def cell(self, x, l):
+        c = ti.cast(ti.floor((x - self.origin[l]) * self.inv_cell[l]), ti.i32)
+        return ti.max(ti.min(c, self.res[l] - 1), 0)
+
+    @ti.func
+    def cell_id(self, c, l):
+        idx = 0
+        for k in ti.static(range(self.dim)):
+            idx = idx * self.res[l][k] + c[k]
+        return self.offset[l] + idx
+
+    @ti.func
+    def in_grid(self, c, l):
+        ok = True
+        for k in ti.static(range(self.dim)):
+            if c[k] < 0 or c[k] >= self.res[l][k]:
+                ok = False
+        return ok
+
+    # --- counting sort ---------------------------------------------------------------
+    def sort(self, pool: ParticlePool) -> int:
+        """Reorder the pool in cell order, drop DEAD slots, remap links; returns n."""
+        n = pool.count()
+        self._keys(pool, n)
+        self._ranks(n)
+        self._scan()
+        self._scatter(pool, n)
+        self._gather_back(pool, n)
+        return pool.count()
+
+    @ti.kernel
+    def _keys(self, pool: ti.template(), n: ti.i32):
+        for c in self.count:
+            self.count[c] = 0
+        for i in range(n):
+            k = self.total_cells
+            if pool.p[i].kind != DEAD:
+                l = pool.p[i].level
+                k = self.cell_id(self.cell(pool.p[i].x, l), l)
+            self.key[i] = k
+
+    @ti.kernel
+    def _ranks(self, n: ti.i32):
+        ti.loop_config(serialize=True)
+        for i in range(n):
+            k = self.key[i]
+            self.rank[i] = self.count[k]
+            self.count[k] += 1
+
+    @ti.kernel
+    def _scan(self):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            total = 0
+            for c in range(self.total_cells + 1):
+                self.start[c] = total
+                total += self.count[c]
+            self.start[self.total_cells + 1] = total
+
+    @ti.kernel
+    def _scatter(self, pool: ti.template(), n: ti.i32):
+        for i in range(n):
+            j = self.start[self.key[i]] + self.rank[i]
+            self.new_index[i] = j
+            pool.tmp[j] = pool.p[i]
+            for k in ti.static(range(pool.max_children)):
+                pool.tmp_children[j, k] = pool.children[i, k]
+
+    @ti.kernel
+    def _gather_back(self, pool: ti.template(), n: ti.i32):
+        alive = self.start[self.total_cells]
+        for j in range(n):
+            if j < alive:
+                pool.p[j] = pool.tmp[j]
+                par = pool.p[j].parent
+                if par >= 0:
+                    pool.p[j].parent = self.new_index[par]
+                for k in ti.static(range(pool.max_children)):
+                    ch = pool.tmp_children[j, k]
+                    if ch >= 0 and k < pool.p[j].nchild:
+                        ch = self.new_index[ch]
+                    else:
+                        ch = -1
+                    pool.children[j, k] = ch
+            else:
+                pool.p[j].kind = DEAD
+                pool.p[j].parent = -1
+                pool.p[j].nchild = 0
+        pool.n[None] = alive

@@ -1,0 +1,122 @@
+"""Disturbances: the mouse and scripted stirrers, as data plus the kernel that applies them.
+
+A :class:`Disturbance` is what the window (or a scene's ``[[stirrers]]``) hands to the
+solver: a centre, a radius, a strength (a rate, 1/s) and a mode. Inside the radius, with
+weight w = (1 − (r/R)²)², it adds the acceleration
+
+- push: a = strength · w · (u_d − u), driving the fluid toward the disturbance's own
+  velocity u_d (the mouse's drag velocity), so a drag pushes the fluid along the drag;
+- pull: a = strength · w · (strength · (c − x) − u), driving the fluid toward the centre.
+
+Both are relaxations toward a target velocity, stable for strength · dt < 1, which the
+solver's time step respects. The ``disturbance`` refinement criterion refines inside the
+radius of every active disturbance.
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import taichi as ti
+
+MAX_DISTURBANCES = 8   # slot 0 is the mouse's, the others the scene's stirrers
+MOUSE_SLOT = 0
+MODES = ("push", "pull")
+
+
+@dataclass
+class Disturbance:
+    center: tuple
+    radius: float
+    strength: float
+    mode: str = "push"
+    velocity: tuple = field(default=())
+
+    def __post_init__(self):
+        if self.mode not in MODES:
+            raise ValueError(f"Disturbance.mode: expected push or pull (got {self.mode!r})")
+        if self.radius <= 0:
+            raise ValueError(f"Disturbance.radius: expected > 0 (got {self.radius})")
+
+
+def path_sample(path, t: float, loop: bool):
+    """Position and velocity at time t along waypoints [[t, x, y(, z)], ...] (linear)."""
+    pts = np.asarray(path, dtype=np.float64)
+    times, xs = pts[:, 0], pts[:, 1:]
+    if loop and times[-1] > times[0]:
+        t = times[0] + (t - times[0]) % (times[-1] - times[0])
+    if t <= times[0]:
+        return xs[0], np.zeros(xs.shape[1])
+    if t >= times[-1]:
+        return xs[-1], np.zeros(xs.shape[1])
+    k = int(np.searchsorted(times, t, side="right")) - 1
+    a = (t - times[k]) / (times[k + 1] - times[k])
+    vel = (xs[k + 1] - xs[k]) / (times[k + 1] - times[k])
+    return xs[k] + a * (xs[k + 1] - xs[k]), vel
+
+
+@ti.data_oriented
+class Disturbances:
+    """Device-side table of active disturbances."""
+
+    def __init__(self, dim: int):
+        self.dim = dim
+        self.active = ti.field(ti.i32, shape=MAX_DISTURBANCES)
+        self.center = ti.Vector.field(dim, float, shape=MAX_DISTURBANCES)
+        self.velocity = ti.Vector.field(dim, float, shape=MAX_DISTURBANCES)
+        self.radius = ti.field(float, shape=MAX_DISTURBANCES)
+        self.strength = ti.field(float, shape=MAX_DISTURBANCES)
+        self.pull = ti.field(ti.i32, shape=MAX_DISTURBANCES)
+        self._host: list = [None] * MAX_DISTURBANCES
+
+    def set(self, slot: int, d: Disturbance | None) -> None:
+        """Write slot ``slot``; only what changed goes to the device."""
+        if d == self._host[slot]:
+            return
+        self._host[slot] = None if d is None else Disturbance(**d.__dict__)
+        if d is None:
+            self.active[slot] = 0
+            return
+        if len(d.center) != self.dim:
+            raise ValueError(f"Disturbance.center: expected {self.dim} numbers (got {d.center})")
+        vel = d.velocity if len(d.velocity) == self.dim else (0.0,) * self.dim
+        self.center[slot] = list(map(float, d.center))
+        self.velocity[slot] = list(map(float, vel))
+        self.radius[slot] = float(d.radius)
+        self.strength[slot] = float(d.strength)
+        self.pull[slot] = int(d.mode == "pull")
+        self.active[slot] = 1
+
+    def get(self, slot: int) -> Disturbance | None:
+        return self._host[slot]
+
+    def max_strength(self) -> float:
+        return max((d.strength for d in self._host if d is not None), default=0.0)
+
+    def any_active(self) -> bool:
+        return any(d is not None for d in self._host)
+
+    @ti.func
+    def accel(self, x, v):
+        a = ti.Vector.zero(float, self.dim)
+        for s in range(MAX_DISTURBANCES):
+            if self.active[s]:
+                d = x - self.center[s]
+                R = self.radius[s]
+                q2 = d.norm_sqr() / (R * R)
+                if q2 < 1.0:
+                    w = (1.0 - q2) * (1.0 - q2)
+                    k = self.strength[s]
+                    target = self.velocity[s]
+                    if self.pull[s]:
+                        target = -k * d
+                    a += k * w * (target - v)
+        return a
+
+    @ti.func
+    def distance(self, x):
+        """Distance from x to the nearest active disturbance's disc (0 inside), or 1e30."""
+        best = 1e30
+        for s in range(MAX_DISTURBANCES):
+            if self.active[s]:
+                best = ti.min(best, ti.max((x - self.center[s]).norm() - self.radius[s], 0.0))
+        return best

@@ -1,0 +1,381 @@
+"""Adaptive multiresolution: virtual particles, split and merge (METHOD.md §2–6).
+
+Levels: level n has support h_n = 2^n h0, spacing s_n = 2^n s0 and nominal mass
+m_n = 2^(d n) m0, so the density is the same at every level. Particles interact only
+with particles of their own level (``solver.py``); levels are coupled through virtual
+particles:
+
+- a real level-(n+1) particle within h_{n+1} of a real level-n particle is a *transient
+  parent*: it carries 2^d virtual children of level n, placed at the fixed offsets
+  ``(±s_n/2, ±s_n/2[, ±s_n/2])`` around it (the fine lattice inside its coarse cell);
+- a real level-n particle within h_{n+1} of a real level-(n+1) particle is a *transient
+  child*: it is linked to a virtual parent of level n+1 shared by at most 2^d siblings.
+
+So the fine side of an interface sees a full fine neighbourhood (real fine particles and
+the coarse particles' virtual children) and the coarse side a full coarse one. The
+reaction of every real–virtual force goes back to the real particles the virtual one
+stands for (``solver.Simulation._virtual_coupling``), so momentum is conserved.
+
+One adaptivity pass (every ``adaptivity.interval`` steps) walks the level pairs from the
+coarsest down (§5.4), rebuilding the grids between pairs, and for the coarse level c
+(fine level f = c − 1) runs, each as its own kernel:
+
+1. ``_flags``: which real particles of level c have a real level-f particle within h_c
+   (and the converse), and which have a real particle two or more levels finer (those
+   must split: no regular particle may neighbour one two levels away).
+2. ``_release``: groups whose children drifted apart beyond ``release_factor``·h_f, or
+   whose virtual parent no longer has a real level-c neighbour, or one of whose children
+   must split, are released (§5.3).
+3. ``_split``: real level-c particles wanting level ≤ f split (§5.1–2). A transient
+   parent's virtual children become real transient children and the parent becomes
+   their virtual parent; a regular particle gets 2^d new children. Children inherit the
+   velocity; masses are divided by 2^d, which is exact in floating point.
+4. ``_parent_roles``: regular level-c particles near real level-f ones become transient
+   parents (virtual children created); transient parents with no fine neighbour left
+   drop them.
+5. ``_couple_fine``: regular level-f particles near real level-c ones become transient
+   children with a virtual parent of their own (§6).
+6. ``_propose``/``_accept`` (a few rounds): neighbouring virtual parents whose groups fit
+   in 2^d children gather under one (mutual nearest pairs, so the parallel pass has no
+   races) — merging is incremental.
+7. ``_merge``: a virtual parent whose position no longer wants level f (λ > c + η) and
+   whose group has at least ``merge_min_children`` children, none of them carrying
+   virtual children of its own, becomes a real regular level-c particle with the group's
+   total mass, mass-weighted velocity and centre of mass; the children are removed.
+   Virtual parents exist only in the transition layer, so merges happen only there.
+
+Choices left open by the thesis (scene keys, defaults in docs/scenes.md): spring rate of
+the virtual particles' Hooke springs, the sampling pattern above, the hysteresis η, the
+release distance factor, the smallest group that may merge, the gathering distance.
+"""
+
+import itertools
+
+import taichi as ti
+
+from .particles import (DEAD, REGULAR, ROLE_CHILD, ROLE_PARENT, VIRTUAL_CHILD, VIRTUAL_PARENT,
+                        is_real, merge_mass_mean, split_inherited)
+
+# scratch bits in ``flags`` during one level pair of a pass
+NEAR_FINE = 1      # real level-c particle with a real level-f particle within h_c
+NEAR_COARSE = 2    # real level-f particle with a real level-c particle within h_c
+MUST_SPLIT = 4     # real level-c particle with a real particle ≥ 2 levels finer within h_c
+VP_ANCHORED = 8    # virtual parent with a real particle of its own level within its support
+RELEASED = 16      # virtual parent whose group is being released (claimed atomically)
+
+GATHER_ROUNDS = 3  # pairings per pass: 1 → 2 → 4 → 8 children in the best case
+
+COUNTERS = ("splits", "merges", "refused", "released", "gathered")
+
+
+def sampling_offsets(dim: int):
+    """Offsets of the 2^d virtual children in units of the child level's spacing."""
+    return [[b - 0.5 for b in bits] for bits in itertools.product((0, 1), repeat=dim)]
+
+
+@ti.data_oriented
+class Multires:
+    def __init__(self, sim):
+        self.sim = sim
+        self.dim = sim.dim
+        self.pool = sim.pool
+        self.g = sim.grids
+        self.levels = sim.levels
+        self.nmax = 2 ** self.dim
+        a = sim.scene["adaptivity"]
+        self.hysteresis = float(a["hysteresis"])
+        self.release_factor = float(a["release_factor"])
+        self.merge_min = int(a["merge_min_children"]) or self.nmax
+        self.gather_factor = float(a["gather_factor"])
+        self.offsets = ti.Vector.field(self.dim, float, shape=self.nmax)
+        for k, o in enumerate(sampling_offsets(self.dim)):
+            self.offsets[k] = o
+        self.counters = ti.field(ti.i32, shape=len(COUNTERS))
+        self.partner = ti.field(ti.i32, shape=self.pool.capacity)
+
+    # ------------------------------------------------------------------ host driver
+    def adapt(self) -> None:
+        """One adaptivity pass over every level pair, coarsest first."""
+        sim = self.sim
+        sim.criteria.update(sim.time)
+        for c in range(self.levels - 1, 0, -1):
+            self.g.sort(self.pool)
+            n = self.pool.count()
+            self._wanted(n)
+            self._flags(n, c)
+            self._release(n, c)
+            self._unlink_splitters(n, c)
+            self._split(n, c)
+            self._parent_roles(n, c)
+            self._couple_fine(n, c)
+            for _ in range(GATHER_ROUNDS):
+                self._propose(n, c)
+                self._accept(n, c)
+            self._merge(n, c)
+            self.pool.settle()
+
+    def take_counters(self) -> dict:
+        vals = self.counters.to_numpy()
+        self.counters.fill(0)
+        return {k: int(v) for k, v in zip(COUNTERS, vals)}
+
+    # ------------------------------------------------------------------ helpers
+    @ti.func
+    def _h(self, l):
+        return self.sim.lev_h[l]
+
+    @ti.func
+    def _release_group(self, vp):
+        """Turn the children of virtual parent ``vp`` back into regular particles; vp dies."""
+        p = ti.static(self.pool.p)
+        for k in range(p[vp].nchild):
+            ch = self.pool.children[vp, k]
+            p[ch].kind = p[ch].kind & ~ROLE_CHILD
+            p[ch].parent = -1
+            self.pool.children[vp, k] = -1
+        p[vp].nchild = 0
+        p[vp].kind = DEAD
+        ti.atomic_add(self.counters[3], 1)
+
+    @ti.func
+    def _kill_virtual_children(self, i):
+        p = ti.static(self.pool.p)
+        for k in range(p[i].nchild):
+            ch = self.pool.children[i, k]
+            p[ch].kind = DEAD
+            p[ch].parent = -1
+            self.pool.children[i, k] = -1
+        p[i].nchild = 0
+        p[i].kind = p[i].kind & ~ROLE_PARENT
+
+    # ------------------------------------------------------------------ kernels
+    @ti.kernel
+    def _wanted(self, n: ti.i32):
+        for i in range(n):
+            if self.pool.p[i].kind != DEAD:
+                self.pool.p[i].lam = self.sim.criteria.wanted(
+                    self.pool.p[i].x, self.sim.boundary, self.sim.disturbances)
+
+    @ti.kernel
+    def _flags(self, n: ti.i32, c: ti.i32):
+        p = ti.static(self.pool.p)
+        for i in range(n):
+            p[i].flags = 0
+        hc = self._h(c)
+        for i in range(n):
+            ki = p[i].kind
+            li = p[i].level
+            if (is_real(ki) and li < c) or (ki == VIRTUAL_PARENT and li == c):
+                xi = p[i].x
+                base = self.g.cell(xi, c)
+                for off in ti.static(ti.grouped(ti.ndrange(*((-1, 2),) * self.dim))):
+                    cid = self.g.cell_id(base + off, c)
+                    for j in range(self.g.start[cid], self.g.start[cid + 1]):
+                        if is_real(p[j].kind) and (xi - p[j].x).norm_sqr() < hc * hc:
+                            if ki == VIRTUAL_PARENT:
+                                ti.atomic_or(p[i].flags, VP_ANCHORED)
+                            elif li == c - 1:
+                                ti.atomic_or(p[i].flags, NEAR_COARSE)
+                                ti.atomic_or(p[j].flags, NEAR_FINE)
+                            else:
+                                ti.atomic_or(p[j].flags, MUST_SPLIT)
+
+    @ti.kernel
+    def _release(self, n: ti.i32, c: ti.i32):
+        p = ti.static(self.pool.p)
+        f = c - 1
+        limit = self.release_factor * self._h(f)
+        for i in range(n):
+            if p[i].kind == VIRTUAL_PARENT and p[i].level == c:
+                release = (p[i].flags & VP_ANCHORED) == 0
+                spread = 0.0
+                for a in range(p[i].nchild):
+                    ca = self.pool.children[i, a]
+                    if p[ca].lam < f - self.hysteresis:
+                        release = True
+                    for b in range(a + 1, p[i].nchild):
+                        cb = self.pool.children[i, b]
+                        spread = ti.max(spread, (p[ca].x - p[cb].x).norm())
+                if spread > limit:
+                    release = True
+                if release:
+                    self._release_group(i)
+
+    @ti.kernel
+    def _unlink_splitters(self, n: ti.i32, c: ti.i32):
+        """A level-c transient child that must split first leaves its group (§5.3)."""
+        p = ti.static(self.pool.p)
+        for i in range(n):
+            k = p[i].kind
+            if is_real(k) and p[i].level == c and (k & ROLE_CHILD) != 0:
+                if p[i].lam < c - self.hysteresis or (p[i].flags & MUST_SPLIT) != 0:
+                    vp = p[i].parent
+                    if (ti.atomic_or(p[vp].flags, RELEASED) & RELEASED) == 0:
+                        self._release_group(vp)
+
+    @ti.kernel
+    def _split(self, n: ti.i32, c: ti.i32):
+        p = ti.static(self.pool.p)
+        f = c - 1
+        s_f = self.sim.lev_s[f]
+        for i in range(n):
+            k = p[i].kind
+            if is_real(k) and p[i].level == c and (k & ROLE_CHILD) == 0:
+                if p[i].lam < c - self.hysteresis or (p[i].flags & MUST_SPLIT) != 0:
+                    ok = True
+                    if k == REGULAR:
+                        base = self.pool.claim(self.nmax)
+                        if base < 0:
+                            ok = False
+                        else:
+                            for q in range(self.nmax):
+                                ch = base + q
+                                self._spawn_child(i, ch, q, f, s_f)
+                                self.pool.children[i, q] = ch
+                            p[i].nchild = self.nmax
+                    if ok:
+                        # (transient parent: its virtual children become real)
+                        for q in range(self.nmax):
+                            ch = self.pool.children[i, q]
+                            p[ch].kind = ROLE_CHILD
+                            p[ch].parent = i
+                            p[ch].v = p[i].v
+                        p[i].kind = VIRTUAL_PARENT
+                        ti.atomic_add(self.counters[0], 1)
+
+    @ti.func
+    def _spawn_child(self, i, ch, q, f, s_f):
+        """Write child slot ``ch`` of particle i at sampling offset q (kind set by caller)."""
+        p = ti.static(self.pool.p)
+        for name in ti.static(split_inherited()):
+            getattr(p, name)[ch] = getattr(p, name)[i]
+        p[ch].m = p[i].m / self.nmax
+        p[ch].x = self.sim.boundary_clamp(p[i].x + self.offsets[q] * s_f)
+        p[ch].a = ti.Vector.zero(float, self.dim)
+        p[ch].level = f
+        p[ch].slot = q
+        p[ch].nchild = 0
+        p[ch].flags = 0
+        p[ch].parent = i
+        p[ch].kind = VIRTUAL_CHILD
+
+    @ti.kernel
+    def _parent_roles(self, n: ti.i32, c: ti.i32):
+        p = ti.static(self.pool.p)
+        f = c - 1
+        s_f = self.sim.lev_s[f]
+        for i in range(n):
+            k = p[i].kind
+            if is_real(k) and p[i].level == c:
+                near = (p[i].flags & NEAR_FINE) != 0
+                if near and (k & ROLE_PARENT) == 0:
+                    base = self.pool.claim(self.nmax)
+                    if base >= 0:
+                        for q in range(self.nmax):
+                            self._spawn_child(i, base + q, q, f, s_f)
+                            self.pool.children[i, q] = base + q
+                        p[i].nchild = self.nmax
+                        p[i].kind = k | ROLE_PARENT
+                elif not near and (k & ROLE_PARENT) != 0:
+                    self._kill_virtual_children(i)
+
+    @ti.kernel
+    def _couple_fine(self, n: ti.i32, c: ti.i32):
+        p = ti.static(self.pool.p)
+        for i in range(n):
+            k = p[i].kind
+            if is_real(k) and p[i].level == c - 1 and (k & ROLE_CHILD) == 0 \
+                    and (p[i].flags & NEAR_COARSE) != 0:
+                vp = self.pool.claim(1)
+                if vp >= 0:
+                    for name in ti.static(split_inherited()):
+                        getattr(p, name)[vp] = getattr(p, name)[i]
+                    p[vp].x = p[i].x
+                    p[vp].m = p[i].m
+                    p[vp].a = ti.Vector.zero(float, self.dim)
+                    p[vp].level = c
+                    p[vp].flags = 0
+                    p[vp].slot = 0
+                    p[vp].parent = -1
+                    p[vp].nchild = 1
+                    self.pool.children[vp, 0] = i
+                    p[vp].kind = VIRTUAL_PARENT
+                    p[i].parent = vp
+                    p[i].kind = k | ROLE_CHILD
+
+    @ti.kernel
+    def _propose(self, n: ti.i32, c: ti.i32):
+        p = ti.static(self.pool.p)
+        reach = self.gather_factor * self.sim.lev_s[c]
+        for i in range(n):
+            self.partner[i] = -1
+            if p[i].kind == VIRTUAL_PARENT and p[i].level == c and p[i].nchild < self.nmax:
+                xi = p[i].x
+                best, best_d2 = -1, reach * reach
+                base = self.g.cell(xi, c)
+                for off in ti.static(ti.grouped(ti.ndrange(*((-1, 2),) * self.dim))):
+                    cid = self.g.cell_id(base + off, c)
+                    for j in range(self.g.start[cid], self.g.start[cid + 1]):
+                        if j != i and p[j].kind == VIRTUAL_PARENT and \
+                                p[i].nchild + p[j].nchild <= self.nmax:
+                            d2 = (xi - p[j].x).norm_sqr()
+                            if d2 < best_d2 or (d2 == best_d2 and j < best):
+                                best, best_d2 = j, d2
+                self.partner[i] = best
+
+    @ti.kernel
+    def _accept(self, n: ti.i32, c: ti.i32):
+        p = ti.static(self.pool.p)
+        for i in range(n):
+            j = self.partner[i]
+            if j > i and self.partner[j] == i:
+                ni, nj = p[i].nchild, p[j].nchild
+                for q in range(nj):
+                    ch = self.pool.children[j, q]
+                    self.pool.children[i, ni + q] = ch
+                    self.pool.children[j, q] = -1
+                    p[ch].parent = i
+                mi, mj = p[i].m, p[j].m
+                p[i].x = (mi * p[i].x + mj * p[j].x) / (mi + mj)
+                p[i].v = (mi * p[i].v + mj * p[j].v) / (mi + mj)
+                p[i].m = mi + mj
+                p[i].nchild = ni + nj
+                p[j].nchild = 0
+                p[j].kind = DEAD
+                ti.atomic_add(self.counters[4], 1)
+
+    @ti.kernel
+    def _merge(self, n: ti.i32, c: ti.i32):
+        p = ti.static(self.pool.p)
+        for i in range(n):
+            if p[i].kind == VIRTUAL_PARENT and p[i].level == c and p[i].nchild >= self.merge_min \
+                    and p[i].lam > c + self.hysteresis:
+                ok = True
+                for q in range(p[i].nchild):
+                    if (p[self.pool.children[i, q]].kind & ROLE_PARENT) != 0:
+                        ok = False
+                if ok:
+                    mass = 0.0
+                    com = ti.Vector.zero(float, self.dim)
+                    for q in range(p[i].nchild):
+                        mass += p[self.pool.children[i, q]].m
+                    for q in range(p[i].nchild):
+                        ch = self.pool.children[i, q]
+                        com += p[ch].m * p[ch].x
+                    for name in ti.static(merge_mass_mean()):
+                        acc = getattr(p, name)[i] * 0.0
+                        for q in range(p[i].nchild):
+                            ch = self.pool.children[i, q]
+                            acc += p[ch].m * getattr(p, name)[ch]
+                        getattr(p, name)[i] = acc / mass
+                    for q in range(p[i].nchild):
+                        ch = self.pool.children[i, q]
+                        p[ch].kind = DEAD
+                        p[ch].parent = -1
+                        self.pool.children[i, q] = -1
+                    p[i].m = mass
+                    p[i].x = com / mass
+                    p[i].nchild = 0
+                    p[i].parent = -1
+                    p[i].kind = REGULAR
+                    ti.atomic_add(self.counters[1], 1)

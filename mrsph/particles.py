@@ -1,0 +1,141 @@
+"""Particle storage: one registry of per-particle attributes and a fixed-capacity pool.
+
+Real and virtual particles of every level live in one pool (a Taichi struct field in
+SoA layout) so that one neighbour grid, one density kernel and one sort serve them all.
+Slots ``[0, n)`` are in use; a slot whose kind is ``DEAD`` is a hole left by a merge or a
+removal until the next sort compacts the pool. New particles claim slots atomically from
+``n``; a claim that would pass the capacity is refused, counted and reported on the host.
+"""
+
+from dataclasses import dataclass
+
+import taichi as ti
+
+# Kind codes (also written to dumps; documented in the README).
+REGULAR = 0           # real, no virtual partner
+TRANSIENT_PARENT = 1  # real level n+1 particle carrying 2^d virtual children of level n
+TRANSIENT_CHILD = 2   # real level n particle linked to a virtual parent of level n+1
+TRANSIENT_BOTH = 3    # real, both of the above at once (a thin band between three levels)
+VIRTUAL_CHILD = 4     # virtual level n particle owned by a transient parent
+VIRTUAL_PARENT = 5    # virtual level n+1 particle standing for up to 2^d transient children
+DEAD = -1             # free slot, removed by the next sort
+
+KIND_NAMES = {REGULAR: "regular", TRANSIENT_PARENT: "transient parent",
+              TRANSIENT_CHILD: "transient child", TRANSIENT_BOTH: "transient parent+child",
+              VIRTUAL_CHILD: "virtual child", VIRTUAL_PARENT: "virtual parent"}
+
+# Bits of the real kinds: a real particle may hold either transient role or both.
+ROLE_PARENT = 1
+ROLE_CHILD = 2
+
+
+@dataclass(frozen=True)
+class Attribute:
+    """One per-particle attribute and what each particle event does with it.
+
+    on_split: "inherit" (child copies the parent), "divide" (parent value / 2^d),
+              "own" (set by the event itself: positions, links).
+    on_merge: "mass_mean" (mass-weighted mean of the group), "sum", "own".
+    A sort copies every attribute; links (``parent``, children) are remapped.
+    """
+    name: str
+    shape: str          # "vector" (dim floats), "float", "int"
+    unit: str
+    doc: str
+    on_split: str = "inherit"
+    on_merge: str = "mass_mean"
+
+
+ATTRIBUTES = (
+    Attribute("x", "vector", "m", "position", on_split="own", on_merge="mass_mean"),
+    Attribute("v", "vector", "m/s", "velocity (virtual: interpolated from its level)"),
+    Attribute("a", "vector", "m/s²", "acceleration of the current step", "own", "own"),
+    Attribute("m", "float", "kg", "mass", on_split="divide", on_merge="sum"),
+    Attribute("rho", "float", "kg/m³", "density (Eq. 7, own level only)"),
+    Attribute("p", "float", "Pa", "pressure from the equation of state"),
+    Attribute("lam", "float", "level", "wanted level from the refinement criteria"),
+    Attribute("level", "int", "", "resolution level, 0 = finest", "own", "own"),
+    Attribute("kind", "int", "", "kind code (REGULAR … VIRTUAL_PARENT, DEAD)", "own", "own"),
+    Attribute("parent", "int", "", "transient child → its virtual parent; "
+              "virtual child → its transient parent; else -1", "own", "own"),
+    Attribute("slot", "int", "", "virtual child: index of its sampling offset", "own", "own"),
+    Attribute("nchild", "int", "", "transient parent / virtual parent: children count", "own", "own"),
+    Attribute("flags", "int", "", "scratch bits of the adaptivity pass", "own", "own"),
+)
+
+
+def attribute(name: str) -> Attribute:
+    for a in ATTRIBUTES:
+        if a.name == name:
+            return a
+    raise KeyError(name)
+
+
+def split_inherited() -> list[str]:
+    return [a.name for a in ATTRIBUTES if a.on_split == "inherit"]
+
+
+def merge_mass_mean() -> list[str]:
+    return [a.name for a in ATTRIBUTES if a.on_merge == "mass_mean" and a.name != "x"]
+
+
+@ti.func
+def is_real(kind):
+    return 0 <= kind <= TRANSIENT_BOTH
+
+
+@ti.func
+def is_virtual(kind):
+    return kind >= VIRTUAL_CHILD
+
+
+@ti.data_oriented
+class ParticlePool:
+    """Fixed-capacity particle storage with an active count and overflow accounting."""
+
+    def __init__(self, dim: int, capacity: int):
+        self.dim = dim
+        self.capacity = capacity
+        self.max_children = 2 ** dim
+        vec = ti.types.vector(dim, float)
+        members = {}
+        for a in ATTRIBUTES:
+            members[a.name] = vec if a.shape == "vector" else (ti.i32 if a.shape == "int" else float)
+        self.record = ti.types.struct(**members)
+        self.p = self.record.field(shape=capacity, layout=ti.Layout.SOA)
+        self.tmp = self.record.field(shape=capacity, layout=ti.Layout.SOA)
+        self.children = ti.field(ti.i32, shape=(capacity, self.max_children))
+        self.tmp_children = ti.field(ti.i32, shape=(capacity, self.max_children))
+        self.n = ti.field(ti.i32, shape=())          # slots in use, holes included
+        self.refused = ti.field(ti.i32, shape=())    # claims refused for lack of capacity
+        self.clear()
+
+    @ti.kernel
+    def clear(self):
+        for i in range(self.capacity):
+            self.p[i].kind = DEAD
+            self.p[i].parent = -1
+            self.p[i].nchild = 0
+        self.n[None] = 0
+
+    @ti.func
+    def claim(self, count):
+        """Claim ``count`` consecutive slots; returns the first, or -1 if they do not fit.
+
+        A refused claim leaves its slots DEAD (every slot past ``n`` is DEAD), so the
+        host only has to clamp ``n`` after the kernel (:meth:`settle`).
+        """
+        base = ti.atomic_add(self.n[None], count)
+        result = base
+        if base + count > self.capacity:
+            ti.atomic_add(self.refused[None], 1)
+            result = -1
+        return result
+
+    @ti.kernel
+    def settle(self):
+        if self.n[None] > self.capacity:
+            self.n[None] = self.capacity
+
+    def count(self) -> int:
+        return int(self.n[None])

@@ -1,0 +1,618 @@
+"""The SPH solver: ``Simulation.step()`` reads like METHOD.md.
+
+    emit → adapt (criteria, split/merge) → neighbour grids → density → forces
+         → virtual coupling → accelerations and time step → advect virtual → integrate
+         → boundaries
+
+Each phase is one or a few Taichi kernels and can be timed on its own
+(``Simulation(…, profile=True)``, used by ``python main.py bench``).
+
+Physics (METHOD.md §1, thesis ch. 3): density by poly6 over same-level particles (self
+included, Eq. 7); pressure from the equation of state (``eos.py``); the symmetric pressure
+force F_i = −m_i Σ_j m_j (p_i/ρ_i² + p_j/ρ_j²) ∇W_spiky (Eq. 16, times the volume m_i/ρ_i)
+and the symmetrised viscosity force F_i = μ m_i Σ_j m_j (u_j − u_i)/(ρ_i ρ_j) ∇²W_visc
+(Eq. 19); gravity and disturbances as accelerations (Eq. 22–23); symplectic Euler; a time
+step from the CFL condition dt ≤ λ h/(c + |u|) and the force condition
+dt ≤ λ_f sqrt(h/|a|), each particle with its own level's h.
+"""
+
+import math
+import time as _time
+from dataclasses import dataclass, field
+
+import numpy as np
+import taichi as ti
+
+from . import runtime
+from .boundary import Boundary
+from .criteria import Criteria
+from .eos import pressure, sound_speed
+from .grid import LevelGrids
+from .interaction import MOUSE_SLOT, Disturbance, Disturbances, path_sample
+from .kernels import constants, lattice_density_sum, poly6, spiky_grad, visc_lap
+from .particles import (DEAD, REGULAR, ROLE_CHILD, ROLE_PARENT, VIRTUAL_CHILD, VIRTUAL_PARENT,
+                        ParticlePool, is_real, is_virtual)
+
+PHASES = ("emit", "adapt", "grid", "density", "forces", "virtual_coupling", "timestep",
+          "virtual_advect", "integrate", "boundaries")
+
+
+class SimulationError(RuntimeError):
+    """The simulation cannot go on (NaN, a time step below dt_min, a full pool at start)."""
+
+
+@dataclass
+class Snapshot:
+    dim: int
+    levels: int
+    time: float
+    frame: int
+    x: np.ndarray
+    v: np.ndarray
+    m: np.ndarray
+    rho: np.ndarray
+    level: np.ndarray
+    kind: np.ndarray
+    radius: np.ndarray
+    domain_min: np.ndarray
+    domain_max: np.ndarray
+    obstacles: list
+    stats: dict = field(default_factory=dict)
+
+
+def _as_scene(scene):
+    from .config import Scene, load_scene
+    if isinstance(scene, Scene):
+        return scene
+    return load_scene(scene)
+
+
+@ti.data_oriented
+class Simulation:
+    """One fluid scene on one Taichi arch. See the README for a usage example."""
+
+    def __init__(self, scene, arch: str = "cpu", profile: bool = False, threads: int | None = None):
+        self.scene = _as_scene(scene)
+        s = self.scene.data
+        self.arch_name = runtime.ensure(arch, s["particles"]["precision"], threads)
+        self.dim = int(s["dim"])
+        self.adaptive = bool(s["adaptivity"]["enabled"])
+        self.levels = int(s["adaptivity"]["levels"]) if self.adaptive else 1
+        self.profile = profile
+        self.timers = {k: 0.0 for k in PHASES}
+        self._build()
+        self.reset()
+
+    # ================================================================== set-up
+    def _build(self):
+        s = self.scene.data
+        d, L = self.dim, self.levels
+        part, fl, ph = s["particles"], s["fluid"], s["physics"]
+        self.s0 = float(part["spacing"])
+        self.h0 = float(part["support"]) * self.s0
+        self.rest_density = float(fl["rest_density"])
+        self.m0 = self.rest_density / lattice_density_sum(self.s0, self.h0, d)
+        self.capacity = int(part["capacity"])
+        self.eos = fl["eos"]
+        self.tait = self.eos == "tait"
+        self.clamp = bool(fl["clamp_negative_pressure"])
+        self.gamma = float(fl["gamma"])
+
+        self.pool = ParticlePool(d, self.capacity)
+        self.grids = LevelGrids(d, L, s["domain"]["min"], s["domain"]["max"], self.h0, self.capacity)
+        self.boundary = Boundary(d, s["domain"]["min"], s["domain"]["max"], s["obstacles"],
+                                 s["domain"]["restitution"], s["domain"]["friction"])
+        self.disturbances = Disturbances(d)
+        a = s["adaptivity"]
+        band = float(a["band"]) or 2.0 * self.h0 * 2 ** (L - 1)
+        background = float(a["background_level"]) if a["background_level"] >= 0 else L - 1
+        self.criteria = Criteria(d, s["criteria"] if self.adaptive else [], band,
+                                 min(background, L - 1))
+
+        # per-level constants (no powers in the inner loops)
+        self.lev_h = ti.field(float, shape=L)
+        self.lev_s = ti.field(float, shape=L)
+        self.lev_m = ti.field(float, shape=L)
+        self.lev_poly6 = ti.field(float, shape=L)
+        self.lev_spiky = ti.field(float, shape=L)
+        self.lev_visc = ti.field(float, shape=L)
+        for l in range(L):
+            h = self.h0 * 2**l
+            c = constants(h, d)
+            self.lev_h[l], self.lev_s[l] = h, self.s0 * 2**l
+            self.lev_m[l] = self.m0 * 2 ** (d * l)
+            self.lev_poly6[l], self.lev_spiky[l], self.lev_visc[l] = c["poly6"], c["spiky"], c["visc"]
+
+        # live-tunable parameters (fields, so that changing them does not recompile)
+        self.k = ti.field(float, shape=())
+        self.mu = ti.field(float, shape=())
+        self.gravity = ti.Vector.field(d, float, shape=())
+        self.spring_rate = ti.field(float, shape=())
+        self.k[None] = float(fl["stiffness"])
+        self.mu[None] = float(fl["viscosity"])
+        self.gravity[None] = list(map(float, ph["gravity"]))
+        self.spring_rate[None] = float(a["spring_rate"])
+
+        # reductions of the time-step phase: [max (c+|u|)/h, max |a|/h, bad count, first bad]
+        self.red_f = ti.field(float, shape=2)
+        self.red_i = ti.field(ti.i32, shape=2)
+
+        from .multires import Multires
+        self.multires = Multires(self) if self.adaptive else None
+
+    # ================================================================== state
+    def reset(self) -> None:
+        """Back to t = 0: seed the fluid blocks, refine where the criteria ask."""
+        s = self.scene.data
+        self.pool.clear()
+        self.pool.refused[None] = 0
+        self.time = 0.0
+        self.frame = 0
+        self.steps = 0
+        self.dt = float(s["physics"]["dt_max"])
+        self._events = {"splits": 0, "merges": 0, "refused": 0, "released": 0, "gathered": 0}
+        self._emit_acc = [0.0] * len(s["emitters"])
+        self._refusal_warned = False
+        self.warnings: list[str] = []
+        seed_level = self.levels - 1
+        for b in s["fluid"]["blocks"]:
+            xs = self._lattice(b["min"], b["max"], self.s0 * 2**seed_level)
+            self._append(xs, np.tile(np.asarray(b["velocity"], np.float64), (len(xs), 1)), seed_level)
+        self._stirrers(0.0)
+        if self.adaptive:
+            for _ in range(self.levels):
+                self.multires.adapt()
+            self.multires.take_counters()
+        self.grids.sort(self.pool)
+        if self.pool.refused[None] > 0:
+            raise SimulationError(
+                f"{self.scene.path}: particles.capacity = {self.capacity} is too small for the "
+                f"initial fluid ({self.pool.refused[None]} claims refused); raise it or set 0 for automatic")
+        self._snapshot_mass = None
+
+    @staticmethod
+    def _lattice(lo, hi, spacing):
+        """Cell centres of a lattice of the given spacing filling the box [lo, hi]."""
+        lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+        counts = np.floor((hi - lo) / spacing + 1e-9).astype(int)
+        axes = [lo[k] + (np.arange(counts[k]) + 0.5) * spacing for k in range(len(lo))]
+        return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, len(lo))
+
+    def _append(self, xs: np.ndarray, vs: np.ndarray, level: int) -> int:
+        """Append regular particles of one level; returns how many fitted."""
+        if len(xs) == 0:
+            return 0
+        n0 = self.pool.count()
+        room = self.capacity - n0
+        take = min(room, len(xs))
+        if take < len(xs):
+            self.pool.refused[None] += len(xs) - take
+        if take > 0:
+            self._append_kernel(np.ascontiguousarray(xs[:take], dtype=np.float64),
+                                np.ascontiguousarray(vs[:take], dtype=np.float64), level, n0)
+        return take
+
+    @ti.kernel
+    def _append_kernel(self, xs: ti.types.ndarray(), vs: ti.types.ndarray(), level: ti.i32, n0: ti.i32):
+        m = self.lev_m[level]
+        for r in range(xs.shape[0]):
+            i = n0 + r
+            xv = ti.Vector.zero(float, self.dim)
+            vv = ti.Vector.zero(float, self.dim)
+            for k in ti.static(range(self.dim)):
+                xv[k] = xs[r, k]
+                vv[k] = vs[r, k]
+            p = ti.static(self.pool.p)
+            p[i].x = xv
+            p[i].v = vv
+            p[i].a = ti.Vector.zero(float, self.dim)
+            p[i].m = m
+            p[i].rho = self.rest_density
+            p[i].p = 0.0
+            p[i].lam = 0.0
+            p[i].level = level
+            p[i].parent = -1
+            p[i].slot = 0
+            p[i].nchild = 0
+            p[i].flags = 0
+            p[i].kind = REGULAR
+        self.pool.n[None] = n0 + xs.shape[0]
+
+    # ================================================================== the step
+    def _phase(self, name, fn, *args):
+        if not self.profile:
+            return fn(*args)
+        ti.sync()
+        t0 = _time.perf_counter()
+        out = fn(*args)
+        ti.sync()
+        self.timers[name] += _time.perf_counter() - t0
+        return out
+
+    def step(self, max_dt: float | None = None) -> float:
+        """Advance by one time step (METHOD.md §1); returns the dt taken."""
+        self._phase("emit", self._emit)
+        if self.adaptive and self.steps % int(self.scene.data["adaptivity"]["interval"]) == 0:
+            self._phase("adapt", self._adapt)
+        n = self._phase("grid", self.grids.sort, self.pool)
+        self._phase("density", self._density, n)
+        self._phase("forces", self._forces, n)
+        if self.adaptive:
+            self._phase("virtual_coupling", self._virtual_coupling, n)
+        dt = self._phase("timestep", self._timestep, n, max_dt)
+        if self.adaptive:
+            self._phase("virtual_advect", self._advect_virtual, n, dt)
+        self._phase("integrate", self._integrate, n, dt)
+        self._phase("boundaries", self._boundaries, n)
+        self.time += dt
+        self.steps += 1
+        self.dt = dt
+        self._stirrers(self.time)
+        return dt
+
+    def advance(self, seconds: float) -> int:
+        """Advance by ``seconds`` of simulated time, ending exactly on it; returns steps."""
+        end = self.time + seconds
+        steps = 0
+        while self.time < end - 1e-12:
+            self.step(max_dt=end - self.time)
+            steps += 1
+        self.time = end
+        return steps
+
+    def advance_frame(self) -> int:
+        """Advance by one frame (1/fps simulated seconds)."""
+        steps = self.advance(1.0 / float(self.scene.data["run"]["fps"]))
+        self.frame += 1
+        return steps
+
+    # ------------------------------------------------------------------ emit / adapt
+    def _emit(self):
+        for e_idx, e in enumerate(self.scene.data["emitters"]):
+            if not (e["start"] <= self.time < e["stop"]):
+                continue
+            vel = np.asarray(e["velocity"], np.float64)
+            speed = float(np.linalg.norm(vel))
+            level = min(int(e["level"]), self.levels - 1)
+            s = self.s0 * 2**level
+            self._emit_acc[e_idx] += speed * self.dt
+            while self._emit_acc[e_idx] >= s:
+                self._emit_acc[e_idx] -= s
+                xs = self._emitter_layer(e, s, vel / speed, self._emit_acc[e_idx])
+                took = self._append(xs, np.tile(vel, (len(xs), 1)), level)
+                if took < len(xs):
+                    self._warn_refused()
+
+    def _emitter_layer(self, e, s, normal, advance):
+        """Lattice points of the emitting disc (segment in 2D), moved ``advance`` along it."""
+        r = float(e["radius"])
+        # an orthonormal basis of the disc's plane
+        basis = np.linalg.svd(normal.reshape(1, -1))[2][1:]
+        n = int(math.floor(r / s))
+        ticks = (np.arange(-n, n + 1)) * s
+        pts = np.stack(np.meshgrid(*([ticks] * (self.dim - 1)), indexing="ij"), -1).reshape(-1, self.dim - 1)
+        pts = pts[np.linalg.norm(pts, axis=1) <= r + 1e-9]
+        return np.asarray(e["center"], np.float64) + pts @ basis + advance * normal
+
+    def _adapt(self):
+        self.multires.adapt()
+        ev = self.multires.take_counters()
+        for k, v in ev.items():
+            self._events[k] += v
+        if self.pool.refused[None] > 0:
+            self._warn_refused()
+
+    def _warn_refused(self):
+        if not self._refusal_warned:
+            self._refusal_warned = True
+            import warnings
+            msg = (f"particle pool full (particles.capacity = {self.capacity}): splits/emission "
+                   f"refused and counted in stats (refused); the simulation goes on coarser")
+            self.warnings.append(msg)
+            warnings.warn(msg, RuntimeWarning, stacklevel=3)
+
+    def _stirrers(self, t):
+        for i, st in enumerate(self.scene.data["stirrers"][: 7]):
+            pos, vel = path_sample(st["path"], t, st["loop"])
+            self.disturbances.set(1 + i, Disturbance(tuple(pos), st["radius"], st["strength"],
+                                                     st["mode"], tuple(vel)))
+
+    # ------------------------------------------------------------------ kernels
+    @ti.func
+    def boundary_clamp(self, x):
+        xc, _v = self.boundary.collide(x, ti.Vector.zero(float, self.dim))
+        return xc
+
+    @ti.kernel
+    def _density(self, n: ti.i32):
+        p = ti.static(self.pool.p)
+        rho0, k, gamma = self.rest_density, self.k[None], self.gamma
+        for i in range(n):
+            if p[i].kind != DEAD:
+                l = p[i].level
+                h = self.lev_h[l]
+                h2 = h * h
+                c6 = self.lev_poly6[l]
+                xi = p[i].x
+                rho = 0.0
+                base = self.grids.cell(xi, l)
+                for off in ti.static(ti.grouped(ti.ndrange(*((-1, 2),) * self.dim))):
+                    cid = self.grids.cell_id(base + off, l)
+                    for j in range(self.grids.start[cid], self.grids.start[cid + 1]):
+                        r2 = (xi - p[j].x).norm_sqr()
+                        if r2 < h2 and p[j].kind != DEAD:
+                            rho += p[j].m * poly6(r2, h2, c6)
+                # the solid side of a nearby wall counts as fluid at rest density
+                wall_vol, _g = self.boundary.wall_terms(xi, h)
+                rho += rho0 * wall_vol
+                p[i].rho = rho
+                p[i].p = pressure(rho, rho0, k, gamma, self.tait, self.clamp)
+
+    @ti.func
+    def _pair_force(self, i, j, r, rn, h, cs, cv, mu):
+        """Force on i from j (pressure Eq. 16 + viscosity Eq. 19, times i's volume)."""
+        p = ti.static(self.pool.p)
+        mi, mj = p[i].m, p[j].m
+        ri, rj = p[i].rho, p[j].rho
+        fp = -mi * mj * (p[i].p / (ri * ri) + p[j].p / (rj * rj)) * spiky_grad(r, rn, h, cs)
+        fv = (mu * mi * mj * visc_lap(rn, h, cv) / (ri * rj)) * (p[j].v - p[i].v)
+        return fp + fv
+
+    @ti.kernel
+    def _forces(self, n: ti.i32):
+        """Internal forces on real particles from every same-level neighbour, real or virtual."""
+        p = ti.static(self.pool.p)
+        mu = self.mu[None]
+        for i in range(n):
+            f = ti.Vector.zero(float, self.dim)
+            if is_real(p[i].kind):
+                l = p[i].level
+                h = self.lev_h[l]
+                cs, cv = self.lev_spiky[l], self.lev_visc[l]
+                xi = p[i].x
+                base = self.grids.cell(xi, l)
+                for off in ti.static(ti.grouped(ti.ndrange(*((-1, 2),) * self.dim))):
+                    cid = self.grids.cell_id(base + off, l)
+                    for j in range(self.grids.start[cid], self.grids.start[cid + 1]):
+                        r = xi - p[j].x
+                        r2 = r.norm_sqr()
+                        if 0.0 < r2 < h * h and p[j].kind != DEAD:
+                            f += self._pair_force(i, j, r, ti.sqrt(r2), h, cs, cv, mu)
+                # walls push back like a mirrored fluid at the particle's own pressure
+                _v, wall_grad = self.boundary.wall_terms(xi, h)
+                pi, ri = p[i].p, p[i].rho
+                f += p[i].m * self.rest_density * (pi / (ri * ri) + pi / (self.rest_density * self.rest_density)) * wall_grad
+            p[i].a = f
+
+    @ti.kernel
+    def _virtual_coupling(self, n: ti.i32):
+        """Hand the reaction of each real–virtual force to the real particles the virtual one
+        stands for, split evenly (METHOD.md §4, thesis Fig. 7), and interpolate the
+        virtual particle's velocity from the real particles of its level."""
+        p = ti.static(self.pool.p)
+        mu = self.mu[None]
+        for j in range(n):
+            kj = p[j].kind
+            if is_virtual(kj):
+                l = p[j].level
+                h = self.lev_h[l]
+                h2 = h * h
+                cs, cv, c6 = self.lev_spiky[l], self.lev_visc[l], self.lev_poly6[l]
+                xj = p[j].x
+                reaction = ti.Vector.zero(float, self.dim)
+                vsum = ti.Vector.zero(float, self.dim)
+                wsum = 0.0
+                base = self.grids.cell(xj, l)
+                for off in ti.static(ti.grouped(ti.ndrange(*((-1, 2),) * self.dim))):
+                    cid = self.grids.cell_id(base + off, l)
+                    for i in range(self.grids.start[cid], self.grids.start[cid + 1]):
+                        r = p[i].x - xj
+                        r2 = r.norm_sqr()
+                        if r2 < h2 and is_real(p[i].kind):
+                            if r2 > 0.0:
+                                reaction -= self._pair_force(i, j, r, ti.sqrt(r2), h, cs, cv, mu)
+                            w = p[i].m / p[i].rho * poly6(r2, h2, c6)
+                            vsum += w * p[i].v
+                            wsum += w
+                if kj == VIRTUAL_CHILD:
+                    ti.atomic_add(p[p[j].parent].a, reaction)
+                else:
+                    share = reaction / ti.max(p[j].nchild, 1)
+                    for q in range(p[j].nchild):
+                        ti.atomic_add(p[self.pool.children[j, q]].a, share)
+                # passive advection velocity (the springs are added in _advect_virtual)
+                if wsum > 0.0:
+                    p[j].v = vsum / wsum
+                elif kj == VIRTUAL_CHILD:
+                    p[j].v = p[p[j].parent].v
+                else:
+                    vm = ti.Vector.zero(float, self.dim)
+                    for q in range(p[j].nchild):
+                        vm += p[self.pool.children[j, q]].v
+                    p[j].v = vm / ti.max(p[j].nchild, 1)
+
+    @ti.kernel
+    def _accelerations(self, n: ti.i32, c_sound: float):
+        """a = F/m + g + disturbances; reduce the CFL and force limits; find NaN/Inf."""
+        p = ti.static(self.pool.p)
+        g = self.gravity[None]
+        self.red_f[0] = 0.0
+        self.red_f[1] = 0.0
+        self.red_i[0] = 0
+        self.red_i[1] = 2147483647
+        for i in range(n):
+            if is_real(p[i].kind):
+                acc = p[i].a / p[i].m + g + self.disturbances.accel(p[i].x, p[i].v)
+                p[i].a = acc
+                h = self.lev_h[p[i].level]
+                speed = p[i].v.norm()
+                an = acc.norm()
+                bad = not (ti.abs(speed) < 1e30 and ti.abs(an) < 1e30) or speed != speed or an != an
+                if bad:
+                    ti.atomic_add(self.red_i[0], 1)
+                    ti.atomic_min(self.red_i[1], i)
+                else:
+                    ti.atomic_max(self.red_f[0], (c_sound + speed) / h)
+                    ti.atomic_max(self.red_f[1], an / h)
+
+    def _timestep(self, n: int, max_dt: float | None) -> float:
+        ph = self.scene.data["physics"]
+        self._accelerations(n, sound_speed(self.k[None], self.eos))
+        if self.red_i[0] > 0:
+            self._report_bad(int(self.red_i[1]), int(self.red_i[0]))
+        cfl_lim, force_lim = float(self.red_f[0]), float(self.red_f[1])
+        dt = float(ph["dt_max"])
+        if cfl_lim > 0:
+            dt = min(dt, float(ph["cfl"]) / cfl_lim)
+        if force_lim > 0:
+            dt = min(dt, float(ph["force_factor"]) / math.sqrt(force_lim))
+        strength = self.disturbances.max_strength()
+        if strength > 0:
+            dt = min(dt, 0.5 / strength)   # the disturbance relaxation stays stable
+        if dt < float(ph["dt_min"]):
+            raise SimulationError(
+                f"step {self.steps} (t = {self.time:.6g} s): time step {dt:.3g} s is below "
+                f"physics.dt_min = {ph['dt_min']:g} s (max |a|·/h = {force_lim:.3g}); the fluid "
+                f"is blowing up: lower the disturbance strength or raise fluid.stiffness")
+        if max_dt is not None and max_dt < dt:
+            dt = max_dt
+        return dt
+
+    def _report_bad(self, i: int, count: int):
+        x = self.pool.p.x[i].to_numpy() if hasattr(self.pool.p.x[i], "to_numpy") else self.pool.p.x[i]
+        raise SimulationError(
+            f"step {self.steps} (t = {self.time:.6g} s): {count} particle(s) with NaN/Inf "
+            f"velocity or acceleration; first: particle {i}, level {int(self.pool.p.level[i])}, "
+            f"kind {int(self.pool.p.kind[i])}, x = {np.round(np.asarray(x, float), 4).tolist()}")
+
+    @ti.kernel
+    def _advect_virtual(self, n: ti.i32, dt: float):
+        """Virtual particles follow their level's flow, tied by Hooke springs (Eq. 24):
+        a virtual child to its transient parent at its sampling offset (rest length half
+        the level spacing per axis), a virtual parent to its children's barycentre (rest
+        length zero). The springs act on virtual particles only."""
+        p = ti.static(self.pool.p)
+        kappa = ti.min(self.spring_rate[None], 1.0 / dt)
+        for j in range(n):
+            kj = p[j].kind
+            if is_virtual(kj):
+                anchor = p[j].x
+                if kj == VIRTUAL_CHILD:
+                    par = p[j].parent
+                    anchor = p[par].x + self.multires.offsets[p[j].slot] * self.lev_s[p[j].level]
+                else:
+                    mass = 0.0
+                    acc = ti.Vector.zero(float, self.dim)
+                    for q in range(p[j].nchild):
+                        ch = self.pool.children[j, q]
+                        acc += p[ch].m * p[ch].x
+                        mass += p[ch].m
+                    if mass > 0.0:
+                        anchor = acc / mass
+                v = p[j].v + kappa * (anchor - p[j].x)
+                x, v = self.boundary.collide(p[j].x + dt * v, v)
+                p[j].x = x
+
+    @ti.kernel
+    def _integrate(self, n: ti.i32, dt: float):
+        """Symplectic Euler: u += dt a, then x += dt u."""
+        p = ti.static(self.pool.p)
+        for i in range(n):
+            if is_real(p[i].kind):
+                v = p[i].v + dt * p[i].a
+                p[i].v = v
+                p[i].x += dt * v
+
+    @ti.kernel
+    def _boundaries(self, n: ti.i32):
+        p = ti.static(self.pool.p)
+        for i in range(n):
+            if is_real(p[i].kind):
+                x, v = self.boundary.collide(p[i].x, p[i].v)
+                p[i].x = x
+                p[i].v = v
+
+    # ================================================================== reading out
+    def particles(self, virtual: bool = True) -> dict:
+        """Alive particles as numpy arrays: x, v, m, rho, p, level, kind (and parent)."""
+        n = self.pool.count()
+        p = ti.static(self.pool.p)
+        out = {"x": p.x.to_numpy()[:n], "v": p.v.to_numpy()[:n], "m": p.m.to_numpy()[:n],
+               "rho": p.rho.to_numpy()[:n], "p": p.p.to_numpy()[:n],
+               "level": p.level.to_numpy()[:n], "kind": p.kind.to_numpy()[:n],
+               "parent": p.parent.to_numpy()[:n], "nchild": p.nchild.to_numpy()[:n],
+               "lam": p.lam.to_numpy()[:n]}
+        keep = out["kind"] != DEAD
+        if not virtual:
+            keep &= out["kind"] < VIRTUAL_CHILD
+        if not keep.all():
+            out = {k: v[keep] for k, v in out.items()}
+        return out
+
+    def children(self) -> np.ndarray:
+        n = self.pool.count()
+        return self.pool.children.to_numpy()[:n]
+
+    def stats(self, parts: dict | None = None) -> dict:
+        """The stats row (the columns of stats.csv); events count since the last call."""
+        parts = parts if parts is not None else self.particles()
+        real = parts["kind"] < VIRTUAL_CHILD
+        m = parts["m"][real].astype(np.float64)
+        v = parts["v"][real].astype(np.float64)
+        mom = (m[:, None] * v).sum(axis=0) if len(m) else np.zeros(self.dim)
+        row = {"frame": self.frame, "time": self.time, "dt": self.dt,
+               "n_real": int(real.sum()), "n_virtual": int((~real).sum()),
+               "total_mass": math.fsum(m.tolist())}
+        for k, ax in enumerate("xyz"[: self.dim]):
+            row[f"momentum_{ax}"] = float(mom[k])
+        row["kinetic_energy"] = float(0.5 * (m * (v * v).sum(axis=1)).sum())
+        rho = parts["rho"][real]
+        row["max_density_ratio"] = float(rho.max() / self.rest_density) if len(rho) else 0.0
+        lv = parts["level"]
+        for l in range(self.levels):
+            row[f"n_level_{l}"] = int(((lv == l) & real).sum())
+        for l in range(self.levels):
+            row[f"n_virtual_level_{l}"] = int(((lv == l) & ~real).sum())
+        row["n_transient"] = int((real & (parts["kind"] > REGULAR)).sum())
+        row["splits"] = self._events["splits"]
+        row["merges"] = self._events["merges"]
+        row["refused"] = int(self.pool.refused[None])
+        for k in self._events:
+            self._events[k] = 0
+        return row
+
+    def snapshot(self, stats: bool = True) -> Snapshot:
+        parts = self.particles()
+        s = self.scene.data
+        return Snapshot(
+            dim=self.dim, levels=self.levels, time=self.time, frame=self.frame,
+            x=parts["x"].astype(np.float32), v=parts["v"].astype(np.float32),
+            m=parts["m"], rho=parts["rho"], level=parts["level"], kind=parts["kind"],
+            radius=np.array([0.5 * self.s0 * 2**l for l in range(self.levels)]),
+            domain_min=np.asarray(s["domain"]["min"], float), domain_max=np.asarray(s["domain"]["max"], float),
+            obstacles=[dict(o) for o in s["obstacles"]],
+            stats=self.stats(parts) if stats else {})
+
+    # ================================================================== interaction
+    def set_disturbance(self, d: Disturbance | None) -> None:
+        self.disturbances.set(MOUSE_SLOT, d)
+
+    LIVE_KEYS = ("fluid.viscosity", "fluid.stiffness", "physics.gravity", "adaptivity.spring_rate")
+
+    def set_param(self, key: str, value) -> None:
+        """Change a parameter while running (validated like the scene file)."""
+        if key == "adaptivity.enabled":
+            raise ValueError("adaptivity.enabled: changes the particle levels; rebuild the "
+                             "Simulation with scene.with_overrides({...}) instead")
+        if key not in self.LIVE_KEYS:
+            raise ValueError(f"{key}: not live-tunable (expected one of {', '.join(self.LIVE_KEYS)})")
+        self.scene = self.scene.with_overrides({key: value})
+        v = self.scene.get(key)
+        if key == "fluid.viscosity":
+            self.mu[None] = float(v)
+        elif key == "fluid.stiffness":
+            self.k[None] = float(v)
+        elif key == "physics.gravity":
+            self.gravity[None] = list(map(float, v))
+        else:
+            self.spring_rate[None] = float(v)
