@@ -10,37 +10,8 @@ size or spacing, so the same response holds at every resolution level.
 import numpy as np
 import taichi as ti
 
-from .kernels import constants
 
 MAX_SHAPES = 32   # obstacles of each shape; plenty for hand-written scenes
-TABLE_SIZE = 128  # samples of the wall integrals over q = distance / h in [0, 1]
-
-
-def wall_tables(dim: int, size: int = TABLE_SIZE, res: int = 800):
-    """Half-space integrals of the kernels for a wall at distance q·h (h = 1).
-
-    vol[q]  = ∫_{y < −q} W_poly6 dV: the share of a particle's density that the solid
-              would supply if it were fluid at rest density (no density deficit at walls);
-    grad[q] = ∫_{y < −q} |∂W_spiky/∂y| dV: the matching pressure-gradient integral.
-    Both are dimensionless functions of q alone, so the same wall acts the same way on
-    every resolution level (the wall integrals scale as h⁰ and h⁻¹ respectively).
-    """
-    c = constants(1.0, dim)
-    # (x, y) quadrature over the lower half of the unit disc; in 3D x is the radius of a
-    # ring of circumference 2πx around the y axis.
-    xs = (np.arange(res) + 0.5) / res * (1.0 if dim == 3 else 2.0) - (0.0 if dim == 3 else 1.0)
-    ys = -(np.arange(res) + 0.5) / res
-    X, Y = np.meshgrid(xs, ys, indexing="ij")
-    R = np.sqrt(X * X + Y * Y)
-    dA = (xs[1] - xs[0]) * (ys[0] - ys[1])
-    weight = dA * (2.0 * np.pi * X if dim == 3 else np.ones_like(X))
-    inside = R < 1.0
-    w_poly6 = np.where(inside, c["poly6"] * (1.0 - R * R) ** 3, 0.0) * weight
-    dw = np.where(inside, 3.0 * c["spiky"] * (1.0 - R) ** 2 * np.abs(Y) / np.maximum(R, 1e-12), 0.0) * weight
-    qs = np.linspace(0.0, 1.0, size)
-    vol = np.array([w_poly6[Y < -q].sum() for q in qs])
-    grad = np.array([dw[Y < -q].sum() for q in qs])
-    return vol, grad
 
 
 @ti.data_oriented
@@ -67,18 +38,6 @@ class Boundary:
         for i, s in enumerate(spheres):
             self.sph_c[i] = list(map(float, s["center"]))
             self.sph_r[i] = float(s["radius"])
-        vol, grad = wall_tables(dim)
-        self.wall_vol = ti.field(float, shape=TABLE_SIZE)
-        self.wall_grad = ti.field(float, shape=TABLE_SIZE)
-        self.wall_vol.from_numpy(vol)
-        self.wall_grad.from_numpy(grad.astype(vol.dtype))
-
-    @ti.func
-    def _table(self, table: ti.template(), q):
-        t = ti.min(ti.max(q, 0.0), 1.0) * (TABLE_SIZE - 1)
-        k = ti.min(ti.cast(t, ti.i32), TABLE_SIZE - 2)
-        a = t - k
-        return (1.0 - a) * table[k] + a * table[k + 1]
 
     @ti.func
     def nearest_surface(self, x):
@@ -99,22 +58,39 @@ class Boundary:
             normal = n
         return best, normal
 
-    @ti.func
-    def wall_terms(self, x, h):
-        """(share of rest density supplied by the solid, wall-gradient integral · normal / h).
+    # --- ghost particles ------------------------------------------------------------
+    # A particle within h of a wall sees, besides its neighbours, their mirror images
+    # across that wall (Colagrossi & Landrini 2003): the solid behaves like fluid mirrored
+    # across its surface, a lattice at a flat wall sits exactly at rest density, and the
+    # pressure balance at the wall is that of the discrete fluid itself. Images are taken
+    # from the particle's own level, so walls act the same at every resolution level.
+    # Domain walls: one image per non-empty set of nearby walls (so a corner gets the
+    # doubly reflected one too); obstacles: one image across the tangent plane at the
+    # nearest surface point.
 
-        Only the nearest surface counts: summing two walls would count the solid quadrant
-        of a corner twice, and an over-estimated density pushes fluid out of corners,
-        whereas an under-estimate only lets corner particles sit slightly closer.
-        """
-        vol = 0.0
-        grad = ti.Vector.zero(float, self.dim)
-        d, n = self.nearest_surface(x)
-        if d < h:
-            q = ti.max(d, 0.0) / h
-            vol = self._table(self.wall_vol, q)
-            grad = self._table(self.wall_grad, q) / h * n
-        return vol, grad
+    @ti.func
+    def domain_image(self, x, h, mask: ti.template()):
+        """(valid, mirrored x, linear part as ±1 per axis) for the set of axes ``mask``."""
+        valid = True
+        xr = x
+        sign = ti.Vector.one(float, self.dim)
+        for k in ti.static(range(self.dim)):
+            if ti.static((mask >> k) & 1):
+                if x[k] - self.lo[k] < h:
+                    xr[k] = 2.0 * self.lo[k] - x[k]
+                    sign[k] = -1.0
+                elif self.hi[k] - x[k] < h:
+                    xr[k] = 2.0 * self.hi[k] - x[k]
+                    sign[k] = -1.0
+                else:
+                    valid = False
+        return valid, xr, sign
+
+    @ti.func
+    def obstacle_image(self, x, h):
+        """(valid, mirrored x, unit normal) across the nearest obstacle's tangent plane."""
+        phi, n = self.obstacle_sdf(x)
+        return phi < h, x - 2.0 * phi * n, n
 
     @ti.func
     def obstacle_sdf(self, x):

@@ -33,6 +33,14 @@ from .kernels import constants, lattice_density_sum, poly6, spiky_grad, visc_lap
 from .particles import (DEAD, REGULAR, ROLE_CHILD, ROLE_PARENT, VIRTUAL_CHILD, VIRTUAL_PARENT,
                         ParticlePool, is_real, is_virtual)
 
+# A pair of real particles i (level n) and P (level n+1) on either side of an interface
+# interacts twice: at level n through P's virtual children (reaction to P), and at level
+# n+1 through i's virtual parent (reaction to i). Both channels are antisymmetric, so
+# momentum is conserved either way, but at full weight each side would be pushed by the
+# other's pressure twice, which pumps energy into the interface. Each channel therefore
+# carries half of the interaction.
+CROSS_LEVEL_SHARE = 0.5
+
 PHASES = ("emit", "adapt", "grid", "density", "forces", "virtual_coupling", "timestep",
           "virtual_advect", "integrate", "boundaries")
 
@@ -323,8 +331,24 @@ class Simulation:
         xc, _v = self.boundary.collide(x, ti.Vector.zero(float, self.dim))
         return xc
 
+    @ti.func
+    def _density_sum(self, xq, l, h2, c6):
+        """Σ_j m_j W_poly6(xq − x_j) over level l (real and virtual), for xq a particle's
+        position or one of its wall images."""
+        p = ti.static(self.pool.p)
+        rho = 0.0
+        base = self.grids.cell(xq, l)
+        for off in ti.static(ti.grouped(ti.ndrange(*((-1, 2),) * self.dim))):
+            cid = self.grids.cell_id(base + off, l)
+            for j in range(self.grids.start[cid], self.grids.start[cid + 1]):
+                r2 = (xq - p[j].x).norm_sqr()
+                if r2 < h2 and p[j].kind != DEAD:
+                    rho += p[j].m * poly6(r2, h2, c6)
+        return rho
+
     @ti.kernel
     def _density(self, n: ti.i32):
+        """ρ_i = Σ_j m_j W(x_i − x_j, h_l) over the own level (Eq. 7), walls as ghosts."""
         p = ti.static(self.pool.p)
         rho0, k, gamma = self.rest_density, self.k[None], self.gamma
         for i in range(n):
@@ -334,29 +358,50 @@ class Simulation:
                 h2 = h * h
                 c6 = self.lev_poly6[l]
                 xi = p[i].x
-                rho = 0.0
-                base = self.grids.cell(xi, l)
-                for off in ti.static(ti.grouped(ti.ndrange(*((-1, 2),) * self.dim))):
-                    cid = self.grids.cell_id(base + off, l)
-                    for j in range(self.grids.start[cid], self.grids.start[cid + 1]):
-                        r2 = (xi - p[j].x).norm_sqr()
-                        if r2 < h2 and p[j].kind != DEAD:
-                            rho += p[j].m * poly6(r2, h2, c6)
-                # the solid side of a nearby wall counts as fluid at rest density
-                wall_vol, _g = self.boundary.wall_terms(xi, h)
-                rho += rho0 * wall_vol
+                rho = self._density_sum(xi, l, h2, c6)
+                for mask in ti.static(range(1, 2 ** self.dim)):
+                    ok, xr, _s = self.boundary.domain_image(xi, h, mask)
+                    if ok:
+                        rho += self._density_sum(xr, l, h2, c6)
+                ok, xo, _n = self.boundary.obstacle_image(xi, h)
+                if ok:
+                    rho += self._density_sum(xo, l, h2, c6)
                 p[i].rho = rho
                 p[i].p = pressure(rho, rho0, k, gamma, self.tait, self.clamp)
 
     @ti.func
-    def _pair_force(self, i, j, r, rn, h, cs, cv, mu):
-        """Force on i from j (pressure Eq. 16 + viscosity Eq. 19, times i's volume)."""
+    def _ghost_force(self, i, xq, L, l, h, cs, cv, mu):
+        """Force on i from the mirror images of its level's particles: xq is i's image and
+        L the reflection's linear part, so x_i − x_j' = L (xq − x_j) and u_j' = L u_j."""
         p = ti.static(self.pool.p)
-        mi, mj = p[i].m, p[j].m
-        ri, rj = p[i].rho, p[j].rho
-        fp = -mi * mj * (p[i].p / (ri * ri) + p[j].p / (rj * rj)) * spiky_grad(r, rn, h, cs)
-        fv = (mu * mi * mj * visc_lap(rn, h, cv) / (ri * rj)) * (p[j].v - p[i].v)
+        f = ti.Vector.zero(float, self.dim)
+        base = self.grids.cell(xq, l)
+        for off in ti.static(ti.grouped(ti.ndrange(*((-1, 2),) * self.dim))):
+            cid = self.grids.cell_id(base + off, l)
+            for j in range(self.grids.start[cid], self.grids.start[cid + 1]):
+                rq = xq - p[j].x
+                r2 = rq.norm_sqr()
+                if 0.0 < r2 < h * h and p[j].kind != DEAD:
+                    fij = self._pair_force_values(
+                        p[i].m, p[i].rho, p[i].p, p[i].v, p[j].m, p[j].rho, p[j].p, L @ p[j].v,
+                        L @ rq, ti.sqrt(r2), h, cs, cv, mu)
+                    if is_virtual(p[j].kind):
+                        fij *= CROSS_LEVEL_SHARE
+                    f += fij
+        return f
+
+    @ti.func
+    def _pair_force_values(self, mi, ri, pi, vi, mj, rj, pj, vj, r, rn, h, cs, cv, mu):
+        """Force on i from j: pressure (Eq. 16) and viscosity (Eq. 19), times i's volume."""
+        fp = -mi * mj * (pi / (ri * ri) + pj / (rj * rj)) * spiky_grad(r, rn, h, cs)
+        fv = (mu * mi * mj * visc_lap(rn, h, cv) / (ri * rj)) * (vj - vi)
         return fp + fv
+
+    @ti.func
+    def _pair_force(self, i, j, r, rn, h, cs, cv, mu):
+        p = ti.static(self.pool.p)
+        return self._pair_force_values(p[i].m, p[i].rho, p[i].p, p[i].v,
+                                       p[j].m, p[j].rho, p[j].p, p[j].v, r, rn, h, cs, cv, mu)
 
     @ti.kernel
     def _forces(self, n: ti.i32):
@@ -377,11 +422,22 @@ class Simulation:
                         r = xi - p[j].x
                         r2 = r.norm_sqr()
                         if 0.0 < r2 < h * h and p[j].kind != DEAD:
-                            f += self._pair_force(i, j, r, ti.sqrt(r2), h, cs, cv, mu)
-                # walls push back like a mirrored fluid at the particle's own pressure
-                _v, wall_grad = self.boundary.wall_terms(xi, h)
-                pi, ri = p[i].p, p[i].rho
-                f += p[i].m * self.rest_density * (pi / (ri * ri) + pi / (self.rest_density * self.rest_density)) * wall_grad
+                            fij = self._pair_force(i, j, r, ti.sqrt(r2), h, cs, cv, mu)
+                            if is_virtual(p[j].kind):
+                                fij *= CROSS_LEVEL_SHARE
+                            f += fij
+                # walls: forces from the mirror images of the neighbours (boundary.py)
+                for mask in ti.static(range(1, 2 ** self.dim)):
+                    ok, xr, sgn = self.boundary.domain_image(xi, h, mask)
+                    if ok:
+                        Ld = ti.Matrix.zero(float, self.dim, self.dim)
+                        for k in ti.static(range(self.dim)):
+                            Ld[k, k] = sgn[k]
+                        f += self._ghost_force(i, xr, Ld, l, h, cs, cv, mu)
+                ok, xo, nrm = self.boundary.obstacle_image(xi, h)
+                if ok:
+                    Lo = ti.Matrix.identity(float, self.dim) - 2.0 * nrm.outer_product(nrm)
+                    f += self._ghost_force(i, xo, Lo, l, h, cs, cv, mu)
             p[i].a = f
 
     @ti.kernel
@@ -410,7 +466,7 @@ class Simulation:
                         r2 = r.norm_sqr()
                         if r2 < h2 and is_real(p[i].kind):
                             if r2 > 0.0:
-                                reaction -= self._pair_force(i, j, r, ti.sqrt(r2), h, cs, cv, mu)
+                                reaction -= CROSS_LEVEL_SHARE * self._pair_force(i, j, r, ti.sqrt(r2), h, cs, cv, mu)
                             w = p[i].m / p[i].rho * poly6(r2, h2, c6)
                             vsum += w * p[i].v
                             wsum += w
