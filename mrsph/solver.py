@@ -33,13 +33,32 @@ from .kernels import constants, lattice_density_sum, poly6, spiky_grad, visc_lap
 from .particles import (DEAD, REGULAR, ROLE_CHILD, ROLE_PARENT, VIRTUAL_CHILD, VIRTUAL_PARENT,
                         ParticlePool, is_real, is_virtual)
 
-# A pair of real particles i (level n) and P (level n+1) on either side of an interface
-# interacts twice: at level n through P's virtual children (reaction to P), and at level
-# n+1 through i's virtual parent (reaction to i). Both channels are antisymmetric, so
-# momentum is conserved either way, but at full weight each side would be pushed by the
-# other's pressure twice, which pumps energy into the interface. Each channel therefore
-# carries half of the interaction.
-CROSS_LEVEL_SHARE = 0.5
+# Each pair of real particles on either side of a level interface must interact exactly
+# once. A fine particle i and a coarse particle P could meet twice: at the fine level
+# through P's virtual children (reaction to P) and at the coarse level through i's
+# virtual parent (reaction to i). Counting both pushes the two sides apart with an extra
+# pressure·area at every interface, which pumps energy into the flow. So the pair
+# interacts at the finer level whenever P carries virtual children (the fine particle
+# then sees a complete fine neighbourhood, as in uniform SPH), and through the virtual
+# parent only when P has none. Virtual parents always give the coarse side its density.
+
+
+# A transient parent's virtual children lie within sqrt(d)/2 fine spacings of it and reach
+# one fine support beyond; measured with a uniform-pressure probe (no gravity, a refined
+# box inside a block), factors >= 1.2 leave transient children balanced to 0.1 % of
+# p/(rho s), smaller ones double-count groups near the parent. 1.5 keeps a margin.
+REACH_FACTOR = 1.5
+
+
+@ti.func
+def interacts(kind_i, kind_j, r2, reach2):
+    """Does real particle i take a force from same-level particle j at squared distance r2?
+
+    Virtual parents are skipped by a transient parent when they lie within ``reach2`` of
+    it, since that pair already meets at the finer level through its virtual children.
+    """
+    return kind_j != VIRTUAL_PARENT or (kind_i & ROLE_PARENT) == 0 or r2 >= reach2
+
 
 PHASES = ("emit", "adapt", "grid", "density", "forces", "virtual_coupling", "timestep",
           "virtual_advect", "integrate", "boundaries")
@@ -124,12 +143,18 @@ class Simulation:
         self.lev_poly6 = ti.field(float, shape=L)
         self.lev_spiky = ti.field(float, shape=L)
         self.lev_visc = ti.field(float, shape=L)
+        # squared distance within which a transient parent of level l meets a virtual
+        # parent's children through its own virtual children (see ``interacts``)
+        self.lev_reach2 = ti.field(float, shape=L)
         for l in range(L):
             h = self.h0 * 2**l
             c = constants(h, d)
             self.lev_h[l], self.lev_s[l] = h, self.s0 * 2**l
             self.lev_m[l] = self.m0 * 2 ** (d * l)
             self.lev_poly6[l], self.lev_spiky[l], self.lev_visc[l] = c["poly6"], c["spiky"], c["visc"]
+            if l > 0:
+                fine_h, fine_s = self.h0 * 2 ** (l - 1), self.s0 * 2 ** (l - 1)
+                self.lev_reach2[l] = (REACH_FACTOR * (fine_h + 0.5 * math.sqrt(d) * fine_s)) ** 2
 
         # live-tunable parameters (fields, so that changing them does not recompile)
         self.k = ti.field(float, shape=())
@@ -381,13 +406,10 @@ class Simulation:
             for j in range(self.grids.start[cid], self.grids.start[cid + 1]):
                 rq = xq - p[j].x
                 r2 = rq.norm_sqr()
-                if 0.0 < r2 < h * h and p[j].kind != DEAD:
-                    fij = self._pair_force_values(
+                if 0.0 < r2 < h * h and p[j].kind != DEAD and interacts(p[i].kind, p[j].kind, r2, self.lev_reach2[l]):
+                    f += self._pair_force_values(
                         p[i].m, p[i].rho, p[i].p, p[i].v, p[j].m, p[j].rho, p[j].p, L @ p[j].v,
                         L @ rq, ti.sqrt(r2), h, cs, cv, mu)
-                    if is_virtual(p[j].kind):
-                        fij *= CROSS_LEVEL_SHARE
-                    f += fij
         return f
 
     @ti.func
@@ -414,6 +436,7 @@ class Simulation:
                 l = p[i].level
                 h = self.lev_h[l]
                 cs, cv = self.lev_spiky[l], self.lev_visc[l]
+                reach2 = self.lev_reach2[l]
                 xi = p[i].x
                 base = self.grids.cell(xi, l)
                 for off in ti.static(ti.grouped(ti.ndrange(*((-1, 2),) * self.dim))):
@@ -422,10 +445,8 @@ class Simulation:
                         r = xi - p[j].x
                         r2 = r.norm_sqr()
                         if 0.0 < r2 < h * h and p[j].kind != DEAD:
-                            fij = self._pair_force(i, j, r, ti.sqrt(r2), h, cs, cv, mu)
-                            if is_virtual(p[j].kind):
-                                fij *= CROSS_LEVEL_SHARE
-                            f += fij
+                            if interacts(p[i].kind, p[j].kind, r2, reach2):
+                                f += self._pair_force(i, j, r, ti.sqrt(r2), h, cs, cv, mu)
                 # walls: forces from the mirror images of the neighbours (boundary.py)
                 for mask in ti.static(range(1, 2 ** self.dim)):
                     ok, xr, sgn = self.boundary.domain_image(xi, h, mask)
@@ -454,6 +475,7 @@ class Simulation:
                 h = self.lev_h[l]
                 h2 = h * h
                 cs, cv, c6 = self.lev_spiky[l], self.lev_visc[l], self.lev_poly6[l]
+                reach2 = self.lev_reach2[l]
                 xj = p[j].x
                 reaction = ti.Vector.zero(float, self.dim)
                 vsum = ti.Vector.zero(float, self.dim)
@@ -465,8 +487,8 @@ class Simulation:
                         r = p[i].x - xj
                         r2 = r.norm_sqr()
                         if r2 < h2 and is_real(p[i].kind):
-                            if r2 > 0.0:
-                                reaction -= CROSS_LEVEL_SHARE * self._pair_force(i, j, r, ti.sqrt(r2), h, cs, cv, mu)
+                            if r2 > 0.0 and interacts(p[i].kind, kj, r2, reach2):
+                                reaction -= self._pair_force(i, j, r, ti.sqrt(r2), h, cs, cv, mu)
                             w = p[i].m / p[i].rho * poly6(r2, h2, c6)
                             vsum += w * p[i].v
                             wsum += w
