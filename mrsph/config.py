@@ -148,8 +148,9 @@ SCHEMA = Table(required=True, keys={
                           "thresholds, in level units"),
         "band": Key("float", 0.0, ">= 0", "m", "width of the distance band per level; "
                     "0 = automatic: 2 h_(L-1), twice the coarsest support radius"),
-        "spring_rate": Key("float", 50.0, ">= 0", "1/s", "stiffness per unit mass of the "
-                           "springs holding virtual particles"),
+        "spring_rate": Key("float", 5000.0, ">= 0", "1/s", "rate at which the Hooke springs "
+                           "return virtual particles to their anchors (capped at 1/dt, which "
+                           "pins them); loose springs let the interface drift and gain energy"),
         "release_factor": Key("float", 1.0, "[0.5, 2]", doc="siblings are released when "
                               "their largest distance exceeds release_factor * h_n"),
         "merge_min_children": Key("int", 0, ">= 0", doc="least group size that merges; "
