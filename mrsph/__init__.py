@@ -1,0 +1,45 @@
+"""mrsph: adaptive-resolution SPH fluids in Taichi.
+
+The Python API, without importing Taichi until it is used::
+
+    import mrsph
+    scene = mrsph.load_scene("dam_break_2d", {"fluid.viscosity": "1.5"})
+    sim = mrsph.Simulation(scene, arch="cpu")
+    for _ in range(10):
+        sim.advance_frame()
+    print(sim.stats())
+
+``load_scene``, ``Scene``, ``SceneError`` and ``list_scenes`` come from
+:mod:`mrsph.config` (no Taichi); ``Simulation`` and ``SimulationError`` from
+:mod:`mrsph.solver` and ``Disturbance`` from :mod:`mrsph.interaction` (these import
+Taichi on first access). The command line is :mod:`mrsph.cli` (``python main.py``).
+"""
+from __future__ import annotations
+
+import importlib
+
+# public name -> submodule it lives in; resolved on first access (PEP 562)
+_LAZY = {
+    "load_scene": "config",
+    "Scene": "config",
+    "SceneError": "config",
+    "list_scenes": "config",
+    "Simulation": "solver",
+    "SimulationError": "solver",
+    "Disturbance": "interaction",
+}
+
+__all__ = sorted(_LAZY)
+
+
+def __getattr__(name: str):
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'mrsph' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))

@@ -69,13 +69,13 @@ class Boundary:
     # nearest surface point.
 
     @ti.func
-    def domain_image(self, x, h, mask: ti.template()):
+    def domain_image(self, x, h, mask):
         """(valid, mirrored x, linear part as ±1 per axis) for the set of axes ``mask``."""
         valid = True
         xr = x
         sign = ti.Vector.one(float, self.dim)
         for k in ti.static(range(self.dim)):
-            if ti.static((mask >> k) & 1):
+            if (mask >> k) & 1:
                 if x[k] - self.lo[k] < h:
                     xr[k] = 2.0 * self.lo[k] - x[k]
                     sign[k] = -1.0

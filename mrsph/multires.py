@@ -120,6 +120,10 @@ class Multires:
         return {k: int(v) for k, v in zip(COUNTERS, vals)}
 
     # ------------------------------------------------------------------ helpers
+    def _fields(self, names):
+        """The pool's member fields for attribute names of the registry."""
+        return [getattr(self.pool.p, n) for n in names]
+
     @ti.func
     def _h(self, l):
         return self.sim.lev_h[l]
@@ -168,7 +172,7 @@ class Multires:
             if (is_real(ki) and li < c) or (ki == VIRTUAL_PARENT and li == c):
                 xi = p[i].x
                 base = self.g.cell(xi, c)
-                for off in ti.static(ti.grouped(ti.ndrange(*((-1, 2),) * self.dim))):
+                for off in ti.grouped(ti.ndrange(*((-1, 2),) * self.dim)):
                     cid = self.g.cell_id(base + off, c)
                     for j in range(self.g.start[cid], self.g.start[cid + 1]):
                         if is_real(p[j].kind) and (xi - p[j].x).norm_sqr() < hc * hc:
@@ -247,8 +251,8 @@ class Multires:
     def _spawn_child(self, i, ch, q, f, s_f):
         """Write child slot ``ch`` of particle i at sampling offset q (kind set by caller)."""
         p = ti.static(self.pool.p)
-        for name in ti.static(split_inherited()):
-            getattr(p, name)[ch] = getattr(p, name)[i]
+        for fld in ti.static(self._fields(split_inherited())):
+            fld[ch] = fld[i]
         p[ch].m = p[i].m / self.nmax
         p[ch].x = self.sim.boundary_clamp(p[i].x + self.offsets[q] * s_f)
         p[ch].a = ti.Vector.zero(float, self.dim)
@@ -288,8 +292,8 @@ class Multires:
                     and (p[i].flags & NEAR_COARSE) != 0:
                 vp = self.pool.claim(1)
                 if vp >= 0:
-                    for name in ti.static(split_inherited()):
-                        getattr(p, name)[vp] = getattr(p, name)[i]
+                    for fld in ti.static(self._fields(split_inherited())):
+                        fld[vp] = fld[i]
                     p[vp].x = p[i].x
                     p[vp].m = p[i].m
                     p[vp].a = ti.Vector.zero(float, self.dim)
@@ -313,7 +317,7 @@ class Multires:
                 xi = p[i].x
                 best, best_d2 = -1, reach * reach
                 base = self.g.cell(xi, c)
-                for off in ti.static(ti.grouped(ti.ndrange(*((-1, 2),) * self.dim))):
+                for off in ti.grouped(ti.ndrange(*((-1, 2),) * self.dim)):
                     cid = self.g.cell_id(base + off, c)
                     for j in range(self.g.start[cid], self.g.start[cid + 1]):
                         if j != i and p[j].kind == VIRTUAL_PARENT and \
@@ -362,12 +366,12 @@ class Multires:
                     for q in range(p[i].nchild):
                         ch = self.pool.children[i, q]
                         com += p[ch].m * p[ch].x
-                    for name in ti.static(merge_mass_mean()):
-                        acc = getattr(p, name)[i] * 0.0
+                    for fld in ti.static(self._fields(merge_mass_mean())):
+                        acc = fld[i] * 0.0
                         for q in range(p[i].nchild):
                             ch = self.pool.children[i, q]
-                            acc += p[ch].m * getattr(p, name)[ch]
-                        getattr(p, name)[i] = acc / mass
+                            acc += p[ch].m * fld[ch]
+                        fld[i] = acc / mass
                     for q in range(p[i].nchild):
                         ch = self.pool.children[i, q]
                         p[ch].kind = DEAD

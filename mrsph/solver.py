@@ -363,7 +363,7 @@ class Simulation:
         p = ti.static(self.pool.p)
         rho = 0.0
         base = self.grids.cell(xq, l)
-        for off in ti.static(ti.grouped(ti.ndrange(*((-1, 2),) * self.dim))):
+        for off in ti.grouped(ti.ndrange(*((-1, 2),) * self.dim)):
             cid = self.grids.cell_id(base + off, l)
             for j in range(self.grids.start[cid], self.grids.start[cid + 1]):
                 r2 = (xq - p[j].x).norm_sqr()
@@ -384,7 +384,7 @@ class Simulation:
                 c6 = self.lev_poly6[l]
                 xi = p[i].x
                 rho = self._density_sum(xi, l, h2, c6)
-                for mask in ti.static(range(1, 2 ** self.dim)):
+                for mask in range(1, 2 ** self.dim):
                     ok, xr, _s = self.boundary.domain_image(xi, h, mask)
                     if ok:
                         rho += self._density_sum(xr, l, h2, c6)
@@ -401,7 +401,7 @@ class Simulation:
         p = ti.static(self.pool.p)
         f = ti.Vector.zero(float, self.dim)
         base = self.grids.cell(xq, l)
-        for off in ti.static(ti.grouped(ti.ndrange(*((-1, 2),) * self.dim))):
+        for off in ti.grouped(ti.ndrange(*((-1, 2),) * self.dim)):
             cid = self.grids.cell_id(base + off, l)
             for j in range(self.grids.start[cid], self.grids.start[cid + 1]):
                 rq = xq - p[j].x
@@ -439,7 +439,7 @@ class Simulation:
                 reach2 = self.lev_reach2[l]
                 xi = p[i].x
                 base = self.grids.cell(xi, l)
-                for off in ti.static(ti.grouped(ti.ndrange(*((-1, 2),) * self.dim))):
+                for off in ti.grouped(ti.ndrange(*((-1, 2),) * self.dim)):
                     cid = self.grids.cell_id(base + off, l)
                     for j in range(self.grids.start[cid], self.grids.start[cid + 1]):
                         r = xi - p[j].x
@@ -448,7 +448,7 @@ class Simulation:
                             if interacts(p[i].kind, p[j].kind, r2, reach2):
                                 f += self._pair_force(i, j, r, ti.sqrt(r2), h, cs, cv, mu)
                 # walls: forces from the mirror images of the neighbours (boundary.py)
-                for mask in ti.static(range(1, 2 ** self.dim)):
+                for mask in range(1, 2 ** self.dim):
                     ok, xr, sgn = self.boundary.domain_image(xi, h, mask)
                     if ok:
                         Ld = ti.Matrix.zero(float, self.dim, self.dim)
@@ -481,7 +481,7 @@ class Simulation:
                 vsum = ti.Vector.zero(float, self.dim)
                 wsum = 0.0
                 base = self.grids.cell(xj, l)
-                for off in ti.static(ti.grouped(ti.ndrange(*((-1, 2),) * self.dim))):
+                for off in ti.grouped(ti.ndrange(*((-1, 2),) * self.dim)):
                     cid = self.grids.cell_id(base + off, l)
                     for i in range(self.grids.start[cid], self.grids.start[cid + 1]):
                         r = p[i].x - xj

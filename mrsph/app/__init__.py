@@ -8,10 +8,12 @@ Modules
 -------
 palette   level / kind colours and colormaps (numpy only)
 view      letterboxed 2D view and orbit camera (numpy only; shared by every renderer)
+geometry  domain / obstacle outlines, fills and 3D shells (numpy only)
 render    the GGUI renderer used by the window and by offscreen recording
 raster    pure-numpy software rasteriser (fallback when Vulkan is missing)
 record    ``record(sim, out, frames, ...)``: mp4 / gif / png sequence
 mouse     mouse state machine -> ``Disturbance`` (pure logic)
 window    ``run_window(...)``: the interactive app
 fake      a tiny stand-in simulation for tests and demos
+__main__  ``python -m mrsph.app [scene]`` (``--fake 2|3`` for the stand-in)
 """

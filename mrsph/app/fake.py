@@ -73,16 +73,17 @@ class FakeSimulation:
             s = self.spacing0 * 2 ** lvl
             axes = [np.arange(lo[k] + s / 2, hi[k], s) for k in range(self.dim)]
             grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, self.dim)
-            # Band of this level: the top of the block is finest.
-            y_rel = (grid[:, 1] - lo[1]) / height
-            band = np.clip(((1.0 - y_rel) * self.levels).astype(int), 0, self.levels - 1)
+            # Depth below the top of the block in "bands": band b holds level b, so the
+            # top of the block is finest. Interfaces lie at whole band depths.
+            depth = (hi[1] - grid[:, 1]) / height * self.levels
+            band = np.clip(depth.astype(int), 0, self.levels - 1)
             mine = band == lvl
             xs.append(grid[mine]); levels.append(np.full(mine.sum(), lvl)); kinds.append(np.zeros(mine.sum(), int))
-            # Virtual particles of this level just across each interface (one spacing).
+            # Virtual particles of this level, one spacing deep across each interface.
             for other, code in ((lvl - 1, 4), (lvl + 1, 5)):
                 if 0 <= other < self.levels:
-                    near = (band == other) & (np.abs(((1.0 - y_rel) * self.levels) - max(lvl, other)) * height
-                                              / self.levels < s)
+                    interface = max(lvl, other)
+                    near = (band == other) & (np.abs(depth - interface) * height / self.levels < s)
                     xs.append(grid[near]); levels.append(np.full(near.sum(), lvl))
                     kinds.append(np.full(near.sum(), code))
         self.x = np.concatenate(xs).astype(np.float64)

@@ -158,7 +158,7 @@ def ray_box(ray_origin, ray_dir, box_min, box_max):
     parallel = d == 0
     inside = (o >= lo) & (o <= hi)
     t1 = np.where(parallel, np.where(inside, -np.inf, np.inf), t1)
-    t2 = np.where(parallel, np.where(inside, np.inf, np.inf), t2)
+    t2 = np.where(parallel, np.inf, t2)
     t_near = float(np.max(np.minimum(t1, t2)))
     t_far = float(np.min(np.maximum(t1, t2)))
     if t_near > t_far or t_far < 0:

@@ -210,3 +210,23 @@ def next_mode(mode: str) -> str:
     """The colour mode after ``mode`` in :data:`COLOR_MODES` (wraps around)."""
     i = COLOR_MODES.index(mode) if mode in COLOR_MODES else -1
     return COLOR_MODES[(i + 1) % len(COLOR_MODES)]
+
+
+def level_mask(image: np.ndarray, level: int, tolerance: float = 0.12) -> np.ndarray:
+    """(H, W) bool: pixels of an (H, W, 3) uint8 image showing the colour of ``level``.
+
+    Compares chromaticity (colour divided by its brightest channel), so shaded 3D
+    spheres count as their level colour too; dark pixels (background) never count.
+    For checking rendered frames (tests, screenshots) without a reference image.
+    """
+    rgb = np.asarray(image, dtype=np.float32)[..., :3] / 255.0
+    peak = rgb.max(axis=-1)
+    chroma = rgb / np.maximum(peak, 1e-6)[..., None]
+    ref = level_colour(level)
+    ref = ref / ref.max()
+    return (peak > 0.25) & (np.abs(chroma - ref).max(axis=-1) < tolerance)
+
+
+def count_level_pixels(image: np.ndarray, levels: int, tolerance: float = 0.12) -> list[int]:
+    """Pixel count of each level colour in an image (see :func:`level_mask`)."""
+    return [int(level_mask(image, lvl, tolerance).sum()) for lvl in range(int(levels))]

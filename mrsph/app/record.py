@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -50,8 +51,10 @@ def vulkan_available() -> tuple[bool, str]:
     if "result" in _probe_cache:
         return _probe_cache["result"]
     try:
-        proc = subprocess.run([sys.executable, "-c", _PROBE_SCRIPT], capture_output=True,
-                              text=True, timeout=PROBE_TIMEOUT_S)
+        # In a scratch directory: ImGui drops an imgui.ini into the working directory.
+        with tempfile.TemporaryDirectory(prefix="mrsph_probe_") as scratch:
+            proc = subprocess.run([sys.executable, "-c", _PROBE_SCRIPT], capture_output=True,
+                                  text=True, timeout=PROBE_TIMEOUT_S, cwd=scratch)
     except subprocess.TimeoutExpired:
         result = (False, f"the GGUI/Vulkan probe did not finish within {PROBE_TIMEOUT_S:.0f} s")
     except OSError as e:
@@ -82,8 +85,9 @@ class _GguiFrames:
 
     def __init__(self, width, height, style, scene):
         import taichi as ti
-        from .render import Renderer
+        from .render import ImguiIniGuard, Renderer
         self._ti = ti
+        self._ini = ImguiIniGuard()
         # Keep Taichi's per-frame "Dumping image buffer" info lines off the terminal.
         self._restore_info = ti._logging.is_logging_effective(ti._logging.INFO)
         ti.set_logging_level(ti.WARN)
@@ -105,6 +109,7 @@ class _GguiFrames:
     def close(self):
         # Never window.show() an offscreen window: it segfaults on lavapipe.
         self.window.destroy()
+        self._ini.cleanup()
         if self._restore_info:
             self._ti.set_logging_level(self._ti.INFO)
 

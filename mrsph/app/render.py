@@ -19,6 +19,8 @@ field, so unused slots are parked far outside the view (``_PARK``) with radius 0
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import taichi as ti
 
@@ -91,6 +93,9 @@ class Renderer:
         self.style = style or Style()
         self.scene_settings = scene  # for the scene's camera_position / camera_lookat
         self.camera: OrbitCamera | None = None
+        #: 2D only: (x0, y0, x1, y1) fractions of the window (y up) the domain is fitted
+        #: into; the window leaves out its HUD panel.
+        self.viewport = (0.0, 0.0, 1.0, 1.0)
         self._scene3d = None
         self._ti_camera = None
         self._pos2 = _Buffer(2, _PARK)
@@ -115,7 +120,8 @@ class Renderer:
         """The 2D world -> canvas map for the current window size (mouse mapping uses
         this same object, so a click lands where it is drawn)."""
         w, h = self.size
-        return View2D(snapshot.domain_min, snapshot.domain_max, w, h)
+        x0, y0, x1, y1 = self.viewport
+        return View2D(snapshot.domain_min, snapshot.domain_max, w, h, region=(x0 * w, y0 * h, x1 * w, y1 * h))
 
     def ensure_camera(self, snapshot) -> OrbitCamera:
         if self.camera is None:
@@ -239,7 +245,9 @@ def legend_rect(snapshot, color_mode: str, window_size) -> tuple[float, float, f
 def draw_legend(gui, snapshot, color_mode: str, window_size, rest_density=None) -> None:
     """Legend sub-window: what the colours mean, and the simulated time."""
     x, y, w, h = legend_rect(snapshot, color_mode, window_size)
-    with gui.sub_window("Legend", x, y, w, h):
+    # ImGui applies a panel's size only when it first appears: one panel per (mode,
+    # level count) so each gets the size its lines need ("##..." is not shown).
+    with gui.sub_window(f"Legend##{color_mode}{int(snapshot.levels)}", x, y, w, h):
         gui.text(f"t = {float(snapshot.time):.3f} s")
         if color_mode == "level":
             stats = getattr(snapshot, "stats", {}) or {}
@@ -262,6 +270,29 @@ def draw_legend(gui, snapshot, color_mode: str, window_size, rest_density=None) 
             gui.text("density rho / rho0")
             for t, label in ((0.0, f"{1 - hw:.2f} and below"), (0.5, "1.00 (rest)"), (1.0, f"{1 + hw:.2f} and above")):
                 gui.text(label, color=tuple(float(c) for c in palette.density_colormap(np.array([t]))[0]))
+
+
+class ImguiIniGuard:
+    """ImGui inside GGUI saves its window layout to ``./imgui.ini`` (a few seconds after
+    a panel first appears, and when the window closes). The app places its panels
+    itself, so the file is clutter in the user's directory: at the end, put back what
+    was there before (remove the file, or restore its old content)."""
+
+    def __init__(self):
+        self.path = Path.cwd() / "imgui.ini"
+        try:
+            self.before = self.path.read_bytes()
+        except OSError:
+            self.before = None
+
+    def cleanup(self) -> None:
+        try:
+            if self.before is None:
+                self.path.unlink(missing_ok=True)
+            elif not self.path.exists() or self.path.read_bytes() != self.before:
+                self.path.write_bytes(self.before)
+        except OSError:
+            pass
 
 
 def image_from_window(window) -> np.ndarray:

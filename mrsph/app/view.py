@@ -28,16 +28,19 @@ class View2D:
     """
 
     def __init__(self, domain_min, domain_max, width: int, height: int,
-                 margin: float = MARGIN_FRACTION):
+                 margin: float = MARGIN_FRACTION, region=None):
+        """``region``: (x0, y0, x1, y1) pixel rectangle (y up) to fit the domain into,
+        default the whole image; the window passes the area left free by its HUD."""
         self.domain_min = np.asarray(domain_min, dtype=np.float64)[:2]
         self.domain_max = np.asarray(domain_max, dtype=np.float64)[:2]
         self.width, self.height = int(width), int(height)
+        x0, y0, x1, y1 = region if region is not None else (0, 0, self.width, self.height)
         ext = np.maximum(self.domain_max - self.domain_min, 1e-9)
-        pad = margin * min(self.width, self.height)
+        pad = margin * min(x1 - x0, y1 - y0)
         #: pixels per metre
-        self.scale = float(min((self.width - 2 * pad) / ext[0], (self.height - 2 * pad) / ext[1]))
+        self.scale = float(max(min((x1 - x0 - 2 * pad) / ext[0], (y1 - y0 - 2 * pad) / ext[1]), 1e-9))
         size_px = ext * self.scale
-        self.offset = (np.array([self.width, self.height], dtype=np.float64) - size_px) / 2.0
+        self.offset = np.array([x0 + x1, y0 + y1], dtype=np.float64) / 2.0 - size_px / 2.0
 
     def world_to_px(self, x) -> np.ndarray:
         """World (N, 2) -> pixel coordinates (N, 2), y up."""

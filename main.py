@@ -1,0 +1,3 @@
+from mrsph.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,53 @@
+"""``python -m mrsph.app [scene]``: open the interactive window on a scene.
+
+The project's ``main.py`` is the full command line; this entry point exists so the app
+can be started (and smoke-tested) on its own. ``--fake 2`` or ``--fake 3`` runs the
+stand-in simulation of :mod:`mrsph.app.fake` instead of the solver.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m mrsph.app", description=__doc__.splitlines()[0])
+    parser.add_argument("scene", nargs="?", help="scene name or .toml path (default: the first scene)")
+    parser.add_argument("--arch", default="cpu", choices=("cpu", "gpu", "auto"), help="Taichi backend")
+    parser.add_argument("--width", type=int, default=1280)
+    parser.add_argument("--height", type=int, default=720)
+    parser.add_argument("--fake", type=int, choices=(2, 3), help="use the stand-in simulation")
+    args = parser.parse_args(argv)
+
+    from mrsph import runtime
+    from .window import run_window
+
+    if args.fake:
+        from .fake import FakeSimulation
+        runtime.ensure("cpu")
+
+        def make_sim(name, overrides=None):
+            return FakeSimulation(dim=args.fake)
+        run_window(make_sim, f"fake_{args.fake}d", [f"fake_{args.fake}d"], args.width, args.height)
+        return 0
+
+    from mrsph.config import SceneError, list_scenes, load_scene
+    from mrsph.solver import Simulation
+    names = [name for name, _ in list_scenes()]
+    scene = args.scene or (names[0] if names else None)
+    if scene is None:
+        print("mrsph: no scenes found; give a scene file", file=sys.stderr)
+        return 2
+
+    def make_sim(name, overrides=None):
+        return Simulation(load_scene(name, overrides), arch=args.arch)
+    try:
+        run_window(make_sim, scene, names, args.width, args.height)
+    except (SceneError, RuntimeError) as e:
+        print(f"mrsph: {e}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

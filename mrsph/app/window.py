@@ -1,0 +1,597 @@
+"""The interactive window: watch the fluid, stir it with the mouse, tune it live.
+
+One window frame = one ``sim.advance_frame()`` (unless paused), then one snapshot,
+drawn by the shared :class:`~mrsph.app.render.Renderer`, plus a HUD of GGUI widgets.
+The physics never sees the window: the window only calls the Simulation API
+(``advance_frame``, ``snapshot``, ``set_param``, ``set_disturbance``, ``reset``).
+
+Controls (Taichi 1.7.4's GGUI reports only letters, arrows, space, Tab, Escape and
+the mouse buttons: no digits, no punctuation, no wheel, so every action has a letter
+or a HUD button; digits and +/-/[/] are handled too, for Taichi builds that report them)
+
+=====================  =================================================
+space / n / r          pause-run / step one frame / reset
+tab, 1-9, HUD buttons  next scene / scene i
+c / v / h / u          colour mode / show virtual particles / help / HUD panel
+left drag              push the fluid along the drag
+right drag (2D),       pull the fluid toward the cursor
+shift + left drag
+q / e  ([ / ])         smaller / larger mouse radius
+3D: right drag,        orbit the camera
+arrows
+3D: middle drag        pan
+3D: z / x  (+ / -)     zoom in / out;  f: frame the domain again
+p                      screenshot (PNG)
+Esc                    quit
+=====================  =================================================
+
+Test hooks (environment variables)
+----------------------------------
+``MRSPH_WINDOW_STATS=path``: append one JSON line per frame: frame, time,
+kinetic_energy, n_real, n_virtual, disturbance_active, paused, scene, wall_s, fps.
+``MRSPH_WINDOW_SCREENSHOT=path``: write the screenshot there (frame 10, and on ``p``).
+"""
+from __future__ import annotations
+
+import collections
+import inspect
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from . import palette
+from .mouse import LEFT, RIGHT, SHIFT, MouseDisturbance, pick_point, ray_plane
+from .view import scene_setting
+
+STATS_ENV = "MRSPH_WINDOW_STATS"
+SCREENSHOT_ENV = "MRSPH_WINDOW_SCREENSHOT"
+#: Frame at which the automatic screenshot of MRSPH_WINDOW_SCREENSHOT is taken: late
+#: enough that ImGui has laid out its windows (they appear from the second frame).
+AUTO_SCREENSHOT_FRAME = 10
+#: HUD panel on the right: width in pixels (fits the slider labels of ImGui's default
+#: 13 px font), height as a fraction of the window.
+HUD_WIDTH_PX = 330
+HUD_HEIGHT_PX = 600
+HUD_MARGIN_PX = 8
+#: Camera speeds: arrows orbit at this many rad/s; z/x zoom by e^(rate dt); a drag over
+#: the whole window orbits by half a turn horizontally.
+ORBIT_KEY_RATE = 1.5
+ZOOM_KEY_RATE = 1.2
+ORBIT_DRAG_GAIN = math.pi
+#: Window over which splits/s and merges/s are counted (simulated seconds).
+RATE_WINDOW_S = 1.0
+#: Keys that change the mouse radius: one press = this many wheel notches.
+RADIUS_KEY_NOTCHES = 1.0
+PROBE_TIMEOUT_S = 60.0
+
+_HELP = """\
+space     pause / run          n   step one frame
+r         reset                tab next scene (1-9: scene i)
+c         colour mode          v   show virtual particles
+h         this help            p   screenshot
+left drag push the fluid       right drag / shift+left: pull
+q / e     mouse radius - / +   u   hide / show this panel
+Esc       quit
+3D: right drag or arrows orbit, middle drag pan,
+    z / x zoom in / out, f frame the domain"""
+
+_display_cache: dict = {}
+_PROBE_SCRIPT = r"""
+import taichi as ti
+ti.init(arch=ti.cpu, log_level=ti.ERROR, offline_cache=False)
+w = ti.ui.Window("mrsph display probe", (64, 48), show_window=True)
+w.get_canvas().set_background_color((0.1, 0.1, 0.1))
+w.show()
+w.destroy()
+print("MRSPH_DISPLAY_OK", flush=True)
+"""
+
+
+def display_available() -> tuple[bool, str]:
+    """(True, description) when an interactive GGUI window can open here, else (False,
+    why). Needs DISPLAY or WAYLAND_DISPLAY; the window itself is tried in a subprocess
+    (a broken Vulkan/GLFW setup can crash instead of raising); cached per process."""
+    if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        return False, "no display: neither DISPLAY nor WAYLAND_DISPLAY is set (record headless instead)"
+    key = (os.environ.get("DISPLAY"), os.environ.get("WAYLAND_DISPLAY"))
+    if key in _display_cache:
+        return _display_cache[key]
+    try:
+        # In a scratch directory: ImGui drops an imgui.ini into the working directory.
+        with tempfile.TemporaryDirectory(prefix="mrsph_probe_") as scratch:
+            proc = subprocess.run([sys.executable, "-c", _PROBE_SCRIPT], capture_output=True,
+                                  text=True, timeout=PROBE_TIMEOUT_S, cwd=scratch)
+    except subprocess.TimeoutExpired:
+        result = (False, f"opening a test window did not finish within {PROBE_TIMEOUT_S:.0f} s")
+    else:
+        if proc.returncode == 0 and "MRSPH_DISPLAY_OK" in proc.stdout:
+            result = (True, f"a GGUI window opens on {key[0] or key[1]}")
+        else:
+            lines = [ln.strip() for ln in (proc.stderr + proc.stdout).splitlines()
+                     if ln.strip() and not ln.startswith("[Taichi]")]
+            how = (f"crashed with signal {-proc.returncode}" if proc.returncode < 0
+                   else f"failed (exit code {proc.returncode})")
+            result = (False, f"opening a test window {how}" + (f": {lines[-1][:200]}" if lines else ""))
+    _display_cache[key] = result
+    return result
+
+
+def _accepts_overrides(make_sim) -> bool:
+    """Whether make_sim takes a second argument (the scene overrides)."""
+    try:
+        params = list(inspect.signature(make_sim).parameters.values())
+    except (TypeError, ValueError):
+        return False
+    positional = [p for p in params if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)]
+    return len(positional) >= 2 or any(p.kind == p.VAR_POSITIONAL for p in params) \
+        or any(p.name == "overrides" for p in params)
+
+
+class _Rates:
+    """Splits and merges per simulated second. The stats row counts events since the
+    previous snapshot, so the rate is the sum over the last RATE_WINDOW_S divided by
+    the time covered."""
+
+    def __init__(self):
+        self.samples = collections.deque()
+
+    def add(self, t: float, splits: float, merges: float) -> None:
+        if self.samples and t < self.samples[-1][0]:
+            self.samples.clear()  # reset or new scene: time went back
+        if self.samples and t == self.samples[-1][0]:
+            return  # paused: the same frame again
+        self.samples.append((t, splits, merges))
+        while self.samples and self.samples[0][0] < t - RATE_WINDOW_S:
+            self.samples.popleft()
+
+    def rates(self) -> tuple[float, float]:
+        if len(self.samples) < 2:
+            return 0.0, 0.0
+        span = self.samples[-1][0] - self.samples[0][0]
+        if span <= 0:
+            return 0.0, 0.0
+        s = sum(x[1] for x in list(self.samples)[1:])
+        m = sum(x[2] for x in list(self.samples)[1:])
+        return s / span, m / span
+
+
+class _App:
+    """State of the running window; :func:`run_window` is its only user."""
+
+    def __init__(self, make_sim, scene_name, scene_names, width, height):
+        import taichi as ti
+        from .render import ImguiIniGuard, Renderer
+        self.ti = ti
+        self.ini = ImguiIniGuard()
+        self.make_sim = make_sim
+        self.can_override = _accepts_overrides(make_sim)
+        self.scene_names = list(scene_names) or [scene_name]
+        self.scene_name = scene_name
+        # The simulation first: it initialises Taichi, which the window needs.
+        self.sim = self._build(scene_name)
+        self.window = ti.ui.Window(f"mrsph - {scene_name}", (int(width), int(height)), vsync=True)
+        self.renderer = Renderer(self.window, palette.Style.from_scene(self.sim.scene), self.sim.scene)
+        self.paused = False
+        self.step_once = False
+        self.show_virtual = False
+        self.color_mode = "level"
+        self.show_help = False
+        self.show_hud = True
+        self.message = ""
+        self.snap = None
+        self.dirty = True
+        self.rates = _Rates()
+        self.fps = 0.0
+        self.start = time.perf_counter()
+        self.last = self.start
+        self.cursor_prev = None
+        self.drag_owner = None        # "fluid" / "camera" / "pan" / "hud" while a button is held
+        self.drag_plane = None        # 3D: (point, normal) of the plane the push drag moves in
+        self.stats_file = None
+        path = os.environ.get(STATS_ENV)
+        if path:
+            self.stats_file = open(path, "a", encoding="utf-8")
+        self.screenshot_path = os.environ.get(SCREENSHOT_ENV)
+        self.frames_drawn = 0
+        self.want_screenshot = False
+        self._on_new_sim()
+
+    # -- simulation lifecycle ----------------------------------------------------------
+    def _build(self, name, overrides=None):
+        if overrides and self.can_override:
+            return self.make_sim(name, overrides)
+        return self.make_sim(name)
+
+    def _on_new_sim(self):
+        """Sliders, mouse and view follow the (new) simulation's scene."""
+        scene = self.sim.scene
+        snap = self.sim.snapshot()
+        self.snap, self.dirty = snap, False
+        self.mouse = MouseDisturbance.for_domain(snap.domain_min, snap.domain_max)
+        g = scene_setting(scene, "physics.gravity", None)
+        self.params = {
+            "fluid.viscosity": float(scene_setting(scene, "fluid.viscosity", 0.05)),
+            "fluid.stiffness": float(scene_setting(scene, "fluid.stiffness", 1000.0)),
+            "gravity_y": float(g[1]) if g is not None else -9.81,
+        }
+        self.gravity = list(map(float, g)) if g is not None else [0.0, -9.81, 0.0][: snap.dim]
+        self.slider_max = {"fluid.viscosity": max(1.0, 5.0 * self.params["fluid.viscosity"]),
+                           "fluid.stiffness": 4.0 * self.params["fluid.stiffness"]}
+        self.refinement = bool(scene_setting(scene, "adaptivity.enabled", self.sim.levels > 1))
+        self.frame_dt = 1.0 / float(scene_setting(scene, "run.fps", 30.0))
+        self.renderer.reset_view(scene, palette.Style.from_scene(scene))
+        self.rates = _Rates()
+        self.drag_owner, self.drag_plane = None, None
+
+    def switch_scene(self, name: str, overrides=None) -> bool:
+        """Build ``name`` (optionally with overrides) and make it current; on failure
+        keep the running scene and say why in the HUD."""
+        if not self._same_precision(name):
+            return False
+        try:
+            sim = self._build(name, overrides)
+        except Exception as e:  # a bad scene file must not close the window
+            first = (str(e).splitlines() or [""])[0][:160]
+            self.message = f"cannot load {name}: {type(e).__name__}: {first}"
+            return False
+        self.sim.set_disturbance(None)
+        self.sim, self.scene_name = sim, name
+        self._on_new_sim()
+        self.message = f"scene {name}" + (f" with {overrides}" if overrides else "")
+        return True
+
+    def _same_precision(self, name: str) -> bool:
+        """A scene with another float precision would re-initialise Taichi, which
+        destroys this window's fields: refuse it with the reason instead."""
+        try:
+            from mrsph.config import load_scene
+            want = scene_setting(load_scene(name), "particles.precision", None)
+        except Exception:
+            return True  # let make_sim report the problem
+        have = scene_setting(self.sim.scene, "particles.precision", None)
+        if want is not None and have is not None and want != have:
+            self.message = (f"{name} needs precision {want} (running {have}): "
+                            f"start the window with that scene instead")
+            return False
+        return True
+
+    def set_refinement(self, enabled: bool) -> None:
+        try:
+            self.sim.set_param("adaptivity.enabled", bool(enabled))
+            self.refinement = bool(enabled)
+            return
+        except (ValueError, KeyError, TypeError, AttributeError):
+            pass  # not live-tunable: rebuild the scene with the override
+        if not self.can_override:
+            self.message = "refinement toggle needs make_sim(scene_name, overrides)"
+            return
+        kept = dict(self.params)
+        if not self.switch_scene(self.scene_name, {"adaptivity.enabled": bool(enabled)}):
+            return
+        self.refinement = bool(enabled)
+        # carry the live-tuned values over to the rebuilt simulation
+        for key in ("fluid.viscosity", "fluid.stiffness"):
+            self._set_param(key, kept[key])
+        self._set_gravity_y(kept["gravity_y"])
+
+    def _set_param(self, key, value) -> None:
+        try:
+            self.sim.set_param(key, value)
+            self.params[key] = value
+        except Exception as e:
+            self.message = f"{key}: {str(e).splitlines()[0][:160]}"
+
+    def _set_gravity_y(self, gy: float) -> None:
+        g = list(self.gravity)
+        g[1] = float(gy)
+        try:
+            self.sim.set_param("physics.gravity", tuple(g))
+            self.gravity, self.params["gravity_y"] = g, float(gy)
+        except Exception as e:
+            self.message = f"physics.gravity: {str(e).splitlines()[0][:160]}"
+
+    # -- per frame ---------------------------------------------------------------------
+    def run(self) -> None:
+        while self.window.running:
+            now = time.perf_counter()
+            dt_wall = max(now - self.last, 1e-4)
+            self.last = now
+            self.fps = 1.0 / dt_wall if self.fps == 0 else 0.9 * self.fps + 0.1 / dt_wall
+            if not self._keys():
+                break
+            self._held_keys(min(dt_wall, 0.1))  # no camera jump after a slow frame
+            # The drag velocity is measured in simulated time: the cursor moves so far
+            # per frame and the fluid should follow it on screen, however fast the
+            # simulation runs compared to the wall clock.
+            d = self._mouse(dt_wall if self.paused else self.frame_dt)
+            self.sim.set_disturbance(d)
+            if not self.paused or self.step_once:
+                try:
+                    self.sim.advance_frame()
+                except Exception as e:  # blow-up: stop and say so, keep the window
+                    self.paused = True
+                    self.message = f"simulation stopped: {str(e).splitlines()[0][:160]} (r: reset)"
+                self.step_once = False
+                self.dirty = True
+            if self.dirty:
+                self.snap = self.sim.snapshot()
+                self.dirty = False
+            snap = self.snap
+            st = snap.stats or {}
+            self.rates.add(float(snap.time), float(st.get("splits", 0)), float(st.get("merges", 0)))
+            # 2D: fit the domain into the area left of the HUD panel, so nothing hides.
+            w, _ = self.renderer.size
+            free = self._hud_rect_px()[0] / w if self.show_hud else 1.0
+            self.renderer.viewport = (0.0, 0.0, max(free, 0.3), 1.0)
+            self.renderer.draw(snap, self.color_mode, self.show_virtual,
+                               rest_density=getattr(self.sim, "rest_density", None))
+            self._hud(snap)
+            self._write_stats(snap, d)
+            self.frames_drawn += 1
+            if self.want_screenshot or (self.screenshot_path and self.frames_drawn == AUTO_SCREENSHOT_FRAME):
+                # Between drawing and show(): the image buffer holds this frame.
+                self._screenshot()
+                self.want_screenshot = False
+            self.window.show()
+        if self.stats_file:
+            self.stats_file.close()
+        self.window.destroy()
+        self.ini.cleanup()
+
+    def _keys(self) -> bool:
+        """Pressed-key events; False when the app should quit."""
+        ti = self.ti
+        for e in self.window.get_events(ti.ui.PRESS):
+            k = e.key
+            if k == ti.ui.ESCAPE:
+                self.window.running = False
+                return False
+            if k == ti.ui.SPACE:
+                self.paused = not self.paused
+            elif k == "n":
+                self.paused, self.step_once = True, True
+            elif k == "r":
+                self._reset()
+            elif k == "h":
+                self.show_help = not self.show_help
+            elif k == "u":
+                self.show_hud = not self.show_hud
+            elif k == "v":
+                self.show_virtual = not self.show_virtual
+            elif k == "c":
+                self.color_mode = palette.next_mode(self.color_mode)
+            elif k == ti.ui.TAB:
+                self._next_scene()
+            elif isinstance(k, str) and len(k) == 1 and k in "123456789":
+                i = int(k) - 1
+                if i < len(self.scene_names):
+                    self.switch_scene(self.scene_names[i])
+            elif k in ("q", "["):
+                self.mouse.scroll(-RADIUS_KEY_NOTCHES)
+            elif k in ("e", "]"):
+                self.mouse.scroll(RADIUS_KEY_NOTCHES)
+            elif k == "f":
+                self.renderer.reset_view()
+            elif k == "p":
+                self.want_screenshot = True  # taken after this frame is drawn
+        return True
+
+    def _held_keys(self, dt: float) -> None:
+        """Camera keys act while held (3D only)."""
+        if self.snap is None or self.snap.dim != 3:
+            return
+        cam = self.renderer.ensure_camera(self.snap)
+        w = self.window
+        ti = self.ti
+        yaw = (w.is_pressed(ti.ui.LEFT) - w.is_pressed(ti.ui.RIGHT)) * ORBIT_KEY_RATE * dt
+        pitch = (w.is_pressed(ti.ui.UP) - w.is_pressed(ti.ui.DOWN)) * ORBIT_KEY_RATE * dt
+        if yaw or pitch:
+            cam.orbit(yaw, pitch)
+        zoom_in = w.is_pressed("z")
+        zoom_out = w.is_pressed("x")
+        if zoom_in != zoom_out:
+            cam.zoom(math.exp((ZOOM_KEY_RATE if zoom_out else -ZOOM_KEY_RATE) * dt))
+
+    def _reset(self) -> None:
+        try:
+            self.sim.reset()
+            self.message = "reset"
+        except Exception as e:
+            self.message = f"reset failed: {str(e).splitlines()[0][:160]}"
+        self.mouse.reset()
+        self.dirty = True
+
+    def _next_scene(self) -> None:
+        if self.scene_name in self.scene_names:
+            i = (self.scene_names.index(self.scene_name) + 1) % len(self.scene_names)
+        else:
+            i = 0
+        self.switch_scene(self.scene_names[i])
+
+    # -- mouse -------------------------------------------------------------------------
+    def _hud_rect_px(self):
+        w, h = self.renderer.size
+        x0 = w - HUD_WIDTH_PX - HUD_MARGIN_PX
+        return x0, HUD_MARGIN_PX, w - HUD_MARGIN_PX, min(HUD_MARGIN_PX + HUD_HEIGHT_PX, h - HUD_MARGIN_PX)
+
+    def _over_hud(self, u: float, v: float) -> bool:
+        """Whether the cursor (canvas coords, y up) is over a HUD panel, where clicks
+        belong to ImGui and must not stir the fluid."""
+        from .render import legend_rect
+        w, h = self.renderer.size
+        x, y = u * w, (1.0 - v) * h  # ImGui: y down from the top
+        x0, y0, x1, y1 = self._hud_rect_px()
+        if self.show_hud and x0 <= x <= x1 and y0 <= y <= y1:
+            return True
+        lx, ly, lw, lh = legend_rect(self.snap, self.color_mode, (w, h))
+        return lx * w <= x <= (lx + lw) * w and ly * h <= y <= (ly + lh) * h
+
+    def _mouse(self, dt: float):
+        """Cursor and buttons -> camera motion (3D) or a disturbance."""
+        ti, w, snap = self.ti, self.window, self.snap
+        u, v = w.get_cursor_pos()
+        lmb, rmb, mmb = w.is_pressed(ti.ui.LMB), w.is_pressed(ti.ui.RMB), w.is_pressed(ti.ui.MMB)
+        shift = w.is_pressed(ti.ui.SHIFT)
+        prev = self.cursor_prev
+        self.cursor_prev = (u, v)
+        if not (lmb or rmb or mmb):
+            self.drag_owner, self.drag_plane = None, None
+            return self.mouse.update(None, set(), dt)
+        if self.drag_owner is None:  # a press: decide once who owns this drag
+            if self._over_hud(u, v):
+                self.drag_owner = "hud"
+            elif snap.dim == 3 and rmb:
+                self.drag_owner = "camera"
+            elif snap.dim == 3 and mmb:
+                self.drag_owner = "pan"
+            else:
+                self.drag_owner = "fluid"
+        if self.drag_owner in ("camera", "pan"):
+            if prev is not None:
+                du, dv = u - prev[0], v - prev[1]
+                cam = self.renderer.ensure_camera(snap)
+                if self.drag_owner == "camera":
+                    cam.orbit(-du * ORBIT_DRAG_GAIN, -dv * ORBIT_DRAG_GAIN * 0.5)
+                else:
+                    width, height = self.renderer.size
+                    cam.pan(du * width / height, dv)
+            return self.mouse.update(None, set(), dt)
+        if self.drag_owner != "fluid":
+            return self.mouse.update(None, set(), dt)
+        buttons = {b for b, held in ((LEFT, lmb), (RIGHT, rmb and snap.dim == 2), (SHIFT, shift)) if held}
+        return self.mouse.update(self._cursor_world(u, v), buttons, dt)
+
+    def _cursor_world(self, u: float, v: float):
+        snap = self.snap
+        if snap.dim == 2:
+            return self.renderer.view2d(snap).canvas_to_world((u, v))
+        cam = self.renderer.ensure_camera(snap)
+        width, height = self.renderer.size
+        origin, direction = cam.ray(u, v, width / height)
+        forward = cam.basis()[0]
+        if self.drag_plane is None:
+            # Start of a drag: grab the fluid where the ray enters its bounding box (or
+            # the plane through the domain centre), then move in the plane through that
+            # point facing the camera, so the drag velocity is the cursor's velocity.
+            real = ~palette.is_virtual(snap.kind)
+            x = np.asarray(snap.x)[real] if real.any() else np.asarray(snap.x)
+            centre = (np.asarray(snap.domain_min) + np.asarray(snap.domain_max)) / 2.0
+            if len(x):
+                p = pick_point(origin, direction, x.min(axis=0), x.max(axis=0), centre, forward)
+            else:
+                p = pick_point(origin, direction, snap.domain_min, snap.domain_max, centre, forward)
+            self.drag_plane = (p, forward)
+            return p
+        p = ray_plane(origin, direction, self.drag_plane[0], self.drag_plane[1])
+        return p if p is not None else self.drag_plane[0]
+
+    # -- HUD ---------------------------------------------------------------------------
+    def _hud(self, snap) -> None:
+        gui = self.window.get_gui()
+        w, h = self.renderer.size
+        x0, y0, x1, y1 = self._hud_rect_px()
+        st = snap.stats or {}
+        if self.show_help:
+            rows = len(_HELP.splitlines()) + 2 + min(len(self.scene_names), 9)
+            with gui.sub_window("Help", 0.2, 0.15, min(440 / w, 0.9), min((40 + 23 * rows) / h, 0.9)):
+                for line in _HELP.splitlines():
+                    gui.text(line)
+                gui.text("scenes:")
+                for i, name in enumerate(self.scene_names[:9]):
+                    if name != self.scene_name and gui.button(f"{i + 1}: {name}"):
+                        self.switch_scene(name)
+        if not self.show_hud:
+            return
+        with gui.sub_window("mrsph", x0 / w, y0 / h, (x1 - x0) / w, (y1 - y0) / h):
+            gui.text(f"scene {self.scene_name} ({snap.dim}D)   h: help  u: hide")
+            gui.text(f"{self.fps:5.1f} fps   frame {snap.frame}" + ("   PAUSED" if self.paused else ""))
+            gui.text(f"t = {float(snap.time):.3f} s   dt = {float(st.get('dt', 0.0)):.2e} s")
+            gui.text(f"real {st.get('n_real', '?')}   virtual {st.get('n_virtual', '?')}"
+                     f"   transient {st.get('n_transient', '?')}")
+            for lvl in range(int(snap.levels)):
+                gui.text(f"  level {lvl}: {st.get(f'n_level_{lvl}', '?')} real, "
+                         f"{st.get(f'n_virtual_level_{lvl}', '?')} virtual",
+                         color=tuple(float(c) for c in palette.level_colour(lvl)))
+            splits, merges = self.rates.rates()
+            gui.text(f"splits {splits:.0f}/s   merges {merges:.0f}/s")
+            unit = "kg" if snap.dim == 3 else "kg/m"
+            gui.text(f"mass {float(st.get('total_mass', 0.0)):.4g} {unit}   "
+                     f"max rho/rho0 {float(st.get('max_density_ratio', 0.0)):.3f}")
+            if gui.button("Run" if self.paused else "Pause"):
+                self.paused = not self.paused
+            if gui.button("Step"):
+                self.paused, self.step_once = True, True
+            if gui.button("Reset"):
+                self._reset()
+            if gui.button("Next scene (tab)"):
+                self._next_scene()
+            if gui.button("Scenes and keys (h)"):
+                self.show_help = not self.show_help
+            gui.text("fluid")
+            for key, label in (("fluid.viscosity", "viscosity"), ("fluid.stiffness", "stiffness")):
+                lo = 0.0 if key == "fluid.viscosity" else 0.1 * self.slider_max[key] / 4.0
+                new = gui.slider_float(label, self.params[key], lo, self.slider_max[key])
+                if not math.isclose(new, self.params[key], rel_tol=1e-6, abs_tol=1e-12):
+                    self._set_param(key, float(new))
+            new = gui.slider_float("gravity y", self.params["gravity_y"], -20.0, 5.0)
+            if not math.isclose(new, self.params["gravity_y"], abs_tol=1e-9):
+                self._set_gravity_y(new)
+            gui.text("mouse (q / e: radius)")
+            self.mouse.radius = gui.slider_float("radius", self.mouse.radius, self.mouse.radius_min,
+                                                 self.mouse.radius_max)
+            self.mouse.strength = gui.slider_float("strength", self.mouse.strength, 0.0, 100.0)
+            new = gui.checkbox("refinement", self.refinement)
+            if new != self.refinement:
+                self.set_refinement(new)
+            self.show_virtual = gui.checkbox("show virtual (v)", self.show_virtual)
+            if gui.button(f"colour: {self.color_mode} (c)"):
+                self.color_mode = palette.next_mode(self.color_mode)
+            if self.message:
+                gui.text(self.message, color=(1.0, 0.75, 0.3))
+
+    # -- hooks -------------------------------------------------------------------------
+    def _write_stats(self, snap, d) -> None:
+        if not self.stats_file:
+            return
+        st = snap.stats or {}
+        row = {"frame": int(snap.frame), "time": float(snap.time),
+               "kinetic_energy": float(st.get("kinetic_energy", 0.0)),
+               "n_real": int(st.get("n_real", 0)), "n_virtual": int(st.get("n_virtual", 0)),
+               "disturbance_active": d is not None, "paused": self.paused,
+               "scene": self.scene_name, "wall_s": round(time.perf_counter() - self.start, 4),
+               "fps": round(self.fps, 2)}
+        self.stats_file.write(json.dumps(row) + "\n")
+        self.stats_file.flush()
+
+    def _screenshot(self) -> None:
+        import imageio.v3 as iio
+        from .render import image_from_window
+        path = Path(self.screenshot_path or time.strftime("mrsph_%Y%m%d_%H%M%S.png"))
+        try:
+            iio.imwrite(path, image_from_window(self.window))
+            self.message = f"screenshot {path}"
+        except Exception as e:
+            self.message = f"screenshot failed: {e}"
+
+
+def run_window(make_sim, scene_name: str, scene_names: list[str], width: int = 1280,
+               height: int = 720) -> None:
+    """Open the interactive window on ``scene_name`` and run until closed (Esc).
+
+    ``make_sim(scene_name)`` builds a Simulation (and so initialises Taichi). If it also
+    accepts overrides, ``make_sim(scene_name, overrides: dict)``, the refinement
+    checkbox can rebuild the scene with ``{"adaptivity.enabled": bool}``.
+    ``scene_names`` are the scenes offered by Tab, 1-9 and the HUD buttons.
+    """
+    ok, why = display_available()
+    if not ok:
+        raise RuntimeError(f"cannot open a window: {why}")
+    app = _App(make_sim, scene_name, scene_names, width, height)
+    app.run()

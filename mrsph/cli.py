@@ -1,0 +1,360 @@
+"""The command line: ``python main.py [SCENE] [options]``, ``python main.py list``,
+``python main.py bench ...``.
+
+Without ``--headless`` an interactive window opens when a display is available;
+otherwise a short video is recorded instead. ``--headless`` runs a fixed number of
+frames and can dump particles and statistics; ``--out`` records a video.
+
+Exit status: 0 done; 1 the simulation failed (NaN, blow-up); 2 a usage or scene error
+(nothing was run); 130 interrupted (Ctrl-C).
+"""
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import sys
+import time
+import warnings
+from pathlib import Path
+
+EXIT_OK = 0
+EXIT_FAILED = 1
+EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130
+#: Frames recorded when no window can open and no --frames was given (5 s at 30 fps).
+FALLBACK_FRAMES = 150
+#: Where that fallback recording goes, relative to the working directory.
+FALLBACK_DIR = Path("out")
+WINDOW_SIZE = (1280, 720)
+PREFERRED_DEFAULT_SCENES = ("demo_2d", "dam_break_2d")
+NO_END = "error: a headless run needs an end: pass --frames N (or set run.frames in the scene)"
+
+
+def _default_scene() -> str:
+    from .config import SCENES_DIR
+    for name in PREFERRED_DEFAULT_SCENES:
+        if (SCENES_DIR / f"{name}.toml").is_file():
+            return name
+    return PREFERRED_DEFAULT_SCENES[-1]
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer (got {text!r})") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer (got {value})")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive number (got {text!r})") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"expected a positive number (got {text})")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from .output import FORMATS
+    parser = argparse.ArgumentParser(
+        prog="python main.py",
+        description="mrsph: adaptive-resolution SPH fluids in Taichi.\n"
+                    "Opens an interactive window on SCENE (or, with no display, records a\n"
+                    "short video of it); --headless runs it without a window.",
+        epilog="commands:\n"
+               "  python main.py list          the scenes in scenes/ with a one-line description\n"
+               "  python main.py bench ...     benchmarks (python main.py bench --help)\n"
+               "\nexamples:\n"
+               "  python main.py dam_break_2d\n"
+               "  python main.py dam_break_2d --headless --frames 60 --dump out/dump\n"
+               "  python main.py pool_3d --out out/pool.mp4 --frames 150\n"
+               "  python main.py slit_2d --set fluid.viscosity=2.0 --set adaptivity.enabled=true\n"
+               "\nexit status: 0 done, 1 the simulation failed, 2 usage or scene error, "
+               "130 interrupted",
+        formatter_class=_Formatter)
+    parser.add_argument("scene", nargs="?", metavar="SCENE", default=_default_scene(),
+                        help="scene name from scenes/ or a path to a .toml file")
+    parser.add_argument("--arch", choices=("auto", "cpu", "gpu"), default="auto",
+                        help="Taichi backend; auto takes a CUDA/Metal GPU if there is one")
+    parser.add_argument("--threads", type=_positive_int, default=None, metavar="N",
+                        help="CPU threads for the cpu backend (default: all cores)")
+    parser.add_argument("--headless", action="store_true",
+                        help="no window: run --frames frames (or run.frames), then stop")
+    parser.add_argument("--frames", type=_positive_int, default=None, metavar="N",
+                        help="frames to run or record (default: the scene's run.frames; "
+                             f"{FALLBACK_FRAMES} for the video made when no window can open)")
+    parser.add_argument("--out", default=None, metavar="FILE",
+                        help="record a video instead: .mp4, .gif, or a directory of PNGs "
+                             "(default: no recording)")
+    parser.add_argument("--width", type=_positive_int, default=None, metavar="PX",
+                        help=f"image width (default: the scene's render.width; the window "
+                             f"{WINDOW_SIZE[0]})")
+    parser.add_argument("--height", type=_positive_int, default=None, metavar="PX",
+                        help=f"image height (default: the scene's render.height; the window "
+                             f"{WINDOW_SIZE[1]})")
+    parser.add_argument("--fps", type=_positive_float, default=None,
+                        help="frames per second of the recorded video (default: the scene's run.fps)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
+                        help="override a scene key, value as TOML (repeatable), e.g. "
+                             "--set fluid.viscosity=2.0 (default: none)")
+    parser.add_argument("--dump", default=None, metavar="DIR",
+                        help="write every frame's particles and a stats.csv row to DIR "
+                             "(default: no dump)")
+    parser.add_argument("--dump-format", choices=FORMATS, default="npz",
+                        help="format of the frame files: npz, ply (binary point cloud) or vtk (.vtu)")
+    parser.add_argument("--quiet", action="store_true",
+                        help="no progress bar, notices or summary; errors and warnings still show")
+    return parser
+
+
+class _Formatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
+    """Keeps the epilog's line breaks; appends "(default: X)" where the help has none."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if "(default" in text or action.default in (None, argparse.SUPPRESS):
+            return text
+        if action.default is False:
+            return text + " (default: off)"
+        return text + " (default: %(default)s)"
+
+
+# ----------------------------------------------------------------------------- messages
+def _err(line: str) -> None:
+    from tqdm import tqdm
+    tqdm.write(line, file=sys.stderr)
+
+
+def _note(args, line: str) -> None:
+    if not args.quiet:
+        _err(f"mrsph: {line}")
+
+
+def _show_warning(default):
+    """A warnings.showwarning that prints RuntimeWarnings as one line, no source line."""
+    def show(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, RuntimeWarning):
+            _err(f"warning: {message}")
+        else:
+            default(message, category, filename, lineno, file, line)
+    return show
+
+
+# ----------------------------------------------------------------------------- commands
+def _cmd_list(argv) -> int:
+    from .config import list_scenes
+    if argv and argv[0] in ("-h", "--help"):
+        print("usage: python main.py list\n\nThe scenes in scenes/, each with its description.")
+        return EXIT_OK
+    scenes = list_scenes()
+    if not scenes:
+        from .config import SCENES_DIR
+        print(f"no scenes in {SCENES_DIR}", file=sys.stderr)
+        return EXIT_OK
+    width = max(len(name) for name, _ in scenes)
+    for name, description in scenes:
+        print(f"{name:<{width}}  {description}")
+    return EXIT_OK
+
+
+def _cmd_bench(argv) -> int:
+    if importlib.util.find_spec("mrsph.bench") is None:
+        print("mrsph: benchmarks are not available in this version (mrsph/bench.py is missing)",
+              file=sys.stderr)
+        return EXIT_USAGE
+    from . import bench
+    status = bench.main(list(argv))
+    return EXIT_OK if status is None else int(status)
+
+
+def _out_kind_problem(out: str) -> str | None:
+    path = Path(out)
+    if path.suffix.lower() in (".mp4", ".gif") or path.suffix == "" or path.is_dir():
+        return None
+    return (f"error: --out {out}: cannot tell what to write (expected a path ending in .mp4 "
+            f"or .gif, or a directory for PNG frames)")
+
+
+class _Dumper:
+    """Frame files and stats.csv rows for --dump, one per rendered frame."""
+
+    def __init__(self, directory, fmt, dim, levels):
+        from .output import StatsWriter
+        self.directory, self.fmt, self.dim = Path(directory), fmt, dim
+        self.stats = StatsWriter(self.directory / "stats.csv", dim, levels)
+        self.last_row: dict | None = None
+
+    def dump(self, snap) -> None:
+        from .output import write_frame
+        parts = {"x": snap.x, "v": snap.v, "m": snap.m, "rho": snap.rho,
+                 "level": snap.level, "kind": snap.kind}
+        write_frame(self.directory, snap.frame, parts, self.dim, self.fmt)
+        self.stats.write(snap.stats)
+        self.last_row = snap.stats
+
+    def close(self) -> None:
+        self.stats.close()
+
+
+class _DumpingSim:
+    """Forwards to a Simulation; dumps every snapshot taken (what the recorder renders)."""
+
+    def __init__(self, sim, dumper: _Dumper):
+        self._sim, self._dumper = sim, dumper
+
+    def snapshot(self, *a, **kw):
+        snap = self._sim.snapshot(*a, **kw)
+        self._dumper.dump(snap)
+        return snap
+
+    def __getattr__(self, name):
+        return getattr(self._sim, name)
+
+
+def _make_sim(scene, args):
+    from . import runtime
+    from .solver import Simulation
+    sim = Simulation(scene, arch=args.arch, threads=args.threads)
+    notice = runtime.notice()
+    if notice:
+        _err(f"mrsph: {notice}")
+    return sim
+
+
+def _run_headless(sim, frames: int, args) -> int:
+    from tqdm import tqdm
+    dumper = _Dumper(args.dump, args.dump_format, sim.dim, sim.levels) if args.dump else None
+    steps = 0
+    t0 = time.perf_counter()
+    try:
+        if dumper:
+            dumper.dump(sim.snapshot())
+        with tqdm(total=frames, file=sys.stderr, disable=args.quiet, unit="frame",
+                  desc=sim.scene.name, dynamic_ncols=True, leave=False) as bar:
+            for _ in range(frames):
+                steps += sim.advance_frame()
+                if dumper:
+                    dumper.dump(sim.snapshot())
+                bar.update(1)
+    finally:
+        if dumper:
+            dumper.close()
+    wall = time.perf_counter() - t0
+    row = dumper.last_row if dumper else sim.stats()
+    if not args.quiet:
+        where = f"; dumped to {args.dump}" if args.dump else ""
+        print(f"{sim.scene.name}: {frames} frames, {sim.time:.4g} s simulated in {wall:.3g} s "
+              f"wall ({steps} steps); {row['n_real']} real / {row['n_virtual']} virtual "
+              f"particles, total mass {row['total_mass']:.6g} kg{where}")
+    return EXIT_OK
+
+
+def _record(sim, out, frames: int, args) -> Path:
+    from .app.record import record
+    target = sim
+    dumper = _Dumper(args.dump, args.dump_format, sim.dim, sim.levels) if args.dump else None
+    if dumper:
+        target = _DumpingSim(sim, dumper)
+    try:
+        return record(target, out, frames, width=args.width, height=args.height, fps=args.fps,
+                      progress=not args.quiet)
+    finally:
+        if dumper:
+            dumper.close()
+
+
+def _run_window_or_video(scene, args) -> int:
+    from .app.window import display_available
+    ok, why = display_available()
+    if ok:
+        from .app.window import run_window
+        from .config import SCENES_DIR, list_scenes, load_scene
+        names = [name for name, _ in list_scenes()]
+        # the window offers the scenes of scenes/ by name; a scene from elsewhere by path
+        own = Path(scene.path).resolve() == (SCENES_DIR / f"{scene.name}.toml").resolve()
+        first = scene.name if own else str(scene.path)
+        if first not in names:
+            names = [first] + names
+
+        def make_sim(name, overrides=None):
+            # --set applies to every scene the window opens; the window's own overrides
+            # (the refinement checkbox) come on top
+            s = load_scene(name, args.overrides)
+            if overrides:
+                s = s.with_overrides(overrides)
+            return _make_sim(s, args)
+
+        run_window(make_sim, first, names, args.width or WINDOW_SIZE[0], args.height or WINDOW_SIZE[1])
+        return EXIT_OK
+    frames = args.frames or FALLBACK_FRAMES
+    out = FALLBACK_DIR / f"{scene.name}.mp4"
+    _err(f"mrsph: no window ({why}); recording {frames} frames to {out} instead")
+    from .solver import SimulationError
+    sim = _make_sim(scene, args)
+    try:
+        path = _record(sim, out, frames, args)
+    except SimulationError:
+        raise
+    except (OSError, RuntimeError) as e:
+        out = out.with_suffix(".gif")
+        _err(f"mrsph: writing mp4 failed ({type(e).__name__}: {e}); writing {out} instead")
+        sim.reset()
+        path = _record(sim, out, frames, args)
+    print(path)
+    return EXIT_OK
+
+
+def _run(args) -> int:
+    from .config import load_scene
+    scene = load_scene(args.scene, args.overrides)
+    if args.out:
+        problem = _out_kind_problem(args.out)
+        if problem:
+            _err(problem)
+            return EXIT_USAGE
+    frames = args.frames if args.frames is not None else int(scene.get("run.frames"))
+    if args.headless or args.out:
+        if frames < 1:
+            _err(NO_END)
+            return EXIT_USAGE
+        sim = _make_sim(scene, args)
+        if args.out:
+            print(_record(sim, args.out, frames, args))
+            return EXIT_OK
+        return _run_headless(sim, frames, args)
+    if args.dump:
+        _note(args, "--dump applies to headless runs and recordings; the window does not dump")
+    return _run_window_or_video(scene, args)
+
+
+def main(argv=None) -> int:
+    """Run the command line; returns the exit status (see the module docstring)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] == "list":
+        return _cmd_list(argv[1:])
+    if argv and argv[0] == "bench":
+        return _cmd_bench(argv[1:])
+    from .config import SceneError
+    args = build_parser().parse_args(argv)
+    with warnings.catch_warnings():
+        warnings.simplefilter("once", RuntimeWarning)
+        warnings.showwarning = _show_warning(warnings.showwarning)
+        try:
+            return _run(args)
+        except SceneError as e:
+            for line in e.problems:
+                _err(line)
+            return EXIT_USAGE
+        except KeyboardInterrupt:
+            return EXIT_INTERRUPTED
+        except Exception as e:
+            # only a SimulationError is expected here; the solver is imported by then
+            solver = sys.modules.get("mrsph.solver")
+            if solver is not None and isinstance(e, solver.SimulationError):
+                _err(f"error: {e}")
+                return EXIT_FAILED
+            raise

@@ -1,0 +1,232 @@
+"""Frame dumps (npz, PLY, VTU) and ``stats.csv``; numpy only, no Taichi.
+
+A frame dump holds every alive particle, virtual ones included, with the arrays
+
+=======  ========  ===========================================================
+``x``    (N, d)    position, m
+``v``    (N, d)    velocity, m/s
+``m``    (N,)      mass, kg
+``rho``  (N,)      density, kg/m^3
+``level`` (N,)     int32, resolution level (0 = finest)
+``kind`` (N,)      int32, kind code (docs/CONTRACTS.md; virtual = kind >= 4)
+=======  ========  ===========================================================
+
+``frame_00000.npz`` keeps them as they are. ``frame_00000.ply`` is a binary
+little-endian point cloud (ParaView, MeshLab, Blender) with the properties
+``x y z vx vy vz m rho level kind``; 2D positions and velocities get z = 0.
+``frame_00000.vtu`` is a VTK unstructured grid of vertex cells (ParaView) with ``v``,
+``m``, ``rho``, ``level`` and ``kind`` as point data, written by meshio.
+"""
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import numpy as np
+
+FORMATS = ("npz", "ply", "vtk")
+FRAME_ARRAYS = ("x", "v", "m", "rho", "level", "kind")
+#: File name of frame i: frame_00000.npz; five digits keep frames sorted by name.
+FRAME_NAME = "frame_{:05d}.{}"
+_SUFFIX = {"npz": "npz", "ply": "ply", "vtk": "vtu"}
+_PLY_TYPES = {np.dtype("<f4"): "float", np.dtype("<f8"): "double", np.dtype("<i4"): "int"}
+
+
+def frame_path(directory, frame_index: int, fmt: str = "npz") -> Path:
+    """Where :func:`write_frame` puts frame ``frame_index`` in format ``fmt``."""
+    if fmt not in FORMATS:
+        raise ValueError(f"fmt: expected one of {', '.join(FORMATS)} (got {fmt!r})")
+    return Path(directory) / FRAME_NAME.format(int(frame_index), _SUFFIX[fmt])
+
+
+def _frame_arrays(parts: dict, dim: int) -> dict:
+    """The documented arrays of ``parts`` with checked shapes and fixed dtypes."""
+    missing = [k for k in FRAME_ARRAYS if k not in parts]
+    if missing:
+        raise ValueError(f"parts: missing arrays {', '.join(missing)} (expected {', '.join(FRAME_ARRAYS)})")
+    x = np.asarray(parts["x"])
+    n = len(x)
+    out = {}
+    for key in FRAME_ARRAYS:
+        a = np.asarray(parts[key])
+        if key in ("level", "kind"):
+            a = a.astype(np.int32)
+        elif a.dtype.kind != "f":
+            a = a.astype(np.float64)
+        a = a.reshape(n, dim) if key in ("x", "v") else a.reshape(n)
+        out[key] = np.ascontiguousarray(a)
+    return out
+
+
+def _pad3(a: np.ndarray) -> np.ndarray:
+    """(N, d) -> (N, 3), zeros in the missing components."""
+    if a.shape[1] == 3:
+        return a
+    return np.concatenate([a, np.zeros((len(a), 3 - a.shape[1]), a.dtype)], axis=1)
+
+
+def write_frame(directory, frame_index: int, parts: dict, dim: int, fmt: str = "npz") -> Path:
+    """Write one frame of particles to ``directory`` (created if needed); returns the path.
+
+    ``parts`` is ``Simulation.particles()`` (or a snapshot's arrays): at least x, v, m,
+    rho, level and kind; other arrays are ignored.
+    """
+    path = frame_path(directory, frame_index, fmt)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    a = _frame_arrays(parts, int(dim))
+    if fmt == "npz":
+        np.savez(path, **a)
+    elif fmt == "ply":
+        _write_ply(path, a)
+    else:
+        _write_vtu(path, a)
+    return path
+
+
+def _write_ply(path: Path, a: dict) -> None:
+    n = len(a["x"])
+    fdt = np.dtype("<f8") if a["x"].dtype == np.float64 or a["v"].dtype == np.float64 else np.dtype("<f4")
+    sdt = np.dtype("<f8") if a["m"].dtype == np.float64 or a["rho"].dtype == np.float64 else np.dtype("<f4")
+    fields = [(name, fdt) for name in ("x", "y", "z", "vx", "vy", "vz")]
+    fields += [("m", sdt), ("rho", sdt), ("level", np.dtype("<i4")), ("kind", np.dtype("<i4"))]
+    rec = np.empty(n, dtype=np.dtype(fields))
+    for k, name in enumerate(("x", "y", "z")):
+        rec[name] = _pad3(a["x"])[:, k]
+    for k, name in enumerate(("vx", "vy", "vz")):
+        rec[name] = _pad3(a["v"])[:, k]
+    for name in ("m", "rho", "level", "kind"):
+        rec[name] = a[name]
+    header = ["ply", "format binary_little_endian 1.0", "comment written by mrsph",
+              f"element vertex {n}"]
+    header += [f"property {_PLY_TYPES[dt]} {name}" for name, dt in fields]
+    header += ["end_header"]
+    with open(path, "wb") as f:
+        f.write(("\n".join(header) + "\n").encode("ascii"))
+        f.write(rec.tobytes())
+
+
+def read_ply(path) -> dict:
+    """Read a PLY written by :func:`write_frame` back into a dict of column arrays."""
+    names = {"float": "<f4", "double": "<f8", "int": "<i4"}
+    with open(path, "rb") as f:
+        if f.readline().strip() != b"ply":
+            raise ValueError(f"{path}: not a PLY file")
+        fields, n = [], None
+        while True:
+            line = f.readline()
+            if not line:
+                raise ValueError(f"{path}: PLY header without end_header")
+            words = line.decode("ascii").split()
+            if words[:1] == ["end_header"]:
+                break
+            if words[:1] == ["format"] and words[1] != "binary_little_endian":
+                raise ValueError(f"{path}: expected binary_little_endian (got {words[1]})")
+            if words[:2] == ["element", "vertex"]:
+                n = int(words[2])
+            elif words[:1] == ["property"]:
+                fields.append((words[2], names[words[1]]))
+        rec = np.frombuffer(f.read(), dtype=np.dtype(fields), count=n)
+    return {name: rec[name].copy() for name, _ in fields}
+
+
+def _write_vtu(path: Path, a: dict) -> None:
+    import meshio
+    n = len(a["x"])
+    points = _pad3(a["x"]).astype(np.float64)
+    cells = [meshio.CellBlock("vertex", np.arange(n, dtype=np.int64).reshape(n, 1))]
+    point_data = {"v": _pad3(a["v"]).astype(np.float64)}
+    for name in ("m", "rho", "level", "kind"):
+        point_data[name] = a[name]
+    # An empty frame (a pour before its first particle) is written uncompressed, so that
+    # no zero-length zlib block appears; ParaView opens it, meshio's reader cannot read
+    # empty meshes back at all.
+    meshio.Mesh(points, cells, point_data=point_data).write(
+        path, file_format="vtu", compression="zlib" if n else None)
+
+
+# ------------------------------------------------------------------------- stats.csv
+#: Columns a stats row may carry beyond the base ones, in the order they are written;
+#: per-level columns come in level order. Any other key follows, sorted by name.
+_EXTRA_ORDER = ("n_virtual_level_*", "n_transient", "splits", "merges", "refused")
+
+
+def stats_columns(dim: int, levels: int) -> list[str]:
+    """The base columns of stats.csv, always present and in this order."""
+    cols = ["frame", "time", "dt", "n_real", "n_virtual", "total_mass"]
+    cols += [f"momentum_{ax}" for ax in "xyz"[:dim]]
+    cols += ["kinetic_energy", "max_density_ratio"]
+    cols += [f"n_level_{l}" for l in range(levels)]
+    return cols
+
+
+def _extra_columns(keys, base: list[str]) -> list[str]:
+    rest = [k for k in keys if k not in base]
+    ordered = []
+    for pattern in _EXTRA_ORDER:
+        if pattern.endswith("*"):
+            prefix = pattern[:-1]
+            found = [k for k in rest if k.startswith(prefix) and k[len(prefix):].isdigit()]
+            ordered += sorted(found, key=lambda k: int(k[len(prefix):]))
+        elif pattern in rest:
+            ordered.append(pattern)
+    return ordered + sorted(k for k in rest if k not in ordered)
+
+
+def _cell(value) -> str:
+    """Floats as repr (shortest text that reads back to the same double), ints as ints."""
+    if value is None:
+        return ""
+    if isinstance(value, (bool, np.bool_)):
+        return str(int(value))
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    if isinstance(value, (float, np.floating)):
+        v = float(value)
+        return repr(v) if math.isfinite(v) else str(v)
+    return str(value)
+
+
+class StatsWriter:
+    """Writes stats rows (``Simulation.stats()``) to a CSV file, one row per frame.
+
+    The header is the base columns (:func:`stats_columns`) followed by the extra keys of
+    the first row (n_virtual_level_*, n_transient, splits, merges, refused, then any
+    other, sorted). It is written with the first row, or on close if there was none.
+    Every row must carry every base column; a later row with a key the header lacks is
+    an error rather than a silently dropped column.
+    """
+
+    def __init__(self, path, dim: int, levels: int):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.base = stats_columns(int(dim), int(levels))
+        self.columns: list[str] | None = None
+        self._file = open(self.path, "w", newline="", encoding="utf-8")
+        self._csv = csv.writer(self._file, lineterminator="\n")
+
+    def write(self, row: dict) -> None:
+        if self.columns is None:
+            self.columns = self.base + _extra_columns(row.keys(), self.base)
+            self._csv.writerow(self.columns)
+        missing = [k for k in self.base if k not in row]
+        unknown = [k for k in row if k not in self.columns]
+        if missing or unknown:
+            raise ValueError(f"{self.path}: stats row does not match the header "
+                             f"(missing {missing}, not in the header {unknown})")
+        self._csv.writerow([_cell(row.get(k)) for k in self.columns])
+        self._file.flush()
+
+    def close(self) -> None:
+        if self._file.closed:
+            return
+        if self.columns is None:
+            self.columns = list(self.base)
+            self._csv.writerow(self.columns)
+        self._file.close()
+
+    def __enter__(self) -> StatsWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,47 @@
+"""Shared test set-up: the dimension parameter, Taichi initialisation, the ``slow`` marker.
+
+Nothing here touches Taichi at import time.
+
+- ``taichi_f32`` (module scope) starts a fresh single-precision CPU program for the
+  module that asks for it. Fresh, because an earlier module may have re-initialised
+  Taichi (an f64 scene does) or reset it, which frees every field.
+- ``fresh_program`` (function scope) gives one test a fresh Taichi program, as a
+  separate ``python main.py`` run would have: Taichi's offline cache then serves the
+  simulation kernels compiled by an earlier run, which matters for the 3D kernels.
+  The Simulation itself picks the precision its scene asks for
+  (:func:`mrsph.runtime.ensure`), so tests that need f64 say so in the scene; they are
+  kept together at the end of their module so that precision switches are rare.
+"""
+
+import pytest
+
+DIMS = (2, 3)
+
+
+def pytest_configure(config):
+    config.addinivalue_line(
+        "markers", "slow: long physics runs, deselect with -m 'not slow'")
+
+
+@pytest.fixture(params=DIMS, ids=[f"{d}d" for d in DIMS])
+def dim(request) -> int:
+    """Every test body runs in 2D and in 3D."""
+    return request.param
+
+
+@pytest.fixture(scope="module")
+def taichi_f32():
+    """A fresh Taichi program on the CPU in single precision, for one module."""
+    from mrsph import runtime
+    runtime.reset()
+    yield runtime.ensure("cpu", "f32")
+    runtime.reset()
+
+
+@pytest.fixture
+def fresh_program():
+    """A fresh Taichi program for one test (the Simulation initialises it)."""
+    from mrsph import runtime
+    runtime.reset()
+    yield
+    runtime.reset()

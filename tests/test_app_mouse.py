@@ -1,0 +1,148 @@
+"""Mouse gestures -> Disturbance, and 3D picking (pure logic, no window)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pytest
+
+from mrsph.app.mouse import MouseDisturbance, pick_point, ray_box, ray_plane
+
+DT = 1.0 / 60.0
+
+
+@dataclass
+class StandIn:
+    """The signature of mrsph.interaction.Disturbance, for when it is not importable."""
+    center: tuple
+    radius: float
+    strength: float
+    mode: str = "push"
+    velocity: tuple = field(default=())
+
+
+def factory():
+    try:
+        from mrsph.interaction import Disturbance
+        return Disturbance
+    except ImportError:
+        return StandIn
+
+
+def make(dim=2, **kw):
+    kw.setdefault("factory", factory())
+    return MouseDisturbance(dim, radius=0.1, radius_min=0.02, radius_max=0.4, **kw)
+
+
+def drag(mouse, start, step, n, buttons):
+    out = []
+    p = np.asarray(start, float)
+    for _ in range(n):
+        out.append(mouse.update(p, buttons, DT))
+        p = p + step
+    return out
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_left_drag_pushes_along_the_drag(dim):
+    m = make(dim)
+    step = np.zeros(dim)
+    step[0], step[1] = 0.01, 0.005  # 0.6 m/s, 0.3 m/s at 60 fps
+    ds = drag(m, np.full(dim, 0.5), step, 20, {"left"})
+    assert all(d is not None and d.mode == "push" for d in ds)
+    v = np.asarray(ds[-1].velocity)
+    assert v.shape == (dim,)
+    cos = v @ step / (np.linalg.norm(v) * np.linalg.norm(step))
+    assert cos > 0.999, f"velocity {v} not along the drag {step}"
+    # smoothed, but after 20 frames (~6 time constants) close to the cursor speed
+    np.testing.assert_allclose(v, step / DT, rtol=0.05)
+    np.testing.assert_allclose(ds[-1].center, np.full(dim, 0.5) + 19 * step)
+    assert ds[-1].radius == pytest.approx(0.1) and ds[-1].strength == m.strength
+
+
+def test_first_frame_of_a_drag_is_at_rest_and_jitter_is_smoothed():
+    m = make()
+    d0 = m.update((0.5, 0.5), {"left"}, DT)
+    assert np.allclose(d0.velocity, 0.0)
+    d1 = m.update((0.51, 0.5), {"left"}, DT)
+    raw = 0.01 / DT
+    assert 0 < d1.velocity[0] < raw, "one-frame jump should be damped by the smoothing"
+
+
+@pytest.mark.parametrize("buttons", [{"right"}, {"left", "shift"}, {"RMB"}, {"LMB", "Shift"}])
+def test_right_drag_or_shift_left_pulls(buttons):
+    m = make()
+    ds = drag(m, (0.2, 0.3), np.array([0.01, 0.0]), 5, buttons)
+    assert all(d.mode == "pull" for d in ds)
+    assert np.allclose(ds[-1].velocity, 0.0)
+    np.testing.assert_allclose(ds[-1].center, (0.24, 0.3))
+
+
+def test_release_yields_none_and_forgets_the_drag():
+    m = make()
+    drag(m, (0.2, 0.3), np.array([0.02, 0.0]), 5, {"left"})
+    assert m.update((0.3, 0.3), set(), DT) is None
+    assert not m.active
+    d = m.update((0.9, 0.9), {"left"}, DT)
+    assert np.allclose(d.velocity, 0.0), "a new drag must not inherit the old velocity"
+    assert m.update(None, {"left"}, DT) is None, "cursor outside the view: no disturbance"
+
+
+def test_wheel_changes_radius_within_clamps():
+    m = make()
+    m.update((0.5, 0.5), set(), DT, wheel=1)
+    assert m.radius > 0.1
+    m.update((0.5, 0.5), {"left"}, DT, wheel=100)
+    assert m.radius == pytest.approx(0.4)
+    d = m.update((0.5, 0.5), {"left"}, DT, wheel=-1000)
+    assert m.radius == pytest.approx(0.02) and d.radius == pytest.approx(0.02)
+
+
+def test_cursor_jumps_are_clamped():
+    m = make(max_speed=5.0, smoothing=0.0)
+    m.update((0.0, 0.0), {"left"}, DT)
+    d = m.update((10.0, 0.0), {"left"}, DT)
+    assert np.linalg.norm(d.velocity) == pytest.approx(5.0)
+
+
+def test_strength_and_radius_are_settable():
+    m = make()
+    m.strength, m.radius = 42.0, 0.3
+    d = m.update((0.5, 0.5), {"left"}, DT)
+    assert d.strength == 42.0 and d.radius == pytest.approx(0.3)
+
+
+def test_for_domain_scales_defaults():
+    m = MouseDisturbance.for_domain((0, 0), (4, 1), factory=factory())
+    assert m.radius == pytest.approx(0.32) and m.radius_min == pytest.approx(0.04)
+    assert m.radius_max == pytest.approx(2.0)
+
+
+# ----------------------------------------------------------------------------- picking
+def test_pick_point_enters_the_box():
+    p = pick_point((0.5, 0.5, 5.0), (0, 0, -1), (0, 0, 0), (1, 1, 1), (0.5, 0.5, 0.5))
+    np.testing.assert_allclose(p, (0.5, 0.5, 1.0))
+
+
+def test_pick_point_misses_box_uses_plane_facing_camera():
+    o, d = np.array([3.0, 0.5, 5.0]), np.array([0.0, 0.0, -1.0])
+    p = pick_point(o, d, (0, 0, 0), (1, 1, 1), (0.5, 0.5, 0.5))
+    np.testing.assert_allclose(p, (3.0, 0.5, 0.5))
+    # plane through the centre with an explicit normal (the camera's forward)
+    d2 = np.array([0.0, -0.6, -0.8])
+    p2 = pick_point((3.0, 5.0, 5.0), d2, (0, 0, 0), (1, 1, 1), (0.5, 0.5, 0.5), plane_normal=(0, 0, -1))
+    assert p2[2] == pytest.approx(0.5)
+
+
+def test_pick_point_from_inside_or_pointing_away_falls_back():
+    p = pick_point((0.5, 0.5, 0.5), (0, 0, 1), (0, 0, 0), (1, 1, 1), (0.5, 0.5, 0.2),
+                   plane_normal=(0, 0, 1))
+    assert p is not None and p.shape == (3,)
+    far = pick_point((0.5, 0.5, 5.0), (0, 0, 1), (0, 0, 0), (1, 1, 1), (0.5, 0.5, 0.5))
+    np.testing.assert_allclose(far, (0.5, 0.5, 0.5))
+
+
+def test_ray_helpers():
+    assert ray_box((2, 2, 2), (1, 0, 0), (0, 0, 0), (1, 1, 1)) is None
+    assert ray_box((-1, 0.5, 0.5), (1, 0, 0), (0, 0, 0), (1, 1, 1)) == pytest.approx((1.0, 2.0))
+    assert ray_plane((0, 0, 0), (1, 0, 0), (0, 0, 1), (0, 0, 1)) is None  # parallel

@@ -1,0 +1,239 @@
+"""Palette, view transforms, the numpy rasteriser and the GGUI renderer (offscreen).
+
+GGUI tests skip with the reason when ``vulkan_available()`` says no. Every drawing test
+runs in 2D and 3D on the stand-in simulation of ``mrsph.app.fake``.
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from mrsph.app import palette
+from mrsph.app.fake import FakeSimulation
+from mrsph.app.raster import Rasterizer, rasterize
+from mrsph.app.view import OrbitCamera, View2D
+
+DIMS = [2, 3]
+W, H = 480, 270
+# The legend occupies the top-left corner in both renderers (different fonts): leave it
+# out when comparing where the scene is drawn.
+LEGEND_BOX = (slice(0, 130), slice(0, 250))
+
+
+@pytest.fixture(scope="module")
+def taichi_cpu(taichi_f32):
+    """Taichi on the CPU (f32) for this module, reset afterwards: conftest's
+    ``taichi_f32`` does ti.init / ti.reset through mrsph.runtime."""
+    import taichi as ti
+    return ti
+
+
+@pytest.fixture(scope="module")
+def vulkan():
+    from mrsph.app.record import vulkan_available
+    ok, why = vulkan_available()
+    if not ok:
+        pytest.skip(f"GGUI offscreen rendering unavailable: {why}")
+    return why
+
+
+def fake_snapshot(dim, frames=2, **kw):
+    sim = FakeSimulation(dim=dim, **kw)
+    for _ in range(frames):
+        sim.advance_frame()
+    return sim.snapshot()
+
+
+def background_mask(img) -> np.ndarray:
+    bg = np.array(palette.BACKGROUND) * 255.0
+    return np.abs(img.astype(np.float32) - bg).max(axis=2) > 30
+
+
+# ----------------------------------------------------------------------------- palette
+@pytest.mark.parametrize("dim", DIMS)
+@pytest.mark.parametrize("mode", palette.COLOR_MODES)
+def test_colours_every_mode(dim, mode):
+    snap = fake_snapshot(dim, frames=1)
+    rgb = palette.colours(snap, mode)
+    assert rgb.shape == (len(snap.x), 3) and rgb.dtype == np.float32
+    assert np.all((rgb >= 0) & (rgb <= 1)), f"{mode}: colours outside [0, 1]"
+
+
+def test_level_colours_distinct_and_finest_warm():
+    lv = palette.LEVEL_COLOURS
+    d = np.linalg.norm(lv[:, None] - lv[None], axis=2) + np.eye(len(lv))
+    assert d.min() > 0.2, f"two level colours are too close (min distance {d.min():.3f})"
+    r, g, b = lv[0]
+    assert r > b and r > 0.8, f"level 0 should be warm and bright, got {lv[0]}"
+
+
+def test_virtual_particles_are_greyed():
+    snap = fake_snapshot(2, frames=0)
+    rgb = palette.colours(snap, "level")
+    virt = palette.is_virtual(snap.kind)
+    assert virt.any()
+    lvl = snap.level[virt][0]
+    sat = lambda c: c.max(axis=-1) - c.min(axis=-1)  # noqa: E731
+    assert sat(rgb[virt][0]) < sat(palette.level_colour(lvl)), "virtual colour not washed out"
+
+
+def test_unknown_colour_mode_is_refused():
+    with pytest.raises(ValueError, match="colour mode"):
+        palette.colours(fake_snapshot(2, frames=0), "rainbow")
+
+
+# ----------------------------------------------------------------------------- views
+def test_view2d_letterbox_keeps_aspect_and_round_trips():
+    view = View2D((0, 0), (2, 1), 1000, 1000)
+    corners = view.world_to_px(np.array([[0, 0], [2, 1]]))
+    size = corners[1] - corners[0]
+    assert math.isclose(size[0] / size[1], 2.0, rel_tol=1e-9), "domain aspect ratio not kept"
+    assert math.isclose((corners[0][1] + corners[1][1]) / 2, 500.0), "domain not centred vertically"
+    p = np.array([[0.3, 0.7], [1.9, 0.1]])
+    np.testing.assert_allclose(view.canvas_to_world(view.world_to_canvas(p)), p, atol=1e-12)
+
+
+def test_orbit_camera_ray_hits_projected_point():
+    cam = OrbitCamera.from_box((0, 0, 0), (1, 0.6, 0.5), aspect=16 / 9)
+    p = np.array([[0.8, 0.1, 0.2]])
+    px, depth = cam.project(p, 1600, 900)
+    o, d = cam.ray(px[0, 0] / 1600, px[0, 1] / 900, 16 / 9)
+    closest = o + d * float((p[0] - o) @ d)
+    np.testing.assert_allclose(closest, p[0], atol=1e-9)
+    assert depth[0] > 0
+
+
+def test_orbit_camera_matches_ggui_camera(taichi_cpu):
+    """Same view and the same perspective scale as GGUI's camera, so the rasteriser and
+    the mouse picking agree with what GGUI draws."""
+    ti = taichi_cpu
+    cam = OrbitCamera.from_box((0, 0, 0), (1.2, 0.7, 0.6), aspect=16 / 9)
+    cam.orbit(0.4, -0.1)
+    tc = ti.ui.Camera()
+    tc.position(*cam.position)
+    tc.lookat(*cam.target)
+    tc.up(0, 1, 0)
+    tc.fov(cam.fov)
+    view = np.array(tc.get_view_matrix()).T  # GGUI returns it column-major
+    np.testing.assert_allclose(view, cam.view_matrix(), atol=1e-5)
+    proj = np.array(tc.get_projection_matrix(16 / 9)).T
+    mine = cam.projection_matrix(16 / 9)
+    np.testing.assert_allclose([proj[0, 0], proj[1, 1]], [mine[0, 0], mine[1, 1]], rtol=1e-5)
+
+
+# ----------------------------------------------------------------------------- raster
+@pytest.mark.parametrize("dim", DIMS)
+def test_raster_frame_shows_level_colours(dim, tmp_path):
+    snap = fake_snapshot(dim)
+    img = rasterize(snap, W, H)
+    assert img.shape == (H, W, 3) and img.dtype == np.uint8
+    assert background_mask(img).mean() > 0.02, "frame is (nearly) empty"
+    counts = palette.count_level_pixels(img, snap.levels)
+    assert sum(c > 50 for c in counts) >= 2, f"fewer than two level colours visible: {counts}"
+
+
+@pytest.mark.parametrize("dim", DIMS)
+def test_raster_orientation_up_is_up(dim):
+    """A lone particle high in the domain is drawn in the upper half of the image."""
+    snap = fake_snapshot(dim, frames=0, obstacles=False)
+    keep = np.zeros(len(snap.x), dtype=bool)
+    keep[0] = True
+    for name in ("x", "v", "m", "rho", "level", "kind"):
+        setattr(snap, name, getattr(snap, name)[keep])
+    snap.x[0] = snap.domain_min + (snap.domain_max - snap.domain_min) * 0.5
+    snap.x[0][1] = snap.domain_min[1] + 0.9 * (snap.domain_max[1] - snap.domain_min[1])
+    snap.kind[0] = 0
+    snap.level[0] = snap.levels - 1
+    img = rasterize(snap, W, H, legend=False)
+    rows = np.nonzero(palette.level_mask(img, snap.levels - 1).any(axis=1))[0]
+    assert len(rows), "particle not drawn"
+    assert rows.mean() < H / 2, f"particle near the top of the domain drawn at row {rows.mean():.0f} of {H}"
+
+
+@pytest.mark.parametrize("dim", DIMS)
+def test_raster_30k_particles_960x540_fast(dim):
+    spacing = 0.0031 if dim == 2 else 0.0118
+    snap = fake_snapshot(dim, frames=0, spacing=spacing)
+    assert len(snap.x) >= 25_000, len(snap.x)
+    r = Rasterizer(960, 540)
+    r.render(snap)  # warm the stamp cache
+    t0 = time.perf_counter()
+    img = r.render(snap, show_virtual=True)
+    elapsed = time.perf_counter() - t0
+    assert img.shape == (540, 960, 3)
+    assert elapsed < 1.0, f"{len(snap.x)} particles took {elapsed:.2f} s (limit 1 s)"
+
+
+# ----------------------------------------------------------------------------- GGUI
+@pytest.fixture(scope="module")
+def offscreen(taichi_cpu, vulkan):
+    from mrsph.app.render import ImguiIniGuard
+    guard = ImguiIniGuard()  # ImGui writes ./imgui.ini when the window goes
+    window = taichi_cpu.ui.Window("mrsph test", (W, H), show_window=False)
+    yield window
+    window.destroy()
+    guard.cleanup()
+
+
+def ggui_frame(window, snap, renderer=None):
+    from mrsph.app.render import Renderer, image_from_window
+    renderer = renderer or Renderer(window)
+    renderer.draw(snap)
+    image_from_window(window)  # ImGui lays out its panels on the first frame
+    renderer.draw(snap)
+    return image_from_window(window)
+
+
+@pytest.mark.parametrize("dim", DIMS)
+def test_ggui_offscreen_frame_shows_level_colours(dim, offscreen):
+    snap = fake_snapshot(dim)
+    img = ggui_frame(offscreen, snap)
+    assert img.shape == (H, W, 3)
+    assert background_mask(img).mean() > 0.02, "frame is (nearly) empty"
+    counts = palette.count_level_pixels(img, snap.levels)
+    assert sum(c > 50 for c in counts) >= 2, f"fewer than two level colours visible: {counts}"
+
+
+@pytest.mark.parametrize("dim", DIMS)
+def test_ggui_and_raster_draw_the_same_picture(dim, offscreen):
+    """Same framing: the drawn (non-background) areas of both renderers overlap."""
+    snap = fake_snapshot(dim)
+    a = background_mask(ggui_frame(offscreen, snap))
+    b = background_mask(rasterize(snap, W, H))
+    a[LEGEND_BOX] = b[LEGEND_BOX] = False
+    iou = (a & b).sum() / max((a | b).sum(), 1)
+    assert iou > 0.6, f"GGUI and raster frames differ: IoU of drawn pixels {iou:.2f}"
+
+
+def test_ggui_orientation_up_is_up(offscreen):
+    """The buffer-to-image conversion keeps up up and left left."""
+    from mrsph.app.render import image_from_window
+    offscreen.get_canvas().set_background_color((0, 0, 0))
+    ti = pytest.importorskip("taichi")
+    pts = ti.Vector.field(2, ti.f32, 1)
+    pts.from_numpy(np.array([[0.1, 0.9]], np.float32))  # canvas: left, top
+    offscreen.get_canvas().circles(pts, radius=0.05, color=(1.0, 0.0, 0.0))
+    img = image_from_window(offscreen)
+    ys, xs = np.nonzero(img[:, :, 0] > 128)
+    assert len(ys)
+    assert ys.mean() < H * 0.3 and xs.mean() < W * 0.3, (ys.mean(), xs.mean())
+
+
+def test_renderer_reallocates_only_when_growing(offscreen):
+    from mrsph.app.render import Renderer
+    r = Renderer(offscreen)
+    big = fake_snapshot(2, frames=0)
+    small = fake_snapshot(2, frames=0, spacing=0.03)
+    r.draw(small)
+    f0, cap0 = r._pos2.field, r._pos2.capacity
+    r.draw(small)
+    assert r._pos2.field is f0, "field recreated for the same particle count"
+    r.draw(big)
+    assert r._pos2.capacity >= len(big.x) > cap0
+    f1 = r._pos2.field
+    r.draw(small)
+    r.draw(big)
+    assert r._pos2.field is f1, "field recreated although the capacity sufficed"

@@ -1,0 +1,253 @@
+"""The command line, run as ``python main.py`` in a subprocess.
+
+Scene and usage errors must end with exit status 2 and readable lines (file, key, what
+was expected), never a traceback; a tiny headless run must write the documented dumps.
+Only three runs build a simulation (one Taichi compile, then the offline cache); the
+rest stop before Taichi is imported.
+"""
+import csv
+import importlib.util
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import meshio
+import numpy as np
+import pytest
+
+from mrsph.cli import NO_END, _show_warning
+from mrsph.config import list_scenes
+from mrsph.output import read_ply, stats_columns
+
+REPO = Path(__file__).resolve().parent.parent
+TIMEOUT_S = 300
+
+TINY = """\
+description = "tiny 2D dam break for the CLI tests"
+dim = 2
+
+[domain]
+min = [0.0, 0.0]
+max = [1.0, 0.6]
+
+[particles]
+spacing = 0.005
+
+[fluid]
+viscosity = 1.0
+stiffness = 1000.0
+
+[[fluid.blocks]]
+min = [0.0, 0.0]
+max = [0.25, 0.5]
+"""
+# 16 x 33 = 528 particles: enough to be a fluid, fast to run
+TINY_SPACING = "particles.spacing=0.015"
+FRAMES = 3
+
+
+def run(*args, cwd=REPO):
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    env["MRSPH_NO_VULKAN"] = "1"   # never probe GGUI from these tests
+    return subprocess.run([sys.executable, str(REPO / "main.py"), *map(str, args)], cwd=cwd,
+                          env=env, capture_output=True, text=True, timeout=TIMEOUT_S)
+
+
+def scene_file(tmp_path, extra: str = "", name: str = "tiny.toml") -> Path:
+    """TINY plus ``extra``; lines of ``extra`` starting with "particles." go into
+    TINY's [particles] table."""
+    inside = "".join(ln[len("particles."):] + "\n" for ln in extra.splitlines()
+                     if ln.startswith("particles."))
+    after = "".join(ln + "\n" for ln in extra.splitlines() if not ln.startswith("particles."))
+    path = tmp_path / name
+    path.write_text(TINY.replace("[fluid]\n", inside + "\n[fluid]\n") + after, encoding="utf-8")
+    return path
+
+
+def assert_usage_error(proc, *needles):
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    for needle in needles:
+        assert any(needle in line for line in lines), f"{needle!r} not in:\n{proc.stderr}"
+
+
+# ----------------------------------------------------------------------- scene errors
+SCENE_ERRORS = {
+    "unknown key": ('[run]\nfram = 3\n', [],
+                    ["run.fram: unknown key (did you mean 'frames'?)"]),
+    "bad type": ('[physics]\ncfl = "fast"\n', [],
+                 ['physics.cfl: wrong type (got "fast" (string)']),
+    "out of range": ('[render]\nwidth = 10\n', [],
+                     ["render.width: out of range (got 10; expected an integer in [64, 8192])"]),
+    "block outside domain": ('[[fluid.blocks]]\nmin = [0.5, 0.5]\nmax = [2.0, 0.9]\n', [],
+                             ["fluid.blocks.1: outside the domain"]),
+    "block inside obstacle": ('[[obstacles]]\nshape = "sphere"\ncenter = [0.1, 0.1]\nradius = 0.05\n',
+                              [], ["fluid.blocks.0: overlaps obstacles.0"]),
+    "capacity too small": ("particles.capacity = 10", [],
+                           ["particles.capacity: too small for the fluid blocks (got 10; expected >= 5000"]),
+    "bad --set syntax": ("", ["--set", "fluid.viscosity"],
+                         ["--set fluid.viscosity: not KEY=VALUE"]),
+    "unknown --set key": ("", ["--set", "fluid.viscosty=2"],
+                          ["--set fluid.viscosty: unknown key (did you mean 'viscosity'?)"]),
+}
+
+
+@pytest.mark.parametrize("case", SCENE_ERRORS, ids=lambda c: c.replace(" ", "-"))
+def test_scene_error_exits_2_with_file_and_key(tmp_path, case):
+    extra, args, needles = SCENE_ERRORS[case]
+    path = scene_file(tmp_path, extra)
+    proc = run(path, "--headless", "--frames", 1, *args, cwd=tmp_path)
+    label = "--set" if case.endswith("--set key") or "syntax" in case else "tiny.toml"
+    assert_usage_error(proc, *needles, label)
+
+
+def test_every_problem_is_reported_at_once(tmp_path):
+    path = scene_file(tmp_path, '[run]\nfram = 3\n[physics]\ncfl = "fast"\n')
+    proc = run(path, "--headless", "--set", "fluid.viscosty=2", cwd=tmp_path)
+    assert_usage_error(proc, "run.fram: unknown key", "physics.cfl: wrong type",
+                       "--set fluid.viscosty: unknown key")
+    assert len(proc.stderr.strip().splitlines()) == 3
+
+
+def test_missing_scene_name():
+    proc = run("no_such_scene", "--headless", "--frames", 1)
+    assert_usage_error(proc, "no_such_scene: no such scene or file")
+    for name, _ in list_scenes():
+        assert name in proc.stderr
+
+
+def test_invalid_toml(tmp_path):
+    path = tmp_path / "broken.toml"
+    path.write_text("dim = = 2\n", encoding="utf-8")
+    assert_usage_error(run(path, "--headless", cwd=tmp_path), "broken.toml: invalid TOML")
+
+
+def test_headless_without_an_end_is_refused(tmp_path):
+    path = scene_file(tmp_path)                 # run.frames defaults to 0
+    proc = run(path, "--headless", cwd=tmp_path)
+    assert_usage_error(proc, NO_END)
+    assert proc.stderr.strip() == NO_END
+    assert "--frames N" in NO_END and "run.frames" in NO_END
+    assert_usage_error(run(path, "--out", tmp_path / "x.mp4", cwd=tmp_path), NO_END)
+
+
+def test_bad_option_values(tmp_path):
+    path = scene_file(tmp_path)
+    assert_usage_error(run(path, "--headless", "--frames", 0), "--frames")
+    assert_usage_error(run(path, "--arch", "tpu"), "--arch")
+    assert_usage_error(run(path, "--dump-format", "csv"), "--dump-format")
+    assert_usage_error(run(path, "--frames", 2, "--out", tmp_path / "x.avi"), "--out", ".mp4")
+
+
+# ------------------------------------------------------------------------ help, list
+def test_help_lists_every_option_and_its_default():
+    proc = run("--help")
+    assert proc.returncode == 0, proc.stderr
+    out = " ".join(proc.stdout.split())     # undo argparse's line wrapping
+    options = ["--arch", "--threads", "--headless", "--frames", "--out", "--width", "--height",
+               "--fps", "--set", "--dump", "--dump-format", "--quiet", "SCENE"]
+    for option in options:
+        assert option in out, option
+    for default in ["(default: auto)", "(default: all cores)", "(default: off)",
+                    "(default: the scene's run.frames", "(default: no recording)",
+                    "(default: the scene's render.width", "(default: the scene's render.height",
+                    "(default: the scene's run.fps)", "(default: none)", "(default: no dump)",
+                    "(default: npz)", "(default: dam_break_2d)" if not (REPO / "scenes/demo_2d.toml").exists()
+                    else "(default: demo_2d)"]:
+        assert default in out, default
+    assert out.count("(default:") >= len(options) - 1   # --help itself has none
+    assert "python main.py list" in out and "python main.py bench" in out
+
+
+def test_list_shows_every_scene_with_its_description():
+    proc = run("list")
+    assert proc.returncode == 0, proc.stderr
+    scenes = list_scenes()
+    assert scenes, "no scenes in scenes/"
+    lines = proc.stdout.strip().splitlines()
+    assert len(lines) == len(scenes)
+    for line, (name, description) in zip(lines, scenes):
+        assert line.split()[0] == name
+        assert line.endswith(description) and description
+
+
+def test_bench_without_the_module():
+    if importlib.util.find_spec("mrsph.bench") is not None:
+        pytest.skip("mrsph.bench exists; its own tests cover it")
+    proc = run("bench")
+    assert proc.returncode == 2
+    assert len(proc.stderr.strip().splitlines()) == 1 and "Traceback" not in proc.stderr
+
+
+def test_runtime_warnings_print_as_one_line(capsys):
+    show = _show_warning(lambda *a: pytest.fail("a RuntimeWarning went to the default handler"))
+    show(RuntimeWarning("particle pool full"), RuntimeWarning, "solver.py", 12)
+    assert capsys.readouterr().err == "warning: particle pool full\n"
+
+
+# ----------------------------------------------------------------------------- dumps
+def test_headless_dump_npz(tmp_path):
+    path = scene_file(tmp_path)
+    out = tmp_path / "dump"
+    proc = run(path, "--headless", "--frames", FRAMES, "--set", TINY_SPACING, "--dump", out,
+               "--arch", "cpu", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert f"{FRAMES} frames" in proc.stdout and "total mass" in proc.stdout
+
+    files = sorted(p.name for p in out.glob("frame_*"))
+    assert files == [f"frame_{i:05d}.npz" for i in range(FRAMES + 1)]
+    n = None
+    for name in files:
+        with np.load(out / name) as f:
+            assert sorted(f.files) == ["kind", "level", "m", "rho", "v", "x"]
+            n = len(f["m"])
+            assert f["x"].shape == (n, 2) and f["v"].shape == (n, 2)
+            assert f["level"].dtype == np.int32 and f["kind"].dtype == np.int32
+            assert np.isfinite(f["x"]).all()
+    assert n == 16 * 33
+
+    with open(out / "stats.csv", newline="") as f:
+        rows = list(csv.reader(f))
+    header = rows[0]
+    assert header[: len(stats_columns(2, 1))] == stats_columns(2, 1)
+    for extra in ["n_virtual_level_0", "n_transient", "splits", "merges", "refused"]:
+        assert extra in header
+    body = [dict(zip(header, r)) for r in rows[1:]]
+    assert [int(r["frame"]) for r in body] == list(range(FRAMES + 1))
+    assert len({r["total_mass"] for r in body}) == 1          # exactly constant
+    assert float(body[-1]["time"]) == pytest.approx(FRAMES / 30.0)
+
+
+@pytest.mark.parametrize("fmt", ["ply", "vtk"])
+def test_headless_dump_ply_and_vtk(tmp_path, fmt):
+    path = scene_file(tmp_path)
+    out = tmp_path / "dump"
+    proc = run(path, "--headless", "--frames", 1, "--set", TINY_SPACING, "--dump", out,
+               "--dump-format", fmt, "--arch", "cpu", "--quiet", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    suffix = "ply" if fmt == "ply" else "vtu"
+    files = sorted(out.glob(f"frame_*.{suffix}"))
+    assert [p.name for p in files] == [f"frame_{i:05d}.{suffix}" for i in range(2)]
+    for p in files:
+        if fmt == "ply":
+            cols = read_ply(p)
+            assert len(cols["x"]) == 16 * 33 and np.all(cols["z"] == 0)
+        else:
+            mesh = meshio.read(p)
+            assert mesh.points.shape == (16 * 33, 3)
+            assert set(mesh.point_data) == {"v", "m", "rho", "level", "kind"}
+    assert (out / "stats.csv").is_file()
+
+
+def test_simulation_error_exits_1(tmp_path):
+    """A time step below dt_min on the first step: one 'error:' line, exit status 1."""
+    path = scene_file(tmp_path)
+    proc = run(path, "--headless", "--frames", 1, "--set", TINY_SPACING,
+               "--set", "physics.dt_min=0.0019", "--arch", "cpu", "--quiet", cwd=tmp_path)
+    assert proc.returncode == 1, proc.stderr
+    assert "Traceback" not in proc.stderr
+    errors = [line for line in proc.stderr.splitlines() if line.startswith("error: ")]
+    assert len(errors) == 1 and "dt_min" in errors[0]

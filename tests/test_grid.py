@@ -1,0 +1,251 @@
+"""Neighbour grids (mrsph/grid.py) against brute force, and the counting sort's bookkeeping.
+
+A pool with particles of two levels is sorted by ``LevelGrids.sort``; a small Taichi
+kernel then enumerates, for every particle, the candidates of the 3^d cells around its
+own cell on its level and keeps those closer than h_l. The lists must be exactly the
+brute-force neighbour sets (same level, |x_i - x_j| < h_l), computed with a k-d tree.
+"""
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from mrsph.particles import DEAD, REGULAR, TRANSIENT_CHILD, VIRTUAL_PARENT
+
+pytestmark = pytest.mark.usefixtures("taichi_f32")
+
+LEVELS = 2
+H0 = 0.1
+DOMAIN_MIN = -0.3           # not at the origin, so that a missing origin shift shows
+DOMAIN_MAX = 0.7
+MAX_NEIGHBOURS = 160
+# Pairs whose distance is within this fraction of h of the cut-off may be decided
+# either way by single-precision round-off; they are counted and excluded.
+BORDERLINE = 1e-5
+
+
+def build(dim, xs, levels, kinds=None, extra_capacity=8):
+    """A ParticlePool and LevelGrids holding the given particles (ids stored in ``flags``)."""
+    from mrsph.grid import LevelGrids
+    from mrsph.particles import ParticlePool
+
+    n = len(xs)
+    cap = n + extra_capacity
+    pool = ParticlePool(dim, cap)
+    grids = LevelGrids(dim, LEVELS, [DOMAIN_MIN] * dim, [DOMAIN_MAX] * dim, H0, cap)
+    pad = lambda a, fill: np.concatenate([a, np.full((cap - n,) + a.shape[1:], fill, a.dtype)])  # noqa: E731
+    pool.p.x.from_numpy(pad(xs.astype(np.float32), 0.0))
+    pool.p.v.from_numpy(pad((xs * 3.0 + 1.0).astype(np.float32), 0.0))
+    pool.p.m.from_numpy(pad(np.arange(n, dtype=np.float32) + 0.5, 0.0))
+    pool.p.level.from_numpy(pad(levels.astype(np.int32), 0))
+    pool.p.kind.from_numpy(pad(np.full(n, REGULAR, np.int32) if kinds is None else kinds.astype(np.int32), DEAD))
+    pool.p.flags.from_numpy(pad(np.arange(n, dtype=np.int32), -1))
+    pool.p.parent.from_numpy(np.full(cap, -1, np.int32))
+    pool.p.nchild.from_numpy(np.zeros(cap, np.int32))
+    pool.n[None] = n
+    return pool, grids
+
+
+def grid_neighbours(pool, grids, n):
+    """For each sorted slot, the ids (flags) of the particles the grid finds within h_l."""
+    import taichi as ti
+
+    cnt = ti.field(ti.i32, shape=n)
+    nb = ti.field(ti.i32, shape=(n, MAX_NEIGHBOURS))
+    overflow = ti.field(ti.i32, shape=())
+    wrong_level = ti.field(ti.i32, shape=())
+    h = ti.field(float, shape=LEVELS)
+    for l in range(LEVELS):
+        h[l] = H0 * 2**l
+    dim = pool.dim
+
+    @ti.kernel
+    def search(pool: ti.template(), grids: ti.template()):
+        p = ti.static(pool.p)
+        for i in range(n):
+            c = 0
+            l = p[i].level
+            hl = h[l]
+            base = grids.cell(p[i].x, l)
+            for off in ti.static(ti.grouped(ti.ndrange(*((-1, 2),) * dim))):
+                cid = grids.cell_id(base + off, l)
+                for j in range(grids.start[cid], grids.start[cid + 1]):
+                    if p[j].level != l:
+                        wrong_level[None] += 1
+                    # deliberately no level filter: the grid alone must keep levels apart
+                    if j != i and (p[i].x - p[j].x).norm_sqr() < hl * hl:
+                        if c < MAX_NEIGHBOURS:
+                            nb[i, c] = p[j].flags
+                        else:
+                            overflow[None] += 1
+                        c += 1
+            cnt[i] = c
+
+    search(pool, grids)
+    assert overflow[None] == 0, f"test kernel: more than {MAX_NEIGHBOURS} neighbours ({overflow[None]} dropped)"
+    assert wrong_level[None] == 0, \
+        f"{wrong_level[None]} candidates of another level found in the cells of a level's grid"
+    ids = pool.p.flags.to_numpy()[:n]
+    counts = cnt.to_numpy()
+    lists = nb.to_numpy()
+    return {int(ids[i]): set(lists[i, : counts[i]].tolist()) for i in range(n)}
+
+
+def brute_force(xs, levels):
+    """Same-level pairs closer than h_l, and the pairs too close to the cut-off to call."""
+    xs = xs.astype(np.float32).astype(np.float64)   # what the pool holds
+    sets = {i: set() for i in range(len(xs))}
+    borderline = set()
+    for l in range(LEVELS):
+        h = H0 * 2**l
+        idx = np.flatnonzero(levels == l)
+        tree = cKDTree(xs[idx])
+        for a, b in tree.query_pairs(h * (1 + BORDERLINE)):
+            i, j = int(idx[a]), int(idx[b])
+            r = np.linalg.norm(xs[i] - xs[j])
+            if r >= h * (1 - BORDERLINE):
+                borderline.update({(i, j), (j, i)})
+            else:
+                sets[i].add(j)
+                sets[j].add(i)
+    return sets, borderline
+
+
+def compare(found, expected, borderline, label):
+    assert set(found) == set(expected), f"{label}: the sort lost or invented particles"
+    bad = []
+    for i in expected:
+        fi = {j for j in found[i] if (i, j) not in borderline}
+        if fi != expected[i]:
+            bad.append((i, sorted(expected[i] - fi), sorted(fi - expected[i])))
+    assert not bad, (f"{label}: {len(bad)} particle(s) with wrong neighbour sets; first "
+                     f"(id, missed, extra): {bad[:3]}")
+    total = sum(len(s) for s in expected.values())
+    assert total > 4 * len(expected), f"{label}: only {total} neighbour pairs; the test would prove little"
+    assert len(borderline) <= 0.001 * total, f"{label}: {len(borderline)} borderline pairs of {total}"
+
+
+def random_positions(rng, dim, n):
+    return rng.uniform(DOMAIN_MIN, DOMAIN_MAX, size=(n, dim))
+
+
+def jittered_lattice(rng, dim, spacing):
+    ax = np.arange(DOMAIN_MIN + 0.5 * spacing, DOMAIN_MAX, spacing)
+    pts = np.stack(np.meshgrid(*([ax] * dim), indexing="ij"), -1).reshape(-1, dim)
+    return pts + rng.uniform(-0.2, 0.2, size=pts.shape) * spacing
+
+
+@pytest.mark.parametrize("layout", ["random", "lattice"])
+def test_grid_neighbours_equal_brute_force(dim, layout):
+    rng = np.random.default_rng(100 * dim + (layout == "lattice"))
+    if layout == "random":
+        xs = random_positions(rng, dim, 1500 if dim == 2 else 2500)
+    else:
+        xs = jittered_lattice(rng, dim, 0.025 if dim == 2 else 0.06)
+    # two levels, interleaved in space and in the pool
+    levels = (rng.uniform(size=len(xs)) < 0.35).astype(np.int32)
+    # put the particles at the domain edges and corners too (clamped cells, padding)
+    xs[:dim, :] = DOMAIN_MIN
+    xs[dim: 2 * dim, :] = DOMAIN_MAX
+    pool, grids = build(dim, xs, levels)
+    n = grids.sort(pool)
+    assert n == len(xs), f"sort returned {n} particles; expected {len(xs)} (none is DEAD)"
+    expected, borderline = brute_force(xs, levels)
+    compare(grid_neighbours(pool, grids, n), expected, borderline, f"{dim}D {layout}")
+
+
+def test_sort_orders_by_cell_and_carries_every_attribute(dim):
+    rng = np.random.default_rng(7 + dim)
+    xs = random_positions(rng, dim, 400)
+    levels = (rng.uniform(size=len(xs)) < 0.5).astype(np.int32)
+    pool, grids = build(dim, xs, levels)
+    n = grids.sort(pool)
+    ids = pool.p.flags.to_numpy()[:n]
+    assert sorted(ids.tolist()) == list(range(len(xs))), "the sort is not a permutation"
+    x = pool.p.x.to_numpy()[:n]
+    assert np.array_equal(x, xs[ids].astype(np.float32)), "positions not carried with their particle"
+    assert np.array_equal(pool.p.v.to_numpy()[:n], (xs[ids] * 3.0 + 1.0).astype(np.float32)), \
+        "velocities not carried with their particle"
+    assert np.array_equal(pool.p.m.to_numpy()[:n], ids.astype(np.float32) + 0.5), "masses not carried"
+    assert np.array_equal(pool.p.level.to_numpy()[:n], levels[ids]), "levels not carried"
+    # keys: offset of the level + linear cell index, non-decreasing along the pool
+    keys = []
+    offset = 0
+    offsets = []
+    for l in range(LEVELS):
+        offsets.append(offset)
+        offset += int(np.prod(grids.res_host[l]))
+    for xi, l in zip(x.astype(np.float64), levels[ids]):
+        h = H0 * 2**l
+        res = np.array(grids.res_host[l])
+        c = np.clip(np.floor((xi - (DOMAIN_MIN - 2 * h)) / h).astype(int), 0, res - 1)
+        keys.append(offsets[l] + int(np.ravel_multi_index(tuple(c), tuple(res))))
+    keys = np.array(keys)
+    assert np.all(np.diff(keys) >= 0), \
+        f"pool not in cell order after the sort: {int((np.diff(keys) < 0).sum())} descents"
+    # the sort is stable within a cell (ids ascending), so it is deterministic
+    same = np.diff(keys) == 0
+    assert np.all(np.diff(ids)[same] > 0), "particles of one cell are not in their original order"
+
+
+def test_sort_compacts_dead_slots_and_remaps_links(dim):
+    """DEAD holes vanish; parent and children indices follow their particles."""
+    rng = np.random.default_rng(31 + dim)
+    nreal = 300
+    xs = random_positions(rng, dim, nreal)
+    levels = np.zeros(nreal, np.int32)
+    kinds = np.full(nreal, REGULAR, np.int32)
+    nmax = 2**dim
+    # groups of transient children (level 0), each under a virtual parent (level 1)
+    groups = [list(range(g, g + (1 + g % nmax))) for g in range(0, 200, 10)]
+    parents = []
+    for members in groups:
+        kinds[members] = TRANSIENT_CHILD
+        parents.append(len(xs))
+        xs = np.vstack([xs, xs[members].mean(axis=0)])
+        levels = np.append(levels, 1)
+        kinds = np.append(kinds, VIRTUAL_PARENT)
+    dead = rng.choice(np.flatnonzero(kinds == REGULAR), 60, replace=False)
+    kinds[dead] = DEAD
+    pool, grids = build(dim, xs, levels, kinds)
+    parent = np.full(len(xs), -1, np.int32)
+    nchild = np.zeros(len(xs), np.int32)
+    children = np.full((pool.capacity, nmax), -1, np.int32)
+    for members, par in zip(groups, parents):
+        parent[members] = par
+        nchild[par] = len(members)
+        children[par, : len(members)] = members
+        # stale entries past nchild must not survive the sort
+        if len(members) < nmax:
+            children[par, len(members)] = members[0]
+    pad = np.full(pool.capacity - len(xs), -1, np.int32)
+    pool.p.parent.from_numpy(np.concatenate([parent, pad]))
+    pool.p.nchild.from_numpy(np.concatenate([nchild, 0 * pad]))
+    pool.children.from_numpy(children)
+
+    n = grids.sort(pool)
+    alive = len(xs) - len(dead)
+    assert n == alive and pool.count() == alive, \
+        f"after the sort n = {n}, pool.count() = {pool.count()}; expected {alive} alive particles"
+    kind_after = pool.p.kind.to_numpy()
+    assert not np.any(kind_after[:n] == DEAD), f"{int((kind_after[:n] == DEAD).sum())} DEAD slots left inside [0, n)"
+    assert np.all(kind_after[n: len(xs)] == DEAD), "slots past n are not all DEAD"
+    ids = pool.p.flags.to_numpy()[:n]
+    assert set(ids.tolist()) == set(range(len(xs))) - set(dead.tolist()), "the alive set changed"
+    slot_of = {int(i): s for s, i in enumerate(ids)}
+    par_after = pool.p.parent.to_numpy()[:n]
+    nch_after = pool.p.nchild.to_numpy()[:n]
+    ch_after = pool.children.to_numpy()[:n]
+    for s, i in enumerate(ids):
+        if parent[i] >= 0:
+            assert par_after[s] == slot_of[int(parent[i])], \
+                f"particle {i}: parent slot {par_after[s]}, expected {slot_of[int(parent[i])]}"
+        else:
+            assert par_after[s] == -1, f"particle {i} gained a parent ({par_after[s]})"
+        assert nch_after[s] == nchild[i], f"particle {i}: nchild {nch_after[s]}, expected {nchild[i]}"
+        want = [slot_of[int(c)] for c in children[i, : nchild[i]]] + [-1] * (nmax - nchild[i])
+        assert ch_after[s].tolist() == want, f"particle {i}: children slots {ch_after[s].tolist()}, expected {want}"
+    # every child's parent lists it (the invariant of METHOD.md §8)
+    for s in np.flatnonzero(par_after >= 0):
+        par = par_after[s]
+        assert s in ch_after[par, : nch_after[par]], f"slot {s} not listed by its parent {par}"

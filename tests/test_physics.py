@@ -1,0 +1,405 @@
+"""Single-resolution SPH physics (METHOD.md §1) held to numbers: conservation, a fluid at
+rest, a dam break against the experiment, blow-up reporting and the time-step bounds.
+
+Scenes are built in code, small and coarse, so that the file stays within a few minutes
+on a 2-core CPU. Each test starts a fresh Taichi program (``fresh_program``) so that the
+offline cache of an earlier run serves its kernels.
+"""
+
+import math
+import re
+
+import numpy as np
+import pytest
+
+from mrsph.config import load_scene
+
+G = 9.81
+RHO0 = 1000.0
+DIMS = (2, 3)
+
+# Tests that fail because of the library, with what was measured when they were marked
+# (see the report to the maintainers): {(test key, dim): reason}. A test listed here runs
+# and reports its numbers, but its failure does not fail the suite (xfail, not strict).
+KNOWN_FAILURES = {}
+
+
+def known_xfail(request, dim, key, measured):
+    reason = KNOWN_FAILURES.get((key, dim))
+    if reason:
+        request.applymarker(pytest.mark.xfail(strict=False, reason=f"{reason} (this run: {measured:.4g})"))
+
+pytestmark = pytest.mark.usefixtures("fresh_program")
+
+
+def box(dim, lo2, hi2, z=(0.0, 0.1)):
+    """Corners of a box from its (x, y) corners; in 3D z spans ``z``."""
+    if dim == 2:
+        return [float(v) for v in lo2], [float(v) for v in hi2]
+    return [float(v) for v in lo2] + [float(z[0])], [float(v) for v in hi2] + [float(z[1])]
+
+
+def stiffness_for(height: float) -> float:
+    """k with sqrt(k) = 10 sqrt(2 g H): sound ten times the largest free-fall speed, so
+    that the density varies by about 1 % (weakly compressible SPH)."""
+    return (10.0 * math.sqrt(2.0 * G * height)) ** 2
+
+
+def make_sim(scene: dict):
+    from mrsph.solver import Simulation
+    return Simulation(load_scene(scene), arch="cpu")
+
+
+def real(sim) -> dict:
+    return sim.particles(virtual=False)
+
+
+def alive_slots(sim, name: str) -> np.ndarray:
+    """An attribute of the pool slots [0, n) (no DEAD slots right after a sort)."""
+    return getattr(sim.pool.p, name).to_numpy()[: sim.pool.count()]
+
+
+def set_alive_slots(sim, name: str, values: np.ndarray):
+    field = getattr(sim.pool.p, name)
+    full = field.to_numpy()
+    full[: sim.pool.count()] = values
+    field.from_numpy(full)
+
+
+def gap_to_walls(sim, x: np.ndarray) -> float:
+    lo = np.asarray(sim.scene.domain.min, float)
+    hi = np.asarray(sim.scene.domain.max, float)
+    return float(min((x - lo).min(), (hi - x).min()))
+
+
+# ================================================================== momentum
+def blob_scene(dim, precision="f32"):
+    """A cube of fluid in the middle of a large box, gravity off: in 100 steps no particle
+    comes within h of a wall, so only internal forces act."""
+    lo, hi = box(dim, (0.0, 0.0), (1.0, 1.0), (0.0, 1.0))
+    blo, bhi = box(dim, (0.4, 0.4), (0.6, 0.6), (0.4, 0.6))
+    return {
+        "description": "free blob, gravity off", "dim": dim,
+        "domain": {"min": lo, "max": hi},
+        "particles": {"spacing": 0.025, "precision": precision},
+        "fluid": {"viscosity": 1.0, "stiffness": 1000.0, "blocks": [{"min": blo, "max": bhi}]},
+        "physics": {"gravity": [0.0] * dim, "cfl": 0.2},
+    }
+
+
+def test_internal_forces_conserve_momentum(dim):
+    sim = make_sim(blob_scene(dim))
+    n = sim.pool.count()
+    rng = np.random.default_rng(1234 + dim)
+    # random velocities of 0.5 m/s scale shear and compress the blob in every direction,
+    # so that pressure and viscosity forces are far from zero
+    set_alive_slots(sim, "v", rng.normal(0.0, 0.5, size=(n, dim)))
+    p0 = real(sim)
+    m0 = p0["m"].astype(np.float64)
+    mom0 = (m0[:, None] * p0["v"]).sum(axis=0)
+    scale = float((m0 * np.linalg.norm(p0["v"], axis=1)).sum())     # Σ m |v|
+    impulse = 0.0                                                   # Σ_steps dt Σ m |a|
+    for _ in range(100):
+        dt = sim.step()
+        a = alive_slots(sim, "a").astype(np.float64)
+        impulse += dt * float((alive_slots(sim, "m") * np.linalg.norm(a, axis=1)).sum())
+    p1 = real(sim)
+    assert len(p1["m"]) == len(m0), "particles were created or lost"
+    gap = gap_to_walls(sim, p1["x"])
+    assert gap > sim.h0, f"a particle came within {gap:.3g} m of a wall (h = {sim.h0}); the test proves nothing"
+    mom1 = (p1["m"].astype(np.float64)[:, None] * p1["v"]).sum(axis=0)
+    dp = float(np.linalg.norm(mom1 - mom0))
+    print(f"\n{dim}D momentum: |ΔP| = {dp:.3e}, Σ m|v| = {scale:.3e}, ratio {dp / scale:.2e}, "
+          f"Σ dt Σ m|a| = {impulse:.3e} kg m/s")
+    # the forces did real work: their total impulse dwarfs the bound below
+    assert impulse > 1e3 * 1e-5 * scale, f"internal forces too weak to test (impulse {impulse:.3e})"
+    assert dp <= 1e-5 * scale, (
+        f"{dim}D: internal forces changed the total momentum by |ΔP| = {dp:.3e} kg m/s in 100 steps; "
+        f"expected <= 1e-5 · Σ m|v| = {1e-5 * scale:.3e} (ratio {dp / scale:.2e})")
+
+
+# ================================================================== fluid at rest
+TANK_H = 0.3          # fluid depth, m
+TANK_W = 0.3          # tank width (and depth in 3D), m
+
+
+def tank_scene(dim):
+    spacing = 0.02 if dim == 2 else 0.03
+    lo, hi = box(dim, (0.0, 0.0), (TANK_W, 2.0 * TANK_H), (0.0, TANK_W))
+    blo, bhi = box(dim, (0.0, 0.0), (TANK_W, TANK_H), (0.0, TANK_W))
+    return {
+        "description": "fluid at rest in a tank", "dim": dim,
+        "domain": {"min": lo, "max": hi},
+        "particles": {"spacing": spacing},
+        "fluid": {"viscosity": 2.0, "stiffness": stiffness_for(TANK_H),
+                  "blocks": [{"min": blo, "max": bhi}]},
+        "physics": {"cfl": 0.2},
+    }
+
+
+def free_surface_height(x: np.ndarray, spacing: float, lo: float, hi: float) -> float:
+    """Mean height of the top of the fluid between ``lo`` and ``hi`` in x: the highest
+    particle of each column of width ``spacing``, plus half a spacing (a particle stands
+    for the cell around it)."""
+    inside = (x[:, 0] > lo) & (x[:, 0] < hi)
+    cols = np.floor(x[inside, 0] / spacing).astype(int)
+    tops = [x[inside][cols == c, 1].max() for c in np.unique(cols)]
+    return float(np.mean(tops)) + 0.5 * spacing
+
+
+SETTLE_S = 1.5        # simulated seconds before measuring
+MEASURE_S = 0.3       # then averaged over this long: several periods of the pool's sound
+SAMPLE_S = 0.01       # modes (4 H / c = 0.05 s), which viscosity damps only slowly
+
+
+@pytest.fixture(scope="module", params=DIMS, ids=[f"{d}d" for d in DIMS])
+def tank_run(request):
+    """One settled tank per dimension, measured; shared by the tank tests below."""
+    from mrsph import runtime
+    runtime.reset()
+    dim = request.param
+    sim = make_sim(tank_scene(dim))
+    s, h = float(sim.s0), float(sim.h0)
+    lo = np.asarray(sim.scene.domain.min, float)
+    hi = np.asarray(sim.scene.domain.max, float)
+    p0 = real(sim)
+    out = {"dim": dim, "spacing": s, "lo": lo, "hi": hi, "n0": len(p0["m"]),
+           "mass0": math.fsum(p0["m"].astype(np.float64).tolist())}
+    sim.advance(SETTLE_S)
+    speeds, band_p, band_ref, tops = [], [], [], []
+    for _ in range(int(round(MEASURE_S / SAMPLE_S))):
+        sim.advance(SAMPLE_S)
+        p = real(sim)
+        x = p["x"].astype(np.float64)
+        speeds.append(float(np.linalg.norm(p["v"], axis=1).mean()))
+        # more than h from the side walls (and from the front and back walls in 3D)
+        away = np.ones(len(x), bool)
+        for k in [0] + ([2] if dim == 3 else []):
+            away &= (x[:, k] > lo[k] + h) & (x[:, k] < hi[k] - h)
+        surface = free_surface_height(x[away], s, lo[0] + h, hi[0] - h)
+        depth = surface - x[:, 1]
+        band = away & (depth > 0.3 * TANK_H) & (depth < 0.7 * TANK_H)
+        band_p.append(float(p["p"][band].mean()))
+        band_ref.append(float(RHO0 * G * depth[band].mean()))
+        tops.append(float(x[:, 1].max()))
+    p = real(sim)
+    out.update(x=p["x"], n1=len(p["m"]), mass1=math.fsum(p["m"].astype(np.float64).tolist()),
+               speed=float(np.mean(speeds)), pressure=float(np.mean(band_p)),
+               reference=float(np.mean(band_ref)), top=max(tops))
+    out["v_ref"] = math.sqrt(G * TANK_H)
+    out["error"] = out["pressure"] / out["reference"] - 1.0
+    print(f"\n{dim}D tank after {SETTLE_S + MEASURE_S:.1f} s: mean speed {out['speed']:.4f} m/s = "
+          f"{out['speed'] / out['v_ref']:.4f} sqrt(gH); band pressure {out['pressure']:.1f} Pa vs "
+          f"rho0 g depth {out['reference']:.1f} Pa ({100 * out['error']:+.2f} %); highest particle "
+          f"{out['top']:.4f} m")
+    runtime.reset()
+    return out
+
+
+def test_tank_keeps_its_fluid(tank_run):
+    """Nothing escapes, nothing is created or lost, nothing is flung above the surface."""
+    r = tank_run
+    d, x = r["dim"], r["x"]
+    assert r["n1"] == r["n0"], f"{d}D: particle count {r['n1']}, started with {r['n0']}"
+    assert np.all(np.isfinite(x)), f"{d}D: non-finite positions"
+    assert np.all((x >= r["lo"] - 1e-6) & (x <= r["hi"] + 1e-6)), f"{d}D: a particle left the tank"
+    assert r["top"] <= TANK_H + 2.0 * r["spacing"], \
+        f"{d}D: a particle rose to {r['top']:.4f} m above a {TANK_H} m deep pool at rest"
+    assert r["mass1"] == r["mass0"], f"{d}D: total mass {r['mass1']!r}, started with {r['mass0']!r}"
+
+
+def test_tank_settles_to_rest(tank_run, request):
+    r = tank_run
+    ratio = r["speed"] / r["v_ref"]
+    known_xfail(request, r["dim"], "tank_speed", ratio)
+    assert r["speed"] <= 0.01 * r["v_ref"], (
+        f"{r['dim']}D: mean speed {r['speed']:.4f} m/s after {SETTLE_S} s (averaged over the next "
+        f"{MEASURE_S} s); expected <= 1 % of sqrt(g H) = {0.01 * r['v_ref']:.4f} m/s "
+        f"(measured {ratio:.4f} sqrt(gH))")
+
+
+def test_tank_pressure_is_hydrostatic(tank_run, request):
+    r = tank_run
+    known_xfail(request, r["dim"], "tank_pressure", r["error"])
+    assert abs(r["error"]) <= 0.05, (
+        f"{r['dim']}D: mean pressure {r['pressure']:.1f} Pa in the band 0.3 H..0.7 H below the "
+        f"surface; rho0 g depth = {r['reference']:.1f} Pa ({100 * r['error']:+.2f} %, expected "
+        f"within 5 %)")
+
+
+# ================================================================== dam break
+# Martin & Moyce (1952), column of width a and height 2a (n² = 2): surge front Z = x/a at
+# T = t sqrt(2 g / a), as digitised from their plot (the values widely used to validate
+# dam-break codes). Ritter's shallow-water solution, Z = 1 + 2T for this column, is an
+# upper bound: no real front outruns the frictionless, hydrostatic one.
+MARTIN_MOYCE = ((1.43, 1.67), (1.97, 2.33), (2.50, 3.00), (2.96, 3.67))
+MM_TOLERANCE = 0.5    # in Z, i.e. half a column width: generous for a 10-particle column
+
+DAM_A = 0.2           # column width, m; its height is 2a
+DAM_L = 1.0           # tank length, m (Z = 5 at the far wall)
+DAM_END_S = 1.5
+FRAME_S = 0.02
+
+
+def dam_scene(dim):
+    spacing = 0.02 if dim == 2 else 0.025
+    lo, hi = box(dim, (0.0, 0.0), (DAM_L, 0.6), (0.0, 0.1))
+    blo, bhi = box(dim, (0.0, 0.0), (DAM_A, 2.0 * DAM_A), (0.0, 0.1))
+    return {
+        "description": "dam break, Martin & Moyce n^2 = 2", "dim": dim,
+        "domain": {"min": lo, "max": hi},
+        "particles": {"spacing": spacing},
+        "fluid": {"viscosity": 1.0, "stiffness": stiffness_for(2.0 * DAM_A),
+                  "blocks": [{"min": blo, "max": bhi}]},
+        "physics": {"cfl": 0.2},
+    }
+
+
+@pytest.fixture(scope="module", params=DIMS, ids=[f"{d}d" for d in DIMS])
+def dam_run(request):
+    """One dam break per dimension to t = 1.5 s, checked every frame for NaN and leaks;
+    returns the front history. Shared by the dam-break tests below."""
+    from mrsph import runtime
+    runtime.reset()
+    dim = request.param
+    sim = make_sim(dam_scene(dim))
+    s = float(sim.s0)
+    lo = np.asarray(sim.scene.domain.min, float)
+    hi = np.asarray(sim.scene.domain.max, float)
+    mass0 = math.fsum(real(sim)["m"].astype(np.float64).tolist())
+    times, lead, p99, problems = [], [], [], []
+    x = real(sim)["x"]
+    while True:
+        times.append(sim.time)
+        # the leading particle stands for the cell around it: its x plus half a spacing
+        lead.append(float(x[:, 0].max()) + 0.5 * s)
+        p99.append(float(np.percentile(x[:, 0], 99)))
+        if sim.time >= DAM_END_S - 1e-9:
+            break
+        sim.advance(FRAME_S)
+        p = real(sim)
+        x = p["x"]
+        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(p["v"]))):
+            problems.append(f"NaN at t = {sim.time:.2f} s")
+            break
+        outside = ~np.all((x >= lo - 1e-6) & (x <= hi + 1e-6), axis=1)
+        if outside.any():
+            problems.append(f"{int(outside.sum())} particle(s) outside the domain at t = {sim.time:.2f} s")
+    if math.fsum(real(sim)["m"].astype(np.float64).tolist()) != mass0:
+        problems.append("total mass changed")
+    runtime.reset()
+    return {"dim": dim, "spacing": s, "t": np.array(times), "lead": np.array(lead),
+            "p99": np.array(p99), "problems": problems, "t_end": sim.time}
+
+
+def test_dam_break_runs_clean_and_front_advances(dam_run):
+    r = dam_run
+    d, s = r["dim"], r["spacing"]
+    assert not r["problems"], f"{d}D dam break: {'; '.join(r['problems'])}"
+    assert r["t_end"] >= DAM_END_S - 1e-9, f"{d}D: stopped at t = {r['t_end']:.3f} s"
+    # the front advances monotonically until it reaches the far wall
+    hit = np.flatnonzero(r["lead"] >= DAM_L - s)
+    assert len(hit), f"{d}D: the front never reached the far wall (furthest {r['lead'].max():.3f} m)"
+    end = int(hit[0])
+    t = r["t"]
+    for name in ("lead", "p99"):
+        drops = np.diff(r[name][: end + 1])
+        k = int(np.argmin(drops))
+        assert drops[k] >= -0.5 * s, (
+            f"{d}D: front ({name}) went back by {-drops[k]:.4f} m between t = {t[k]:.2f} "
+            f"and {t[k + 1]:.2f} s; expected non-decreasing within half a spacing ({0.5 * s} m)")
+
+
+def test_dam_break_front_matches_experiment(dam_run):
+    """The bulk front (99th percentile of x: a few particles shot ahead of the surge do
+    not make the front) against Martin & Moyce; the leading particle is reported too."""
+    r = dam_run
+    d = r["dim"]
+    assert not r["problems"], f"{d}D dam break: {'; '.join(r['problems'])}"
+    T = r["t"] * math.sqrt(2.0 * G / DAM_A)
+    rows = []
+    for t_exp, z_exp in MARTIN_MOYCE:
+        rows.append((t_exp, z_exp, float(np.interp(t_exp, T, r["p99"] / DAM_A)),
+                     float(np.interp(t_exp, T, r["lead"] / DAM_A)), 1.0 + 2.0 * t_exp))
+    table = "; ".join(f"T={t:.2f}: Z={z:.2f} (experiment {ze:.2f}, leading particle {zl:.2f}, "
+                      f"Ritter {zr:.2f})" for t, ze, z, zl, zr in rows)
+    print(f"\n{d}D dam break front: {table}")
+    for t_exp, z_exp, z_sim, z_lead, z_ritter in rows:
+        assert z_lead <= z_ritter + 0.5 * r["spacing"] / DAM_A, \
+            f"{d}D: front faster than Ritter's ideal dam break: {table}"
+        assert abs(z_sim - z_exp) <= MM_TOLERANCE, \
+            f"{d}D: surge front off Martin & Moyce by more than {MM_TOLERANCE} a: {table}"
+
+
+# ================================================================== blow-up report
+def test_nan_velocity_raises_simulation_error_naming_step_particle_level(dim):
+    from mrsph.solver import SimulationError
+
+    scene = tank_scene(dim)
+    # two levels, no refinement criterion: every particle sits at level 1, so that a
+    # message which always said "level 0" would be caught
+    scene["adaptivity"] = {"enabled": True, "levels": 2}
+    sim = make_sim(scene)
+    for _ in range(3):
+        sim.step()
+    x = alive_slots(sim, "x")
+    level = alive_slots(sim, "level")
+    assert np.all(level == 1), f"expected every particle at level 1, got levels {np.unique(level)}"
+    # the poisoned particle is moved to an empty spot high above the pool, further than
+    # h from every other particle and every wall, so that it is the only bad one
+    victim = 7
+    spot = np.asarray(sim.scene.domain.max, float) * 0.5
+    spot[1] = 0.8 * float(sim.scene.domain.max[1])
+    h1 = 2.0 * sim.h0
+    assert np.linalg.norm(x - spot, axis=1).min() > h1 and gap_to_walls(sim, spot[None]) > h1
+    x[victim] = spot
+    v = alive_slots(sim, "v")
+    v[victim, 0] = np.nan
+    set_alive_slots(sim, "x", x)
+    set_alive_slots(sim, "v", v)
+    step = sim.steps
+    with pytest.raises(SimulationError) as info:
+        sim.step()
+    msg = str(info.value)
+    print(f"\n{dim}D: {msg}")
+    assert f"step {step}" in msg, f"message does not name step {step}: {msg}"
+    found = re.search(r"particle (\d+)", msg)
+    assert found, f"message does not name a particle: {msg}"
+    slot = int(found.group(1))
+    # the slot named is where the sort put the poisoned particle
+    xs = alive_slots(sim, "x")
+    assert np.allclose(xs[slot], spot, atol=1e-5), \
+        f"message names particle {slot} at {xs[slot]}, the NaN was put at {spot}: {msg}"
+    assert "level 1" in msg, f"message does not name the particle's level (1): {msg}"
+    assert re.search(r"\b1 particle", msg), f"only one particle was poisoned: {msg}"
+
+
+# ================================================================== time step
+@pytest.mark.parametrize("bound", ["cfl", "force"])
+def test_time_step_obeys_cfl_and_force_bounds(dim, bound):
+    scene = dam_scene(dim)
+    if bound == "force":
+        # a small force factor makes the force condition the binding one
+        scene["physics"]["force_factor"] = 0.002
+    sim = make_sim(scene)
+    sim.advance(0.1)      # the column is collapsing: speeds and accelerations vary
+    ph = sim.scene.data["physics"]
+    c = math.sqrt(float(sim.scene.fluid.stiffness))
+    h = float(sim.h0)
+    for _ in range(5):
+        dt = sim.step()
+        a = alive_slots(sim, "a").astype(np.float64)      # accelerations of this step
+        v1 = alive_slots(sim, "v").astype(np.float64)
+        v0 = v1 - dt * a                                   # velocities the step started from
+        cfl = float(ph["cfl"]) * h / (c + np.linalg.norm(v0, axis=1).max())
+        force = float(ph["force_factor"]) * math.sqrt(h / np.linalg.norm(a, axis=1).max())
+        allowed = min(cfl, force, float(ph["dt_max"]))
+        assert dt <= allowed * (1 + 1e-4), (
+            f"{dim}D: dt = {dt:.4e} s exceeds min(CFL {cfl:.4e}, force {force:.4e}, dt_max "
+            f"{ph['dt_max']}) at t = {sim.time:.4f} s")
+        # and it is not needlessly small: the binding bound sets it
+        assert dt >= allowed * (1 - 1e-3), (
+            f"{dim}D: dt = {dt:.4e} s is below the bounds min(CFL {cfl:.4e}, force {force:.4e}, "
+            f"dt_max {ph['dt_max']}) by more than round-off")
+        binding = "cfl" if cfl <= force else "force"
+        assert binding == bound, f"{dim}D: the {binding} bound binds (CFL {cfl:.4e}, force {force:.4e})"
