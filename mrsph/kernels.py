@@ -105,3 +105,22 @@ def lattice_density_sum(spacing: float, h: float, dim: int) -> float:
     axes = [np.arange(-n, n + 1) * spacing] * dim
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, dim)
     return float(poly6_np(np.linalg.norm(grid, axis=1), h, dim).sum())
+
+
+def lattice_gradient_factor(spacing: float, h: float, dim: int) -> float:
+    """How much of a linear field's gradient the spiky gradient recovers on a lattice.
+
+    SPH estimates ∇f at x_i by Σ_j V_j (f_j − f_i) ∇W(x_i − x_j); for f = x this should be
+    the identity. With V_j = m0/ρ0 = 1 / Σ_k W_poly6(x_k) it gives c·I, c = 0.874 in 2D
+    and 0.947 in 3D for h = 2s. A pressure force built on it then needs that much more
+    pressure to hold a fluid's weight (a hydrostatic pool reads ~14 % high in 2D). The
+    solver divides the spiky constant by c: a constant factor, so every pair force stays
+    antisymmetric and momentum is still conserved exactly.
+    """
+    n = int(math.ceil(h / spacing)) + 1
+    axes = [np.arange(-n, n + 1) * spacing] * dim
+    pts = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, dim)
+    volume = 1.0 / lattice_density_sum(spacing, h, dim)
+    # x_j − x_i = pts, and ∇_i W(x_i − x_j) = spiky_grad_np(−pts)
+    grads = spiky_grad_np(-pts, h, dim)
+    return float(volume * np.einsum("kd,kd->", pts, grads) / dim)

@@ -29,7 +29,7 @@ from .criteria import Criteria
 from .eos import pressure, sound_speed
 from .grid import LevelGrids
 from .interaction import MOUSE_SLOT, Disturbance, Disturbances, path_sample
-from .kernels import constants, lattice_density_sum, poly6, spiky_grad, visc_lap
+from .kernels import constants, lattice_density_sum, lattice_gradient_factor, poly6, spiky_grad, visc_lap
 from .particles import (DEAD, REGULAR, ROLE_CHILD, ROLE_PARENT, VIRTUAL_CHILD, VIRTUAL_PARENT,
                         ParticlePool, is_real, is_virtual)
 
@@ -146,12 +146,15 @@ class Simulation:
         # squared distance within which a transient parent of level l meets a virtual
         # parent's children through its own virtual children (see ``interacts``)
         self.lev_reach2 = ti.field(float, shape=L)
+        # s/h is the same at every level, so one lattice calibration serves them all
+        self.grad_factor = lattice_gradient_factor(self.s0, self.h0, d)
         for l in range(L):
             h = self.h0 * 2**l
             c = constants(h, d)
             self.lev_h[l], self.lev_s[l] = h, self.s0 * 2**l
             self.lev_m[l] = self.m0 * 2 ** (d * l)
-            self.lev_poly6[l], self.lev_spiky[l], self.lev_visc[l] = c["poly6"], c["spiky"], c["visc"]
+            self.lev_poly6[l], self.lev_visc[l] = c["poly6"], c["visc"]
+            self.lev_spiky[l] = c["spiky"] / self.grad_factor
             if l > 0:
                 fine_h, fine_s = self.h0 * 2 ** (l - 1), self.s0 * 2 ** (l - 1)
                 self.lev_reach2[l] = (REACH_FACTOR * (fine_h + 0.5 * math.sqrt(d) * fine_s)) ** 2

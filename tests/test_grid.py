@@ -169,6 +169,7 @@ def test_sort_orders_by_cell_and_carries_every_attribute(dim):
     assert np.array_equal(pool.p.m.to_numpy()[:n], ids.astype(np.float32) + 0.5), "masses not carried"
     assert np.array_equal(pool.p.level.to_numpy()[:n], levels[ids]), "levels not carried"
     # keys: offset of the level + linear cell index, non-decreasing along the pool
+    from mrsph.grid import PAD_CELLS
     keys = []
     offset = 0
     offsets = []
@@ -178,7 +179,7 @@ def test_sort_orders_by_cell_and_carries_every_attribute(dim):
     for xi, l in zip(x.astype(np.float64), levels[ids]):
         h = H0 * 2**l
         res = np.array(grids.res_host[l])
-        c = np.clip(np.floor((xi - (DOMAIN_MIN - 2 * h)) / h).astype(int), 0, res - 1)
+        c = np.clip(np.floor((xi - (DOMAIN_MIN - PAD_CELLS * h)) / h).astype(int), 0, res - 1)
         keys.append(offsets[l] + int(np.ravel_multi_index(tuple(c), tuple(res))))
     keys = np.array(keys)
     assert np.all(np.diff(keys) >= 0), \

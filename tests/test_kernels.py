@@ -76,10 +76,10 @@ def test_spiky_gradient_matches_finite_differences(dim):
     assert rel[worst] <= 1e-4, (
         f"spiky gradient at |r| = {np.linalg.norm(x[worst]) / H:.3f} h differs from the central "
         f"difference by {rel[worst]:.2e} (relative); expected <= 1e-4")
-    # the gradient with respect to the first particle points from the second to the first
-    # and is attractive in sign: the spiky kernel decreases outwards
+    # with respect to the first particle, the gradient points from it towards the second
+    # (against r = x_i - x_j), since the spiky kernel decreases outwards
     radial = np.einsum("ij,ij->i", grad, x)
-    assert (radial < 0).all(), "spiky gradient must point towards r = 0 (kernel decreasing in r)"
+    assert (radial < 0).all(), "spiky gradient must point against r = x_i - x_j (kernel decreasing in r)"
 
 
 def test_viscosity_laplacian_matches_finite_differences(dim):

@@ -18,18 +18,27 @@ G = 9.81
 RHO0 = 1000.0
 DIMS = (2, 3)
 
+pytestmark = pytest.mark.usefixtures("fresh_program")
+
 # Tests that fail because of the library, with what was measured when they were marked
 # (see the report to the maintainers): {(test key, dim): reason}. A test listed here runs
 # and reports its numbers, but its failure does not fail the suite (xfail, not strict).
-KNOWN_FAILURES = {}
+_SETTLE = ("the pool does not settle: with viscosity the only dissipation, the start-up "
+           "compression rings on (measured with the gradient-calibrated kernel: 0.028 sqrt(gH) "
+           "in 2D, 0.018 in 3D after 1.5 s); needs a damped settling phase or a hydrostatic "
+           "initial state. Measured mean speed / sqrt(gH)")
+_PRESSURE = ("3D pool pressure 6.8 % above rho0 g depth (2D: 3.4 %, passes) after the spiky "
+             "gradient was calibrated on the lattice (it was 21.5 % / 10.5 %); the rest is the "
+             "sloshing of the unsettled pool. Measured relative pressure error")
+KNOWN_FAILURES = {("tank_speed", 2): _SETTLE, ("tank_speed", 3): _SETTLE,
+                  ("tank_pressure", 3): _PRESSURE}
 
 
 def known_xfail(request, dim, key, measured):
+    """Mark the running test xfail if it is a known library failure, with this run's number."""
     reason = KNOWN_FAILURES.get((key, dim))
     if reason:
         request.applymarker(pytest.mark.xfail(strict=False, reason=f"{reason} (this run: {measured:.4g})"))
-
-pytestmark = pytest.mark.usefixtures("fresh_program")
 
 
 def box(dim, lo2, hi2, z=(0.0, 0.1)):
@@ -73,7 +82,7 @@ def gap_to_walls(sim, x: np.ndarray) -> float:
 
 
 # ================================================================== momentum
-def blob_scene(dim, precision="f32"):
+def blob_scene(dim):
     """A cube of fluid in the middle of a large box, gravity off: in 100 steps no particle
     comes within h of a wall, so only internal forces act."""
     lo, hi = box(dim, (0.0, 0.0), (1.0, 1.0), (0.0, 1.0))
@@ -81,7 +90,7 @@ def blob_scene(dim, precision="f32"):
     return {
         "description": "free blob, gravity off", "dim": dim,
         "domain": {"min": lo, "max": hi},
-        "particles": {"spacing": 0.025, "precision": precision},
+        "particles": {"spacing": 0.025},
         "fluid": {"viscosity": 1.0, "stiffness": 1000.0, "blocks": [{"min": blo, "max": bhi}]},
         "physics": {"gravity": [0.0] * dim, "cfl": 0.2},
     }
@@ -145,6 +154,34 @@ def free_surface_height(x: np.ndarray, spacing: float, lo: float, hi: float) -> 
     cols = np.floor(x[inside, 0] / spacing).astype(int)
     tops = [x[inside][cols == c, 1].max() for c in np.unique(cols)]
     return float(np.mean(tops)) + 0.5 * spacing
+
+
+def test_lattice_block_starts_at_rest_density(dim):
+    """m0 = rho0 / lattice_density_sum puts every particle of a lattice block at rest
+    density, next to the walls and in the corners too (mirror ghosts), so that a block
+    without gravity stays exactly at rest."""
+    scene = tank_scene(dim)
+    scene["physics"]["gravity"] = [0.0] * dim
+    sim = make_sim(scene)
+    for _ in range(5):
+        sim.step()
+    p = real(sim)
+    x = p["x"].astype(np.float64)
+    below_surface = x[:, 1] < TANK_H - sim.h0          # the free surface has less density
+    rho = p["rho"][below_surface].astype(np.float64)
+    err = np.abs(rho / RHO0 - 1.0)
+    k = int(np.argmax(err))
+    assert below_surface.sum() > 0.5 * len(x)
+    # f32: the sum of a few dozen terms, each rounded to ~6e-8
+    assert err[k] <= 2e-5, (f"{dim}D: density {rho[k]:.4f} at {x[below_surface][k].round(3)}; expected "
+                            f"{RHO0} within 2e-5 relative in a lattice block at rest")
+    # at rest up to round-off: a density error of 1e-3 anywhere (a missing wall image, say)
+    # would push with about k rho0 1e-3 / (rho0 h) = 15 m/s², far beyond this bound
+    speed = float(np.linalg.norm(p["v"], axis=1).max())
+    bound = 0.01 * G * sim.time
+    assert speed <= bound, (f"{dim}D: a lattice block without gravity started moving: max speed "
+                            f"{speed:.3g} m/s after {sim.time:.2e} s; expected <= {bound:.2e} m/s "
+                            f"(1 % of what gravity would have given)")
 
 
 SETTLE_S = 1.5        # simulated seconds before measuring
@@ -349,9 +386,10 @@ def test_nan_velocity_raises_simulation_error_naming_step_particle_level(dim):
     # h from every other particle and every wall, so that it is the only bad one
     victim = 7
     spot = np.asarray(sim.scene.domain.max, float) * 0.5
-    spot[1] = 0.8 * float(sim.scene.domain.max[1])
+    spot[1] = 0.75 * float(sim.scene.domain.max[1])
     h1 = 2.0 * sim.h0
-    assert np.linalg.norm(x - spot, axis=1).min() > h1 and gap_to_walls(sim, spot[None]) > h1
+    clear = min(float(np.linalg.norm(x - spot, axis=1).min()), gap_to_walls(sim, spot[None]))
+    assert clear > h1, f"test set-up: the spot {spot} is only {clear:.3f} m from fluid or wall (h1 = {h1})"
     x[victim] = spot
     v = alive_slots(sim, "v")
     v[victim, 0] = np.nan
