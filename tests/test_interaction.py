@@ -1,0 +1,92 @@
+"""The disturbance (what the mouse and stirrers hand to the solver), on real simulations.
+
+A drag must change velocities only within its radius and along the drag, and raise the
+wanted level (refine) there; once it stops, the wanted level falls back. And one offscreen
+frame of a real adaptive scene must show at least two level colours.
+"""
+import numpy as np
+import pytest
+
+from mrsph.config import load_scene
+from mrsph.interaction import Disturbance
+from mrsph.solver import Simulation
+
+pytestmark = pytest.mark.usefixtures("fresh_program")
+
+
+def block_scene(dim):
+    """A resting block without gravity, two levels, refined only where disturbed."""
+    lo, hi = [0.0] * dim, [1.0] * dim
+    return {
+        "description": "disturbance test", "dim": dim,
+        "domain": {"min": lo, "max": hi},
+        "particles": {"spacing": 0.025 if dim == 2 else 0.04},
+        "physics": {"gravity": [0.0] * dim},
+        "fluid": {"viscosity": 1.0, "stiffness": 400.0,
+                  "blocks": [{"min": [0.1] * dim, "max": [0.9] * dim}]},
+        "adaptivity": {"enabled": True, "levels": 2, "interval": 1, "band": 0.05},
+        "criteria": [{"type": "disturbance", "level": 0}],
+    }
+
+
+def test_drag_pushes_inside_its_radius_along_the_drag_and_refines(dim):
+    sim = Simulation(load_scene(block_scene(dim)), arch="cpu")
+    before = sim.particles(virtual=False)
+    assert (before["level"] == 1).all(), "with nothing disturbed, every particle is coarse"
+    centre = np.full(dim, 0.5)
+    radius, drag = 0.15, np.zeros(dim)
+    drag[0] = 2.0
+    sim.set_disturbance(Disturbance(tuple(centre), radius, 40.0, "push", tuple(drag)))
+    for _ in range(5):
+        sim.step()
+    after = sim.particles(virtual=False)
+    d = np.linalg.norm(after["x"] - centre, axis=1)
+    inside, outside = d < 0.6 * radius, d > radius + 2 * 0.08   # 0.08 = a coarse support
+    vx_in = after["v"][inside, 0].mean()
+    speed_out = np.linalg.norm(after["v"][outside], axis=1).max()
+    assert vx_in > 0.05, f"{dim}D: mean x velocity inside the drag {vx_in:.4f} m/s; expected > 0.05 along +x"
+    assert abs(after["v"][inside, 1:].mean()) < 0.2 * vx_in, (
+        f"{dim}D: sideways mean velocity {after['v'][inside, 1:].mean():.4f} vs {vx_in:.4f} along the drag")
+    assert speed_out < 0.1 * vx_in, (
+        f"{dim}D: fastest particle well outside the radius moves at {speed_out:.4f} m/s; "
+        f"expected < 10 % of the push ({vx_in:.4f})")
+    fine = after["level"] == 0
+    assert fine.sum() > 0, f"{dim}D: no particle refined under the drag"
+    assert np.linalg.norm(after["x"][fine] - centre, axis=1).max() < radius + 0.15, \
+        f"{dim}D: refined particles far from the drag"
+    lam_in = after["lam"][inside].max()
+    assert lam_in < 0.75, f"{dim}D: wanted level under the drag {lam_in:.3f}; expected < 1 - hysteresis"
+
+    sim.set_disturbance(None)
+    sim.step()
+    back = sim.particles(virtual=False)
+    assert back["lam"].min() >= 1.0 - 1e-6, (
+        f"{dim}D: after the drag stops the wanted level must fall back to the background "
+        f"(1); lowest is {back['lam'].min():.3f}")
+
+
+@pytest.mark.parametrize("name", ["region_2d", "region_3d"])
+def test_offscreen_frame_of_an_adaptive_scene_shows_two_levels(name):
+    from mrsph.app import palette
+    from mrsph.app.record import vulkan_available
+    from mrsph.app.render import ImguiIniGuard, Renderer, image_from_window
+    ok, why = vulkan_available()
+    if not ok:
+        pytest.skip(f"GGUI offscreen rendering unavailable: {why}")
+    import taichi as ti
+    sim = Simulation(load_scene(name), arch="cpu")
+    snap = sim.snapshot()
+    assert len(set(snap.level.tolist())) >= 2, "the scene should start with two levels"
+    guard = ImguiIniGuard()
+    window = ti.ui.Window("mrsph test", (480, 270), show_window=False)
+    try:
+        renderer = Renderer(window, scene=sim.scene)
+        renderer.draw(snap)
+        image_from_window(window)
+        renderer.draw(snap)
+        img = image_from_window(window)
+    finally:
+        window.destroy()
+        guard.cleanup()
+    counts = palette.count_level_pixels(img, snap.levels)
+    assert sum(c > 50 for c in counts) >= 2, f"{name}: fewer than two level colours visible: {counts}"
