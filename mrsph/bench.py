@@ -20,7 +20,7 @@ def _cases(full: bool):
     column collapses, not on the initial lattice (which is 1.3–2x cheaper)."""
     quick = [
         ("dam_break_2d uniform ~10k", "dam_break_2d", ["particles.spacing=0.0035"], 0.25, 0.05),
-        ("dam_break_3d uniform ~25k", "dam_break_3d", [], 0.2, 0.02),
+        ("dam_break_3d uniform ~25k", "dam_break_3d", [], 0.1, 0.01),
     ]
     if not full:
         return quick

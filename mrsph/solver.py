@@ -236,8 +236,8 @@ class Simulation:
             xv = ti.Vector.zero(float, self.dim)
             vv = ti.Vector.zero(float, self.dim)
             for k in ti.static(range(self.dim)):
-                xv[k] = xs[r, k]
-                vv[k] = vs[r, k]
+                xv[k] = ti.cast(xs[r, k], float)
+                vv[k] = ti.cast(vs[r, k], float)
             p = ti.static(self.pool.p)
             p[i].x = xv
             p[i].v = vv
