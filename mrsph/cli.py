@@ -107,7 +107,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--dump-format", choices=FORMATS, default="npz",
                         help="format of the frame files: npz, ply (binary point cloud) or vtk (.vtu)")
     parser.add_argument("--quiet", action="store_true",
-                        help="no progress bar, notices or summary; errors and warnings still show")
+                        help="no progress bar and no summary line; errors, warnings and "
+                             "notices still show")
     return parser
 
 
@@ -127,11 +128,6 @@ class _Formatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaults
 def _err(line: str) -> None:
     from tqdm import tqdm
     tqdm.write(line, file=sys.stderr)
-
-
-def _note(args, line: str) -> None:
-    if not args.quiet:
-        _err(f"mrsph: {line}")
 
 
 def _show_warning(default):
@@ -272,6 +268,8 @@ def _run_window_or_video(scene, args) -> int:
     ok, why = display_available()
     if ok:
         from .app.window import run_window
+        if args.dump:
+            _err("mrsph: --dump applies to headless runs and recordings; the window does not dump")
         from .config import SCENES_DIR, list_scenes, load_scene
         names = [name for name, _ in list_scenes()]
         # the window offers the scenes of scenes/ by name; a scene from elsewhere by path
@@ -326,8 +324,6 @@ def _run(args) -> int:
             print(_record(sim, args.out, frames, args))
             return EXIT_OK
         return _run_headless(sim, frames, args)
-    if args.dump:
-        _note(args, "--dump applies to headless runs and recordings; the window does not dump")
     return _run_window_or_video(scene, args)
 
 

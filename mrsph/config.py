@@ -144,7 +144,7 @@ SCHEMA = Table(required=True, keys={
         "enabled": Key("bool", False, doc="split and merge particles between levels"),
         "levels": Key("int", 1, "[1, 6]", doc="number of levels L; >= 2 when enabled"),
         "interval": Key("int", 4, ">= 1", doc="steps between adaptivity passes"),
-        "hysteresis": Key("float", 0.25, "[0, 0.5]", doc="gap between split and merge "
+        "hysteresis": Key("float", 0.25, "[0, 0.5)", doc="gap between split and merge "
                           "thresholds, in level units"),
         "band": Key("float", 0.0, ">= 0", "m", "width of the distance band per level; "
                     "0 = automatic: 2 h_(L-1), twice the coarsest support radius"),

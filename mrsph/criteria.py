@@ -3,7 +3,11 @@
 Each criterion maps a position to a *wanted level* λ, a real number: ``level`` inside its
 zone, growing by one per ``adaptivity.band`` metres away from it, so that the wanted
 resolution is graded and never jumps by two levels across a support radius. Criteria are
-combined by taking the finest (the minimum); λ is clamped to [0, background_level].
+combined by taking the finest (the minimum). Far from every criterion λ is
+``background_level + ½``: there particles of the background level neither split
+(λ < ℓ − η) nor merge (λ > ℓ + 1 + η), groups of the level below merge into it
+(λ > ℓ + η), and coarser particles split down to it, for any hysteresis η < ½. (Capping λ
+at the background level itself would forbid every merge into it.)
 
 A particle of level ℓ splits when λ < ℓ − η and a group may merge into level ℓ + 1 when
 λ > ℓ + 1 + η, with η = ``adaptivity.hysteresis``: between the two thresholds nothing
@@ -79,7 +83,7 @@ class Criteria:
     def wanted(self, x, boundary: ti.template(), disturbances: ti.template()):
         """λ(x): the finest level wanted at x by any criterion (graded by distance)."""
         band = self.band[None]
-        lam = self.background[None]
+        lam = self.background[None] + 0.5
         for c in range(self.count):
             d = 1e30
             t = self.type[c]

@@ -59,7 +59,8 @@ from .particles import (DEAD, REGULAR, ROLE_CHILD, ROLE_PARENT, VIRTUAL_CHILD, V
 # scratch bits in ``flags`` during one level pair of a pass
 NEAR_FINE = 1      # real level-c particle with a real level-f particle within h_c
 NEAR_COARSE = 2    # real level-f particle with a real level-c particle within h_c
-MUST_SPLIT = 4     # real level-c particle with a real particle ≥ 2 levels finer within h_c
+MUST_SPLIT = 4     # level-c particle with a real particle ≥ 2 levels finer within h_c: a real
+                   # one must split, a virtual parent must not merge
 VP_ANCHORED = 8    # virtual parent with a real particle of its own level within its support
 RELEASED = 16      # virtual parent whose group is being released (claimed atomically)
 
@@ -175,7 +176,13 @@ class Multires:
                 for off in ti.grouped(ti.ndrange(*((-1, 2),) * self.dim)):
                     cid = self.g.cell_id(base + off, c)
                     for j in range(self.g.start[cid], self.g.start[cid + 1]):
-                        if is_real(p[j].kind) and (xi - p[j].x).norm_sqr() < hc * hc:
+                        d2 = (xi - p[j].x).norm_sqr()
+                        if ki != VIRTUAL_PARENT and li <= c - 2 and p[j].kind == VIRTUAL_PARENT \
+                                and d2 < hc * hc:
+                            # merging this group would put a level-c particle next to one
+                            # two levels finer: the same balance that forces splits
+                            ti.atomic_or(p[j].flags, MUST_SPLIT)
+                        if is_real(p[j].kind) and d2 < hc * hc:
                             if ki == VIRTUAL_PARENT:
                                 ti.atomic_or(p[i].flags, VP_ANCHORED)
                             elif li == c - 1:
@@ -353,7 +360,7 @@ class Multires:
         p = ti.static(self.pool.p)
         for i in range(n):
             if p[i].kind == VIRTUAL_PARENT and p[i].level == c and p[i].nchild >= self.merge_min \
-                    and p[i].lam > c + self.hysteresis:
+                    and p[i].lam > c + self.hysteresis and (p[i].flags & MUST_SPLIT) == 0:
                 ok = True
                 for q in range(p[i].nchild):
                     if (p[self.pool.children[i, q]].kind & ROLE_PARENT) != 0:

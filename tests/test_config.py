@@ -237,7 +237,7 @@ def test_float_is_not_an_integer():
     ("adaptivity.levels", 0, "an integer in [1, 6]"),
     ("adaptivity.levels", 7, "an integer in [1, 6]"),
     ("adaptivity.interval", 0, "an integer >= 1"),
-    ("adaptivity.hysteresis", 0.6, "a number in [0, 0.5]"),
+    ("adaptivity.hysteresis", 0.6, "a number in [0, 0.5)"),
     ("adaptivity.band", -1, "a number >= 0"),
     ("adaptivity.spring_rate", -1, "a number >= 0"),
     ("adaptivity.release_factor", 2.5, "a number in [0.5, 2]"),
