@@ -360,9 +360,18 @@ class Simulation:
         return xc
 
     @ti.func
-    def _density_sum(self, xq, l, h2, c6):
+    def _image_in_solid(self, xj, p0, nrm):
+        """Is x_j's mirror image across the plane (p0, nrm) inside an obstacle? Near a
+        convex corner the tangent-plane mirror puts some images back in the fluid; those
+        must not count, or the corner pushes fluid away."""
+        img = xj - 2.0 * (xj - p0).dot(nrm) * nrm
+        phi, _n = self.boundary.obstacle_sdf(img)
+        return phi < 0.0
+
+    @ti.func
+    def _density_sum(self, xq, l, h2, c6, p0, nrm, check: ti.template()):
         """Σ_j m_j W_poly6(xq − x_j) over level l (real and virtual), for xq a particle's
-        position or one of its wall images."""
+        position or one of its wall images (``check``: obstacle images, see above)."""
         p = ti.static(self.pool.p)
         rho = 0.0
         base = self.grids.cell(xq, l)
@@ -371,7 +380,11 @@ class Simulation:
             for j in range(self.grids.start[cid], self.grids.start[cid + 1]):
                 r2 = (xq - p[j].x).norm_sqr()
                 if r2 < h2 and p[j].kind != DEAD:
-                    rho += p[j].m * poly6(r2, h2, c6)
+                    ok = True
+                    if ti.static(check):
+                        ok = self._image_in_solid(p[j].x, p0, nrm)
+                    if ok:
+                        rho += p[j].m * poly6(r2, h2, c6)
         return rho
 
     @ti.kernel
@@ -386,19 +399,20 @@ class Simulation:
                 h2 = h * h
                 c6 = self.lev_poly6[l]
                 xi = p[i].x
-                rho = self._density_sum(xi, l, h2, c6)
+                zero = ti.Vector.zero(float, self.dim)
+                rho = self._density_sum(xi, l, h2, c6, zero, zero, False)
                 for mask in range(1, 2 ** self.dim):
                     ok, xr, _s = self.boundary.domain_image(xi, h, mask)
                     if ok:
-                        rho += self._density_sum(xr, l, h2, c6)
-                ok, xo, _n = self.boundary.obstacle_image(xi, h)
+                        rho += self._density_sum(xr, l, h2, c6, zero, zero, False)
+                ok, xo, nrm = self.boundary.obstacle_image(xi, h)
                 if ok:
-                    rho += self._density_sum(xo, l, h2, c6)
+                    rho += self._density_sum(xo, l, h2, c6, 0.5 * (xi + xo), nrm, True)
                 p[i].rho = rho
                 p[i].p = pressure(rho, rho0, k, gamma, self.tait, self.clamp)
 
     @ti.func
-    def _ghost_force(self, i, xq, L, l, h, cs, cv, mu):
+    def _ghost_force(self, i, xq, L, l, h, cs, cv, mu, p0, nrm, check: ti.template()):
         """Force on i from the mirror images of its level's particles: xq is i's image and
         L the reflection's linear part, so x_i − x_j' = L (xq − x_j) and u_j' = L u_j."""
         p = ti.static(self.pool.p)
@@ -409,7 +423,12 @@ class Simulation:
             for j in range(self.grids.start[cid], self.grids.start[cid + 1]):
                 rq = xq - p[j].x
                 r2 = rq.norm_sqr()
-                if 0.0 < r2 < h * h and p[j].kind != DEAD and interacts(p[i].kind, p[j].kind, r2, self.lev_reach2[l]):
+                ok = 0.0 < r2 < h * h and p[j].kind != DEAD and \
+                    interacts(p[i].kind, p[j].kind, r2, self.lev_reach2[l])
+                if ti.static(check):
+                    if ok:
+                        ok = self._image_in_solid(p[j].x, p0, nrm)
+                if ok:
                     f += self._pair_force_values(
                         p[i].m, p[i].rho, p[i].p, p[i].v, p[j].m, p[j].rho, p[j].p, L @ p[j].v,
                         L @ rq, ti.sqrt(r2), h, cs, cv, mu)
@@ -457,11 +476,11 @@ class Simulation:
                         Ld = ti.Matrix.zero(float, self.dim, self.dim)
                         for k in ti.static(range(self.dim)):
                             Ld[k, k] = sgn[k]
-                        f += self._ghost_force(i, xr, Ld, l, h, cs, cv, mu)
+                        f += self._ghost_force(i, xr, Ld, l, h, cs, cv, mu, xi, xi, False)
                 ok, xo, nrm = self.boundary.obstacle_image(xi, h)
                 if ok:
                     Lo = ti.Matrix.identity(float, self.dim) - 2.0 * nrm.outer_product(nrm)
-                    f += self._ghost_force(i, xo, Lo, l, h, cs, cv, mu)
+                    f += self._ghost_force(i, xo, Lo, l, h, cs, cv, mu, 0.5 * (xi + xo), nrm, True)
             p[i].a = f
 
     @ti.kernel
