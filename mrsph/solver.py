@@ -18,7 +18,6 @@ dt ≤ λ_f sqrt(h/|a|), each particle with its own level's h.
 
 import math
 import time as _time
-from dataclasses import dataclass, field
 
 import numpy as np
 import taichi as ti
@@ -30,8 +29,9 @@ from .eos import pressure, sound_speed
 from .grid import LevelGrids
 from .interaction import MOUSE_SLOT, Disturbance, Disturbances, path_sample
 from .kernels import constants, lattice_density_sum, lattice_gradient_factor, poly6, spiky_grad, visc_lap
-from .particles import (DEAD, REGULAR, ROLE_CHILD, ROLE_PARENT, VIRTUAL_CHILD, VIRTUAL_PARENT,
+from .particles import (DEAD, REGULAR, ROLE_PARENT, VIRTUAL_CHILD, VIRTUAL_PARENT,
                         ParticlePool, is_real, is_virtual)
+from .snapshot import Snapshot
 
 # Each pair of real particles on either side of a level interface must interact exactly
 # once. A fine particle i and a coarse particle P could meet twice: at the fine level
@@ -66,25 +66,6 @@ PHASES = ("emit", "adapt", "grid", "density", "forces", "virtual_coupling", "tim
 
 class SimulationError(RuntimeError):
     """The simulation cannot go on (NaN, a time step below dt_min, a full pool at start)."""
-
-
-@dataclass
-class Snapshot:
-    dim: int
-    levels: int
-    time: float
-    frame: int
-    x: np.ndarray
-    v: np.ndarray
-    m: np.ndarray
-    rho: np.ndarray
-    level: np.ndarray
-    kind: np.ndarray
-    radius: np.ndarray
-    domain_min: np.ndarray
-    domain_max: np.ndarray
-    obstacles: list
-    stats: dict = field(default_factory=dict)
 
 
 def _as_scene(scene):

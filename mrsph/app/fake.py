@@ -8,29 +8,14 @@ to make videos move. It is not SPH and never claims to be.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 
 import numpy as np
 
+from mrsph.snapshot import Snapshot
 
-@dataclass
-class FakeSnapshot:
-    """Mirrors ``mrsph.solver.Snapshot`` (docs/CONTRACTS.md)."""
-    dim: int
-    levels: int
-    time: float
-    frame: int
-    x: np.ndarray
-    v: np.ndarray
-    m: np.ndarray
-    rho: np.ndarray
-    level: np.ndarray
-    kind: np.ndarray
-    radius: np.ndarray
-    domain_min: np.ndarray
-    domain_max: np.ndarray
-    obstacles: list = field(default_factory=list)
-    stats: dict = field(default_factory=dict)
+
+# The stand-in produces the real snapshot type (Taichi-free, mrsph/snapshot.py).
+FakeSnapshot = Snapshot
 
 
 class FakeSimulation:

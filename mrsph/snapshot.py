@@ -1,0 +1,28 @@
+"""What the application layer reads of a simulation: one frame, as numpy arrays.
+
+Kept free of Taichi so that the window, the renderers and their tests can use it
+without a simulation (see ``mrsph/app/fake.py``).
+"""
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class Snapshot:
+    """One frame (fields documented in docs/CONTRACTS.md)."""
+    dim: int
+    levels: int
+    time: float
+    frame: int
+    x: np.ndarray
+    v: np.ndarray
+    m: np.ndarray
+    rho: np.ndarray
+    level: np.ndarray
+    kind: np.ndarray
+    radius: np.ndarray
+    domain_min: np.ndarray
+    domain_max: np.ndarray
+    obstacles: list = field(default_factory=list)
+    stats: dict = field(default_factory=dict)
