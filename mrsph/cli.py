@@ -21,8 +21,9 @@ EXIT_OK = 0
 EXIT_FAILED = 1
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
-#: Frames recorded when no window can open and no --frames was given (5 s at 30 fps).
-FALLBACK_FRAMES = 150
+#: Frames recorded when no window can open and no --frames was given (2 s at 30 fps:
+#: about a minute on a 2-core CPU, long enough to see the fluid move and refine).
+FALLBACK_FRAMES = 60
 #: Where that fallback recording goes, relative to the working directory.
 FALLBACK_DIR = Path("out")
 WINDOW_SIZE = (1280, 720)

@@ -261,7 +261,7 @@ class Multires:
         for fld in ti.static(self._fields(split_inherited())):
             fld[ch] = fld[i]
         p[ch].m = p[i].m / self.nmax
-        p[ch].x = self.sim.boundary_clamp(p[i].x + self.offsets[q] * s_f)
+        p[ch].x = p[i].x + self.offsets[q] * s_f
         p[ch].a = ti.Vector.zero(float, self.dim)
         p[ch].level = f
         p[ch].slot = q
