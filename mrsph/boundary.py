@@ -40,35 +40,6 @@ class Boundary:
             self.sph_r[i] = float(s["radius"])
 
     @ti.func
-    def nearest_surface(self, x):
-        """Distance to the nearest solid surface (domain wall or obstacle) and the normal
-        pointing from the solid into the fluid."""
-        best = 1e30
-        normal = ti.Vector.zero(float, self.dim)
-        for k in ti.static(range(self.dim)):
-            for side in ti.static((0, 1)):
-                d = x[k] - self.lo[k] if side == 0 else self.hi[k] - x[k]
-                if d < best:
-                    best = d
-                    normal = ti.Vector.zero(float, self.dim)
-                    normal[k] = 1.0 if side == 0 else -1.0
-        phi, n = self.obstacle_sdf(x)
-        if phi < best:
-            best = phi
-            normal = n
-        return best, normal
-
-    # --- ghost particles ------------------------------------------------------------
-    # A particle within h of a wall sees, besides its neighbours, their mirror images
-    # across that wall (Colagrossi & Landrini 2003): the solid behaves like fluid mirrored
-    # across its surface, a lattice at a flat wall sits exactly at rest density, and the
-    # pressure balance at the wall is that of the discrete fluid itself. Images are taken
-    # from the particle's own level, so walls act the same at every resolution level.
-    # Domain walls: one image per non-empty set of nearby walls (so a corner gets the
-    # doubly reflected one too); obstacles: one image across the tangent plane at the
-    # nearest surface point.
-
-    @ti.func
     def domain_image(self, x, h, mask):
         """(valid, mirrored x, linear part as ±1 per axis) for the set of axes ``mask``."""
         valid = True

@@ -76,9 +76,6 @@ class Criteria:
                 first = np.asarray(path[0][1:], float)
                 self.center[i] = (self._base_centre[i] + pos - first).tolist()
 
-    def region_centres(self, t: float):
-        return [np.asarray(self.center[i].to_numpy()) for i in range(self.count)]
-
     @ti.func
     def wanted(self, x, boundary: ti.template(), disturbances: ti.template()):
         """λ(x): the finest level wanted at x by any criterion (graded by distance)."""

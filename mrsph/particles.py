@@ -64,11 +64,6 @@ ATTRIBUTES = (
 )
 
 
-def attribute(name: str) -> Attribute:
-    for a in ATTRIBUTES:
-        if a.name == name:
-            return a
-    raise KeyError(name)
 
 
 def split_inherited() -> list[str]:

@@ -336,11 +336,6 @@ class Simulation:
 
     # ------------------------------------------------------------------ kernels
     @ti.func
-    def boundary_clamp(self, x):
-        xc, _v = self.boundary.collide(x, ti.Vector.zero(float, self.dim))
-        return xc
-
-    @ti.func
     def _image_in_solid(self, xj, p0, nrm):
         """Is x_j's mirror image across the plane (p0, nrm) inside an obstacle? Near a
         convex corner the tangent-plane mirror puts some images back in the fluid; those

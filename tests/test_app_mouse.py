@@ -1,36 +1,18 @@
 """Mouse gestures -> Disturbance, and 3D picking (pure logic, no window)."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 
 import numpy as np
 import pytest
 
 from mrsph.app.mouse import MouseDisturbance, pick_point, ray_box, ray_plane
+from mrsph.interaction import Disturbance
 
 DT = 1.0 / 60.0
 
 
-@dataclass
-class StandIn:
-    """The signature of mrsph.interaction.Disturbance, for when it is not importable."""
-    center: tuple
-    radius: float
-    strength: float
-    mode: str = "push"
-    velocity: tuple = field(default=())
-
-
-def factory():
-    try:
-        from mrsph.interaction import Disturbance
-        return Disturbance
-    except ImportError:
-        return StandIn
-
-
 def make(dim=2, **kw):
-    kw.setdefault("factory", factory())
+    kw.setdefault("factory", Disturbance)
     return MouseDisturbance(dim, radius=0.1, radius_min=0.02, radius_max=0.4, **kw)
 
 
@@ -113,7 +95,7 @@ def test_strength_and_radius_are_settable():
 
 
 def test_for_domain_scales_defaults():
-    m = MouseDisturbance.for_domain((0, 0), (4, 1), factory=factory())
+    m = MouseDisturbance.for_domain((0, 0), (4, 1), factory=Disturbance)
     assert m.radius == pytest.approx(0.32) and m.radius_min == pytest.approx(0.04)
     assert m.radius_max == pytest.approx(2.0)
 

@@ -9,14 +9,13 @@ process, because creating a GGUI window on a broken driver can kill the process
 from __future__ import annotations
 
 import os
-import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from .palette import Style
+from .probe import run_probe
 from .view import camera_for_scene, scene_setting
 
 BACKENDS = ("auto", "ggui", "raster")
@@ -50,24 +49,8 @@ def vulkan_available() -> tuple[bool, str]:
         return False, f"{NO_VULKAN_ENV} is set"
     if "result" in _probe_cache:
         return _probe_cache["result"]
-    try:
-        # In a scratch directory: ImGui drops an imgui.ini into the working directory.
-        with tempfile.TemporaryDirectory(prefix="mrsph_probe_") as scratch:
-            proc = subprocess.run([sys.executable, "-c", _PROBE_SCRIPT], capture_output=True,
-                                  text=True, timeout=PROBE_TIMEOUT_S, cwd=scratch)
-    except subprocess.TimeoutExpired:
-        result = (False, f"the GGUI/Vulkan probe did not finish within {PROBE_TIMEOUT_S:.0f} s")
-    except OSError as e:
-        result = (False, f"cannot start the GGUI/Vulkan probe: {e}")
-    else:
-        if proc.returncode == 0 and "MRSPH_VULKAN_OK" in proc.stdout:
-            result = (True, "GGUI offscreen rendering works")
-        else:
-            lines = [ln.strip() for ln in (proc.stderr + proc.stdout).splitlines() if ln.strip()
-                     and not ln.startswith("[Taichi]")]
-            how = (f"crashed with signal {-proc.returncode}" if proc.returncode < 0
-                   else f"failed (exit code {proc.returncode})")
-            result = (False, f"the GGUI/Vulkan probe {how}" + (f": {lines[-1][:200]}" if lines else ""))
+    ok, why = run_probe(_PROBE_SCRIPT, "MRSPH_VULKAN_OK", "the GGUI/Vulkan probe", PROBE_TIMEOUT_S)
+    result = (True, "GGUI offscreen rendering works") if ok else (False, why)
     _probe_cache["result"] = result
     return result
 

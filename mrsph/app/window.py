@@ -38,15 +38,13 @@ import inspect
 import json
 import math
 import os
-import subprocess
-import sys
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
 from . import palette
+from .probe import run_probe
 from .mouse import LEFT, RIGHT, SHIFT, MouseDisturbance, pick_point, ray_plane
 from .view import scene_setting
 
@@ -103,22 +101,8 @@ def display_available() -> tuple[bool, str]:
     key = (os.environ.get("DISPLAY"), os.environ.get("WAYLAND_DISPLAY"))
     if key in _display_cache:
         return _display_cache[key]
-    try:
-        # In a scratch directory: ImGui drops an imgui.ini into the working directory.
-        with tempfile.TemporaryDirectory(prefix="mrsph_probe_") as scratch:
-            proc = subprocess.run([sys.executable, "-c", _PROBE_SCRIPT], capture_output=True,
-                                  text=True, timeout=PROBE_TIMEOUT_S, cwd=scratch)
-    except subprocess.TimeoutExpired:
-        result = (False, f"opening a test window did not finish within {PROBE_TIMEOUT_S:.0f} s")
-    else:
-        if proc.returncode == 0 and "MRSPH_DISPLAY_OK" in proc.stdout:
-            result = (True, f"a GGUI window opens on {key[0] or key[1]}")
-        else:
-            lines = [ln.strip() for ln in (proc.stderr + proc.stdout).splitlines()
-                     if ln.strip() and not ln.startswith("[Taichi]")]
-            how = (f"crashed with signal {-proc.returncode}" if proc.returncode < 0
-                   else f"failed (exit code {proc.returncode})")
-            result = (False, f"opening a test window {how}" + (f": {lines[-1][:200]}" if lines else ""))
+    ok, why = run_probe(_PROBE_SCRIPT, "MRSPH_DISPLAY_OK", "opening a test window", PROBE_TIMEOUT_S)
+    result = (True, f"a GGUI window opens on {key[0] or key[1]}") if ok else (False, why)
     _display_cache[key] = result
     return result
 
