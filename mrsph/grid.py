@@ -26,6 +26,7 @@ class LevelGrids:
     def __init__(self, dim: int, levels: int, domain_min, domain_max, h0: float, capacity: int):
         self.dim = dim
         self.levels = levels
+        self.row_axes = ((-1, 2),) * (dim - 1)   # offsets of the rows of a 3^d block
         lo = np.asarray(domain_min, dtype=np.float64)
         hi = np.asarray(domain_max, dtype=np.float64)
         self.h = [h0 * 2**l for l in range(levels)]
@@ -67,6 +68,28 @@ class LevelGrids:
         return self.offset[l] + idx
 
     @ti.func
+    def around(self, x, l):
+        """x's cell, kept one cell inside the grid so that the 3^d block around it exists."""
+        c = ti.cast(ti.floor((x - self.origin[l]) * self.inv_cell[l]), ti.i32)
+        return ti.max(ti.min(c, self.res[l] - 2), 1)
+
+    @ti.func
+    def row(self, base, o, l):
+        """Pool slots [lo, hi) of the three cells base + (o, -1 … +1).
+
+        The last axis varies fastest in the cell index, so those cells are consecutive
+        and, the pool being in cell order, so are their particles: a neighbour loop is
+        3^(d-1) contiguous ranges:
+        ``for o in ti.grouped(ti.ndrange(*grid.row_axes)): lo, hi = grid.row(base, o, l)``."""
+        c = base
+        for k in ti.static(range(self.dim - 1)):
+            c[k] += o[k]
+        c[self.dim - 1] -= 1
+        first = self.cell_id(c, l)
+        return self.start[first], self.start[first + 3]
+
+
+    @ti.func
     def in_grid(self, c, l):
         ok = True
         for k in ti.static(range(self.dim)):
@@ -82,8 +105,7 @@ class LevelGrids:
         self._ranks(n)
         self._scan()
         self._scatter(pool, n)
-        self._gather_back(pool, n)
-        return pool.count()
+        return self._gather_back(pool, n)
 
     @ti.kernel
     def _keys(self, pool: ti.template(), n: ti.i32):
@@ -124,7 +146,7 @@ class LevelGrids:
                 pool.tmp_children[j, k] = pool.children[i, k]
 
     @ti.kernel
-    def _gather_back(self, pool: ti.template(), n: ti.i32):
+    def _gather_back(self, pool: ti.template(), n: ti.i32) -> ti.i32:
         alive = self.start[self.total_cells]
         for j in range(n):
             if j < alive:
@@ -144,3 +166,4 @@ class LevelGrids:
                 pool.p[j].parent = -1
                 pool.p[j].nchild = 0
         pool.n[None] = alive
+        return alive

@@ -172,10 +172,10 @@ class Multires:
             li = p[i].level
             if (is_real(ki) and li < c) or (ki == VIRTUAL_PARENT and li == c):
                 xi = p[i].x
-                base = self.g.cell(xi, c)
-                for off in ti.grouped(ti.ndrange(*((-1, 2),) * self.dim)):
-                    cid = self.g.cell_id(base + off, c)
-                    for j in range(self.g.start[cid], self.g.start[cid + 1]):
+                base = self.g.around(xi, c)
+                for o in ti.grouped(ti.ndrange(*self.g.row_axes)):
+                    lo, hi = self.g.row(base, o, c)
+                    for j in range(lo, hi):
                         d2 = (xi - p[j].x).norm_sqr()
                         if ki != VIRTUAL_PARENT and li <= c - 2 and p[j].kind == VIRTUAL_PARENT \
                                 and d2 < hc * hc:
@@ -323,10 +323,10 @@ class Multires:
             if p[i].kind == VIRTUAL_PARENT and p[i].level == c and p[i].nchild < self.nmax:
                 xi = p[i].x
                 best, best_d2 = -1, reach * reach
-                base = self.g.cell(xi, c)
-                for off in ti.grouped(ti.ndrange(*((-1, 2),) * self.dim)):
-                    cid = self.g.cell_id(base + off, c)
-                    for j in range(self.g.start[cid], self.g.start[cid + 1]):
+                base = self.g.around(xi, c)
+                for o in ti.grouped(ti.ndrange(*self.g.row_axes)):
+                    lo, hi = self.g.row(base, o, c)
+                    for j in range(lo, hi):
                         if j != i and p[j].kind == VIRTUAL_PARENT and \
                                 p[i].nchild + p[j].nchild <= self.nmax:
                             d2 = (xi - p[j].x).norm_sqr()
