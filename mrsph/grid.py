@@ -141,8 +141,9 @@ class LevelGrids:
         for i in range(n):
             j = self.start[self.key[i]] + self.rank[i]
             self.new_index[i] = j
-            pool.tmp[j] = pool.p[i]
-            for k in ti.static(range(pool.max_children)):
+            for live, spare in ti.static(pool.carried):
+                spare[j] = live[i]
+            for k in range(pool.p.nchild[i]):
                 pool.tmp_children[j, k] = pool.children[i, k]
 
     @ti.kernel
@@ -150,20 +151,17 @@ class LevelGrids:
         alive = self.start[self.total_cells]
         for j in range(n):
             if j < alive:
-                pool.p[j] = pool.tmp[j]
-                par = pool.p[j].parent
+                for live, spare in ti.static(pool.carried):
+                    live[j] = spare[j]
+                par = pool.p.parent[j]
                 if par >= 0:
-                    pool.p[j].parent = self.new_index[par]
-                for k in ti.static(range(pool.max_children)):
-                    ch = pool.tmp_children[j, k]
-                    if ch >= 0 and k < pool.p[j].nchild:
-                        ch = self.new_index[ch]
-                    else:
-                        ch = -1
-                    pool.children[j, k] = ch
+                    pool.p.parent[j] = self.new_index[par]
+                # only the first nchild entries of a children row are ever read
+                for k in range(pool.p.nchild[j]):
+                    pool.children[j, k] = self.new_index[pool.tmp_children[j, k]]
             else:
-                pool.p[j].kind = DEAD
-                pool.p[j].parent = -1
-                pool.p[j].nchild = 0
+                pool.p.kind[j] = DEAD
+                pool.p.parent[j] = -1
+                pool.p.nchild[j] = 0
         pool.n[None] = alive
         return alive

@@ -100,8 +100,7 @@ class Multires:
         sim = self.sim
         sim.criteria.update(sim.time)
         for c in range(self.levels - 1, 0, -1):
-            self.g.sort(self.pool)
-            n = self.pool.count()
+            n = self.g.sort(self.pool)
             self._wanted(n)
             self._flags(n, c)
             self._release(n, c)

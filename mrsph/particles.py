@@ -36,7 +36,7 @@ class Attribute:
     on_split: "inherit" (child copies the parent), "divide" (parent value / 2^d),
               "own" (set by the event itself: positions, links).
     on_merge: "mass_mean" (mass-weighted mean of the group), "sum", "own".
-    A sort copies every attribute; links (``parent``, children) are remapped.
+    A sort moves every ``carried`` attribute; links (``parent``, children) are remapped.
     """
     name: str
     shape: str          # "vector" (dim floats), "float", "int"
@@ -44,12 +44,13 @@ class Attribute:
     doc: str
     on_split: str = "inherit"
     on_merge: str = "mass_mean"
+    carried: bool = True     # moved by the sort (False: rewritten each step before use)
 
 
 ATTRIBUTES = (
     Attribute("x", "vector", "m", "position", on_split="own", on_merge="mass_mean"),
     Attribute("v", "vector", "m/s", "velocity (virtual: interpolated from its level)"),
-    Attribute("a", "vector", "m/s²", "acceleration of the current step", "own", "own"),
+    Attribute("a", "vector", "m/s²", "acceleration of the current step", "own", "own", carried=False),
     Attribute("m", "float", "kg", "mass", on_split="divide", on_merge="sum"),
     Attribute("rho", "float", "kg/m³", "density (Eq. 7, own level only)"),
     Attribute("p", "float", "Pa", "pressure from the equation of state"),
@@ -60,7 +61,7 @@ ATTRIBUTES = (
               "virtual child → its transient parent; else -1", "own", "own"),
     Attribute("slot", "int", "", "virtual child: index of its sampling offset", "own", "own"),
     Attribute("nchild", "int", "", "transient parent / virtual parent: children count", "own", "own"),
-    Attribute("flags", "int", "", "scratch bits of the adaptivity pass", "own", "own"),
+    Attribute("flags", "int", "", "scratch bits of the adaptivity pass", "own", "own", carried=False),
 )
 
 
@@ -99,6 +100,11 @@ class ParticlePool:
         self.record = ti.types.struct(**members)
         self.p = self.record.field(shape=capacity, layout=ti.Layout.SOA)
         self.tmp = self.record.field(shape=capacity, layout=ti.Layout.SOA)
+        # (live, spare) member fields of what a sort moves: all but the per-step scratch
+        # that is rewritten before it is read
+        self.carried = tuple((getattr(self.p, a.name), getattr(self.tmp, a.name))
+                             for a in ATTRIBUTES if a.carried)
+        # children[i, :nchild[i]] are i's children; entries past nchild are never read
         self.children = ti.field(ti.i32, shape=(capacity, self.max_children))
         self.tmp_children = ti.field(ti.i32, shape=(capacity, self.max_children))
         self.n = ti.field(ti.i32, shape=())          # slots in use, holes included

@@ -708,6 +708,7 @@ class Simulation:
         return out
 
     def children(self) -> np.ndarray:
+        """Children slots per pool slot; only the first ``nchild`` entries of a row count."""
         n = self.pool.count()
         return self.pool.children.to_numpy()[:n]
 

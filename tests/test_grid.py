@@ -25,7 +25,7 @@ BORDERLINE = 1e-5
 
 
 def build(dim, xs, levels, kinds=None, extra_capacity=8):
-    """A ParticlePool and LevelGrids holding the given particles (ids stored in ``flags``)."""
+    """A ParticlePool and LevelGrids holding the given particles (ids stored in ``slot``)."""
     from mrsph.grid import LevelGrids
     from mrsph.particles import ParticlePool
 
@@ -39,7 +39,7 @@ def build(dim, xs, levels, kinds=None, extra_capacity=8):
     pool.p.m.from_numpy(pad(np.arange(n, dtype=np.float32) + 0.5, 0.0))
     pool.p.level.from_numpy(pad(levels.astype(np.int32), 0))
     pool.p.kind.from_numpy(pad(np.full(n, REGULAR, np.int32) if kinds is None else kinds.astype(np.int32), DEAD))
-    pool.p.flags.from_numpy(pad(np.arange(n, dtype=np.int32), -1))
+    pool.p.slot.from_numpy(pad(np.arange(n, dtype=np.int32), -1))
     pool.p.parent.from_numpy(np.full(cap, -1, np.int32))
     pool.p.nchild.from_numpy(np.zeros(cap, np.int32))
     pool.n[None] = n
@@ -47,7 +47,7 @@ def build(dim, xs, levels, kinds=None, extra_capacity=8):
 
 
 def grid_neighbours(pool, grids, n):
-    """For each sorted slot, the ids (flags) of the particles the grid finds within h_l."""
+    """For each sorted slot, the ids (slot) of the particles the grid finds within h_l."""
     import taichi as ti
 
     cnt = ti.field(ti.i32, shape=n)
@@ -75,7 +75,7 @@ def grid_neighbours(pool, grids, n):
                     # deliberately no level filter: the grid alone must keep levels apart
                     if j != i and (p[i].x - p[j].x).norm_sqr() < hl * hl:
                         if c < MAX_NEIGHBOURS:
-                            nb[i, c] = p[j].flags
+                            nb[i, c] = p[j].slot
                         else:
                             overflow[None] += 1
                         c += 1
@@ -85,7 +85,7 @@ def grid_neighbours(pool, grids, n):
     assert overflow[None] == 0, f"test kernel: more than {MAX_NEIGHBOURS} neighbours ({overflow[None]} dropped)"
     assert wrong_level[None] == 0, \
         f"{wrong_level[None]} candidates of another level found in the cells of a level's grid"
-    ids = pool.p.flags.to_numpy()[:n]
+    ids = pool.p.slot.to_numpy()[:n]
     counts = cnt.to_numpy()
     lists = nb.to_numpy()
     return {int(ids[i]): set(lists[i, : counts[i]].tolist()) for i in range(n)}
@@ -160,7 +160,7 @@ def test_sort_orders_by_cell_and_carries_every_attribute(dim):
     levels = (rng.uniform(size=len(xs)) < 0.5).astype(np.int32)
     pool, grids = build(dim, xs, levels)
     n = grids.sort(pool)
-    ids = pool.p.flags.to_numpy()[:n]
+    ids = pool.p.slot.to_numpy()[:n]
     assert sorted(ids.tolist()) == list(range(len(xs))), "the sort is not a permutation"
     x = pool.p.x.to_numpy()[:n]
     assert np.array_equal(x, xs[ids].astype(np.float32)), "positions not carried with their particle"
@@ -216,7 +216,7 @@ def test_sort_compacts_dead_slots_and_remaps_links(dim):
         parent[members] = par
         nchild[par] = len(members)
         children[par, : len(members)] = members
-        # stale entries past nchild must not survive the sort
+        # entries past nchild are never read (the sort leaves them as they were)
         if len(members) < nmax:
             children[par, len(members)] = members[0]
     pad = np.full(pool.capacity - len(xs), -1, np.int32)
@@ -231,7 +231,7 @@ def test_sort_compacts_dead_slots_and_remaps_links(dim):
     kind_after = pool.p.kind.to_numpy()
     assert not np.any(kind_after[:n] == DEAD), f"{int((kind_after[:n] == DEAD).sum())} DEAD slots left inside [0, n)"
     assert np.all(kind_after[n: len(xs)] == DEAD), "slots past n are not all DEAD"
-    ids = pool.p.flags.to_numpy()[:n]
+    ids = pool.p.slot.to_numpy()[:n]
     assert set(ids.tolist()) == set(range(len(xs))) - set(dead.tolist()), "the alive set changed"
     slot_of = {int(i): s for s, i in enumerate(ids)}
     par_after = pool.p.parent.to_numpy()[:n]
@@ -244,8 +244,8 @@ def test_sort_compacts_dead_slots_and_remaps_links(dim):
         else:
             assert par_after[s] == -1, f"particle {i} gained a parent ({par_after[s]})"
         assert nch_after[s] == nchild[i], f"particle {i}: nchild {nch_after[s]}, expected {nchild[i]}"
-        want = [slot_of[int(c)] for c in children[i, : nchild[i]]] + [-1] * (nmax - nchild[i])
-        assert ch_after[s].tolist() == want, f"particle {i}: children slots {ch_after[s].tolist()}, expected {want}"
+        want = [slot_of[int(c)] for c in children[i, : nchild[i]]]
+        assert ch_after[s, : nchild[i]].tolist() == want, f"particle {i}: children slots {ch_after[s].tolist()}, expected {want}"
     # every child's parent lists it (the invariant of METHOD.md §8)
     for s in np.flatnonzero(par_after >= 0):
         par = par_after[s]
