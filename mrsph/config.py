@@ -111,6 +111,15 @@ SCHEMA = Table(required=True, keys={
         "gamma": Key("float", 7.0, "[1, 10]", doc="exponent of the Tait equation"),
         "clamp_negative_pressure": Key("bool", True, doc="clamp pressure at 0 (no clumping "
                                        "at the free surface)"),
+        "artificial_viscosity": Key("float", 0.2, "[0, 1]", doc="alpha of Monaghan's artificial "
+                                    "viscosity (1992), acting on approaching pairs with the sound "
+                                    "speed: it damps the particle-scale motion that viscosity alone "
+                                    "leaves ringing (a resting pool's lattice rearranging under its "
+                                    "own weight); 0 = off"),
+        "hydrostatic_start": Key("bool", True, doc="start each block compressed along gravity to "
+                                 "its hydrostatic density rho(rho0 |g| depth below the block's top), "
+                                 "so that a resting pool starts in equilibrium instead of ringing; "
+                                 "false = uniform lattice at rho0"),
         "blocks": Array(Table({
             "min": Key("vec", unit="m", doc="lower corner"),
             "max": Key("vec", unit="m", doc="upper corner, > min in every component"),

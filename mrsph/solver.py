@@ -11,9 +11,11 @@ Physics (METHOD.md §1, thesis ch. 3): density by poly6 over same-level particle
 included, Eq. 7); pressure from the equation of state (``eos.py``); the symmetric pressure
 force F_i = −m_i Σ_j m_j (p_i/ρ_i² + p_j/ρ_j²) ∇W_spiky (Eq. 16, times the volume m_i/ρ_i)
 and the symmetrised viscosity force F_i = μ m_i Σ_j m_j (u_j − u_i)/(ρ_i ρ_j) ∇²W_visc
-(Eq. 19); gravity and disturbances as accelerations (Eq. 22–23); symplectic Euler; a time
-step from the CFL condition dt ≤ λ h/(c + |u|) and the force condition
-dt ≤ λ_f sqrt(h/|a|), each particle with its own level's h.
+(Eq. 19); Monaghan's artificial viscosity on approaching pairs (``fluid.artificial_viscosity``,
+see ``_pair_force_values``); gravity and disturbances as accelerations (Eq. 22–23);
+symplectic Euler; a time step from the CFL condition dt ≤ λ h/(c + |u|) and the force
+condition dt ≤ λ_f sqrt(h/|a|), each particle with its own level's h. Fluid blocks start
+in hydrostatic equilibrium (``fluid.hydrostatic_start``, see ``_hydrostatic``).
 """
 
 import math
@@ -25,7 +27,7 @@ import taichi as ti
 from . import runtime
 from .boundary import Boundary
 from .criteria import Criteria
-from .eos import pressure, sound_speed
+from .eos import hydrostatic_heights, pressure, sound_speed
 from .grid import LevelGrids
 from .interaction import MOUSE_SLOT, Disturbance, Disturbances, path_sample
 from .kernels import constants, lattice_density_sum, lattice_gradient_factor, poly6, spiky_grad, visc_lap
@@ -42,6 +44,10 @@ from .snapshot import Snapshot
 # then sees a complete fine neighbourhood, as in uniform SPH), and through the virtual
 # parent only when P has none. Virtual parents always give the coarse side its density.
 
+
+# Monaghan's artificial viscosity divides by r² + AV_EPS h² so that a pair at (nearly)
+# the same position gets a bounded force; 0.01 is Monaghan's value (1992).
+AV_EPS = 0.01
 
 # A transient parent's virtual children lie within sqrt(d)/2 fine spacings of it and reach
 # one fine support beyond; measured with a uniform-pressure probe (no gravity, a refined
@@ -152,9 +158,13 @@ class Simulation:
         self.mu = ti.field(float, shape=())
         self.gravity = ti.Vector.field(d, float, shape=())
         self.spring_rate = ti.field(float, shape=())
+        # alpha c of the artificial viscosity (c the sound speed, which follows k)
+        self.av_alpha = float(fl["artificial_viscosity"])
+        self.av_coef = ti.field(float, shape=())
         self.k[None] = float(fl["stiffness"])
         # host copy for dt, from the stored (possibly f32) k that the pressure kernel uses
         self._c_sound = sound_speed(float(self.k[None]), self.eos)
+        self.av_coef[None] = self.av_alpha * self._c_sound
         self.mu[None] = float(fl["viscosity"])
         self.gravity[None] = list(map(float, ph["gravity"]))
         self.spring_rate[None] = float(a["spring_rate"])
@@ -191,6 +201,8 @@ class Simulation:
         seed_level = self.levels - 1
         for b in s["fluid"]["blocks"]:
             xs = self._lattice(b["min"], b["max"], self.s0 * 2**seed_level)
+            if s["fluid"]["hydrostatic_start"]:
+                xs = self._hydrostatic(xs, b["min"], b["max"])
             self._append(xs, np.tile(np.asarray(b["velocity"], np.float64), (len(xs), 1)), seed_level)
         self._stirrers(0.0)
         if self.adaptive:
@@ -211,6 +223,32 @@ class Simulation:
         counts = np.floor((hi - lo) / spacing + 1e-9).astype(int)
         axes = [lo[k] + (np.arange(counts[k]) + 0.5) * spacing for k in range(len(lo))]
         return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, len(lo))
+
+    def _hydrostatic(self, xs: np.ndarray, lo, hi) -> np.ndarray:
+        """Lattice points of the block [lo, hi] moved along gravity to hydrostatic equilibrium.
+
+        A uniform lattice at ρ0 under gravity is not in equilibrium: it falls by the
+        compression of its lower layers and then rings in its first acoustic mode
+        (period 4H/c), which the viscosity, acting on velocity differences between
+        neighbours, hardly damps (measured in the 0.3 m tank of tests/test_physics.py:
+        0.035 sqrt(gH) of mean speed, undiminished after 1.5 s). So each particle is put
+        where the weight of the fluid above it, ρ0 |g| depth, compresses it to
+        (``eos.hydrostatic_heights``), depth counted from the block's top; across gravity
+        the lattice is unchanged. Masses are unchanged too: the block holds the same fluid,
+        a little lower.
+        """
+        g = np.asarray(self.gravity[None].to_numpy(), np.float64)
+        gn = float(np.linalg.norm(g))
+        if gn == 0.0 or len(xs) == 0:
+            return xs
+        up = -g / gn
+        corners = np.stack(np.meshgrid(*zip(lo, hi), indexing="ij"), -1).reshape(-1, self.dim)
+        heights = corners @ up
+        top, bottom = float(heights.max()), float(heights.min())
+        along = xs @ up
+        z = hydrostatic_heights(top - along, top - bottom, gn, self.rest_density,
+                                float(self.k[None]), self.eos, self.gamma)
+        return xs + np.outer(bottom + z - along, up)
 
     def _append(self, xs: np.ndarray, vs: np.ndarray, level: int) -> int:
         """Append regular particles of one level; returns how many fitted."""
@@ -446,9 +484,25 @@ class Simulation:
 
     @ti.func
     def _pair_force_values(self, mi, ri, pi, vi, mj, rj, pj, vj, r, rn, h, cs, cv, mu):
-        """Force on i from j: pressure (Eq. 16) and viscosity (Eq. 19), times i's volume."""
+        """Force on i from j: pressure (Eq. 16), viscosity (Eq. 19) and artificial viscosity,
+        times i's volume.
+
+        The artificial viscosity is Monaghan's (1992), F_i = m_i m_j α c h (u_ij·r_ij) /
+        (ρ̄_ij (r² + 0.01 h²)) ∇W_spiky for approaching pairs (u_ij·r_ij < 0), ρ̄ the mean
+        density. Why: a resting pool's square lattice is not a stable packing under
+        pressure (the pair pressure forces push a row sliding along its neighbours
+        further), so it rearranges within a second and the energy set free rings on as
+        particle-scale motion that the viscosity, μ ∇²u, damps too slowly at μ = 2 Pa s
+        (measured in the tank of tests/test_physics.py: 0.011–0.028 sqrt(gH) of mean
+        speed at 1.5 s; 0.0002 with α = 0.2). Like the pressure term it is antisymmetric
+        in the pair and along r, so momentum is still conserved.
+        """
         fp = -mi * mj * (pi / (ri * ri) + pj / (rj * rj)) * spiky_grad(r, rn, h, cs)
         fv = (mu * mi * mj * visc_lap(rn, h, cv) / (ri * rj)) * (vj - vi)
+        approach = (vi - vj).dot(r)
+        if approach < 0.0:
+            fv += (self.av_coef[None] * h * approach * mi * mj /
+                   (0.5 * (ri + rj) * (rn * rn + AV_EPS * h * h))) * spiky_grad(r, rn, h, cs)
         return fp + fv
 
     @ti.func
@@ -772,6 +826,7 @@ class Simulation:
         elif key == "fluid.stiffness":
             self.k[None] = float(v)
             self._c_sound = sound_speed(float(self.k[None]), self.eos)
+            self.av_coef[None] = self.av_alpha * self._c_sound
         elif key == "physics.gravity":
             self.gravity[None] = list(map(float, v))
         else:

@@ -23,16 +23,9 @@ pytestmark = pytest.mark.usefixtures("fresh_program")
 # Tests that fail because of the library, with what was measured when they were marked
 # (see the report to the maintainers): {(test key, dim): reason}. A test listed here runs
 # and reports its numbers, but its failure does not fail the suite (xfail, not strict).
-_SETTLE = ("the pool does not settle: with viscosity the only dissipation, the start-up "
-           "compression rings on (measured with the gradient-calibrated kernel: 0.028 sqrt(gH) "
-           "in 2D, 0.018 in 3D after 1.5 s); needs a damped settling phase or a hydrostatic "
-           "initial state. Measured mean speed / sqrt(gH)")
-_PRESSURE = ("pool pressure above rho0 g depth by 6.8 % (3D) and 3.4 % to 8.6 % (2D) after the "
-             "spiky gradient was calibrated on the lattice (it was 21.5 % / 10.5 %); the rest is the "
-             "sloshing of the unsettled pool, chaotic enough that a change in the last bit of one "
-             "force moves the 2D number between those two values. Measured relative pressure error")
-KNOWN_FAILURES = {("tank_speed", 2): _SETTLE, ("tank_speed", 3): _SETTLE,
-                  ("tank_pressure", 2): _PRESSURE, ("tank_pressure", 3): _PRESSURE}
+# None at present: the resting tank, listed until fluid.hydrostatic_start and
+# fluid.artificial_viscosity, now settles and reads hydrostatic pressure in 2D and 3D.
+KNOWN_FAILURES: dict[tuple[str, int], str] = {}
 
 
 def known_xfail(request, dim, key, measured):
