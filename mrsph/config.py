@@ -157,9 +157,18 @@ SCHEMA = Table(required=True, keys={
                           "thresholds, in level units"),
         "band": Key("float", 0.0, ">= 0", "m", "width of the distance band per level; "
                     "0 = automatic: 2 h_(L-1), twice the coarsest support radius"),
+        "coupling": Key("choice", "variational", choices=("variational", "symmetric"),
+                        doc="how real and virtual particles exchange forces: variational = "
+                        "virtual particles carry their owners' mass, density and velocity and "
+                        "a real–virtual pressure force uses the real particle's pressure only "
+                        "(each particle's pressure acts once, on its own level; energy-"
+                        "consistent); symmetric = the thesis's same-level symmetric pair "
+                        "force with virtual particles' own summed density and interpolated "
+                        "velocity (see the README)"),
         "spring_rate": Key("float", 5000.0, ">= 0", "1/s", "rate at which the Hooke springs "
-                           "return virtual particles to their anchors (capped at 1/dt, which "
-                           "pins them); loose springs let the interface drift and gain energy"),
+                           "return virtual particles to their anchors, integrated implicitly "
+                           "(rate * dt >= 1 puts them on the anchor); loose springs let the "
+                           "interface drift and gain energy"),
         "release_factor": Key("float", 1.0, "[0.5, 2]", doc="siblings are released when "
                               "their largest distance exceeds release_factor * h_n"),
         "merge_min_children": Key("int", 0, ">= 0", doc="least group size that merges; "

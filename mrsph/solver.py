@@ -74,7 +74,7 @@ def interacts(kind_i, kind_j, r2, reach2):
 
 
 PHASES = ("emit", "adapt", "grid", "density", "forces", "virtual_coupling", "timestep",
-          "virtual_advect", "integrate", "boundaries")
+          "integrate", "boundaries", "virtual_advect")
 
 
 class SimulationError(RuntimeError):
@@ -109,6 +109,8 @@ class Simulation:
         s = self.scene.data
         d, L = self.dim, self.levels
         part, fl, ph = s["particles"], s["fluid"], s["physics"]
+        # see _partner_pressure; without adaptivity there are no virtual particles
+        self.variational = self.adaptive and s["adaptivity"]["coupling"] == "variational"
         self.s0 = float(part["spacing"])
         self.h0 = float(part["support"]) * self.s0
         self.rest_density = float(fl["rest_density"])
@@ -149,7 +151,7 @@ class Simulation:
             self.lev_m[l] = self.m0 * 2 ** (d * l)
             self.lev_poly6[l], self.lev_visc[l] = c["poly6"], c["visc"]
             self.lev_spiky[l] = c["spiky"] / self.grad_factor
-            if l > 0:
+            if l > 0 and not self.variational:
                 fine_h, fine_s = self.h0 * 2 ** (l - 1), self.s0 * 2 ** (l - 1)
                 self.lev_reach2[l] = (REACH_FACTOR * (fine_h + 0.5 * math.sqrt(d) * fine_s)) ** 2
 
@@ -308,14 +310,16 @@ class Simulation:
             self._phase("adapt", self._adapt)
         n = self._phase("grid", self.grids.sort, self.pool)
         self._phase("density", self._density, n)
+        if self.adaptive and self.variational:
+            self._phase("density", self._virtual_state, n)
         self._phase("forces", self._forces, n)
         if self.adaptive:
             self._phase("virtual_coupling", self._virtual_coupling, n)
         dt = self._phase("timestep", self._timestep, n, max_dt)
-        if self.adaptive:
-            self._phase("virtual_advect", self._advect_virtual, n, dt)
         self._phase("integrate", self._integrate, n, dt)
         self._phase("boundaries", self._boundaries, n)
+        if self.adaptive:   # after the owners moved, so that the anchors are current
+            self._phase("virtual_advect", self._advect_virtual, n, dt)
         self.time += dt
         self.steps += 1
         self.dt = dt
@@ -460,6 +464,35 @@ class Simulation:
                 p[i].rho = rho
                 p[i].p = pressure(rho, rho0, k, gamma, self.tait, self.clamp)
 
+    @ti.kernel
+    def _virtual_state(self, n: ti.i32):
+        """Variational coupling: a virtual particle is a piece of real matter seen from
+        another level (a virtual child 1/2^d of its transient parent, a virtual parent the
+        sum of its transient children), so it takes their density, pressure and velocity
+        (mass-weighted for a virtual parent), not those of its own neighbourhood, where
+        virtual children of neighbouring parents overlap each other and the walls."""
+        p = ti.static(self.pool.p)
+        for j in range(n):
+            kj = p[j].kind
+            if kj == VIRTUAL_CHILD:
+                par = p[j].parent
+                p[j].rho = p[par].rho
+                p[j].p = p[par].p
+                p[j].v = p[par].v
+            elif kj == VIRTUAL_PARENT:
+                m, r, pr = 0.0, 0.0, 0.0
+                mv = ti.Vector.zero(float, self.dim)
+                for q in range(p[j].nchild):
+                    ch = self.pool.children[j, q]
+                    m += p[ch].m
+                    r += p[ch].m * p[ch].rho
+                    pr += p[ch].m * p[ch].p
+                    mv += p[ch].m * p[ch].v
+                if m > 0.0:
+                    p[j].rho = r / m
+                    p[j].p = pr / m
+                    p[j].v = mv / m
+
     @ti.func
     def _ghost_force(self, i, xq, L, l, h, cs, cv, mu, p0, nrm, check: ti.template()):
         """Force on i from the mirror images of its level's particles: xq is i's image and
@@ -478,7 +511,8 @@ class Simulation:
                         ok = self._image_in_solid(p[j].x, p0, nrm)
                 if ok:
                     f += self._pair_force_values(
-                        p[i].m, p[i].rho, p[i].p, p[i].v, p[j].m, p[j].rho, p[j].p, L @ p[j].v,
+                        p[i].m, p[i].rho, p[i].p, p[i].v, p[j].m, p[j].rho,
+                        self._partner_pressure(p[j].kind, p[j].p), L @ p[j].v,
                         L @ rq, ti.sqrt(r2), h, cs, cv, mu)
         return f
 
@@ -509,7 +543,30 @@ class Simulation:
     def _pair_force(self, i, j, r, rn, h, cs, cv, mu):
         p = ti.static(self.pool.p)
         return self._pair_force_values(p[i].m, p[i].rho, p[i].p, p[i].v,
-                                       p[j].m, p[j].rho, p[j].p, p[j].v, r, rn, h, cs, cv, mu)
+                                       p[j].m, p[j].rho, self._partner_pressure(p[j].kind, p[j].p),
+                                       p[j].v, r, rn, h, cs, cv, mu)
+
+    @ti.func
+    def _partner_pressure(self, kind_j, p_j):
+        """The pressure of particle j as it enters the pair force on a real particle.
+
+        Variational coupling (``adaptivity.coupling``): 0 for a virtual j. The pressure
+        forces then derive from one energy, Σ over real particles of m u(ρ), in which
+        each real particle's density sums its own level, virtual particles included, and
+        each virtual position is a function of its owners' (``_advect_virtual``): a real
+        particle's pressure pushes its same-level neighbours, real or virtual, and the
+        virtual ones hand the reaction to their owners. A fine–coarse pair thus meets
+        twice, once with each particle's own pressure, and no pair is counted twice.
+        Measured in a resting pool with a refined box (2D, 2 levels, no adaptivity after
+        the start): mean speed 0.0069 sqrt(gH), against 0.017 with the symmetric form,
+        whose virtual pressures come from virtual densities that reach 1.3 ρ0 where
+        virtual children overlap each other and the walls.
+        """
+        result = p_j
+        if ti.static(self.variational):
+            if is_virtual(kind_j):
+                result = 0.0
+        return result
 
     @ti.func
     def _force_from(self, i, j, xi, h, cs, cv, mu, reach2):
@@ -619,8 +676,11 @@ class Simulation:
                     share = reaction / ti.max(p[j].nchild, 1)
                     for q in range(p[j].nchild):
                         ti.atomic_add(p[self.pool.children[j, q]].a, share)
-                # passive advection velocity (the springs are added in _advect_virtual)
-                if wsum > 0.0:
+                # symmetric coupling: the velocity interpolated from the real particles of
+                # the level (variational: the owners' velocity, set in _virtual_state)
+                if ti.static(self.variational):
+                    pass
+                elif wsum > 0.0:
                     p[j].v = vsum / wsum
                 elif kj == VIRTUAL_CHILD:
                     p[j].v = p[p[j].parent].v
@@ -700,7 +760,7 @@ class Simulation:
         the level spacing per axis), a virtual parent to its children's barycentre (rest
         length zero). The springs act on virtual particles only."""
         p = ti.static(self.pool.p)
-        kappa = ti.min(self.spring_rate[None], 1.0 / dt)
+        relax = ti.min(self.spring_rate[None] * dt, 1.0)
         for j in range(n):
             kj = p[j].kind
             if is_virtual(kj):
@@ -717,13 +777,19 @@ class Simulation:
                         mass += p[ch].m
                     if mass > 0.0:
                         anchor = acc / mass
-                v = p[j].v + kappa * (anchor - p[j].x)
+                # advected, then pulled towards the anchor by the spring, integrated
+                # implicitly (a relaxation by k dt, capped at 1) so that any stiffness is
+                # stable; at k dt >= 1 the virtual particle sits on its anchor, an exact
+                # function of its owners' positions, as the energy balance of the
+                # coupling needs (see ``_partner_pressure``)
+                x = p[j].x + dt * p[j].v
+                x += relax * (anchor - x)
                 # not projected out of walls: a virtual particle stands for part of its
                 # owner's mass at a fixed offset; projecting it would stack the children of
                 # neighbouring parents onto the same wall points (measured: virtual density
                 # 1.8 rho0 on the floor of demo_2d within 0.05 s). The grid is padded by
                 # two cells, so a position slightly inside a wall is still binned.
-                p[j].x = p[j].x + dt * v
+                p[j].x = x
 
     @ti.kernel
     def _integrate(self, n: ti.i32, dt: float):
