@@ -1,50 +1,159 @@
 """``python main.py bench``: how fast mrsph runs, and where the time goes.
 
-Each case builds a scene, runs a warm-up (which also compiles every kernel; the compile
-time is reported on its own), then times a fixed simulated interval ``repeats`` times
-and reports medians: steps per second, particle-steps per second (real particles × steps
-/ wall seconds), simulated seconds per wall second, the share of step time per phase
-(measured with a device sync around each phase, in one extra profiled run, so that the
-timed runs carry no sync overhead), and the peak resident memory of the process.
+Every case builds its scene in a fresh Taichi program and takes one step, which
+compiles every kernel of the step (kernels come from Taichi's offline cache when an
+earlier run compiled them); that is the compile time, reported on its own. It then runs
+a warm-up, times a fixed simulated interval ``repeats`` times in a row and reports
+medians: real, virtual and per-level particles, steps per second, particle-steps per
+second (real particles × steps / wall seconds), simulated seconds per wall second, the
+share of step time per phase (measured with a device sync around each phase, in one
+extra profiled interval, so that the timed runs carry no sync overhead), the resident
+memory at the end of the case and the peak resident memory of the process.
+
+Three kinds of case:
+
+- **run**: one scene (the uniform dam breaks).
+- **pair**: an adaptive scene run twice at the same finest spacing, once adaptive and
+  once uniform (``adaptivity.enabled = false`` puts every particle at
+  ``particles.spacing``, the finest level's spacing), each timed on the same simulated
+  intervals after the same warm-up. The pair line gives the speed-up (uniform wall time /
+  adaptive wall time), the particle ratio (uniform real particles / adaptive real
+  particles), the step ratio (adaptive steps / uniform steps: the time step follows the
+  finest level, but the flows differ) and the share of the adaptive run's step time taken
+  by the multiresolution phases (adapt, virtual_coupling, virtual_advect).
+- **demo**: the default demo scene recorded offscreen by the app's frame source (GGUI
+  when Vulkan works, else the numpy rasteriser, chosen as ``mrsph.app.record`` chooses).
+  A frame is one ``advance_frame()`` plus a snapshot and its rendering; it reports
+  rendered frames per second, simulated seconds per wall second, and the finest spacing
+  next to the spacing of a 10k-particle uniform run of the same fluid volume.
 """
+from __future__ import annotations
+
 import argparse
 import json
+import math
+import os
 import resource
 import statistics
 import sys
 import time
+from typing import NamedTuple
+
+#: The phases that exist only because of the multiresolution scheme.
+MULTIRES_PHASES = ("adapt", "virtual_coupling", "virtual_advect")
+#: Turns an adaptive scene into the uniform run of a pair.
+UNIFORM_OVERRIDE = "adaptivity.enabled=false"
+#: The demo's finest spacing is compared with a uniform run of this many particles.
+DEMO_REFERENCE_PARTICLES = 10_000
+KINDS = ("run", "pair", "demo")
 
 
-def _cases(full: bool):
-    """(name, scene, overrides, warm-up s, timed s). Dam breaks are timed while the
-    column collapses, not on the initial lattice (which is 1.3–2x cheaper)."""
+class Case(NamedTuple):
+    """One benchmark case; ``warm`` and ``interval`` are simulated seconds."""
+    name: str
+    scene: str
+    overrides: tuple
+    warm: float
+    interval: float
+    kind: str = "run"
+
+
+def _cases(full: bool) -> list[Case]:
+    """The quick set (about 3 minutes on 2 free cores), or the full set (quick + long).
+
+    Dam breaks are timed while the column collapses, not on the initial lattice (which
+    is 1.3-2x cheaper). Pairs are timed once the front has reached the obstacle and the
+    adaptive run has refined next to it (t = 0.24 s in 2D, 0.2 s in 3D); spacings give
+    uniform runs of ~12k and ~38k particles in 2D, ~6k and ~21k in 3D.
+    """
     quick = [
-        ("dam_break_2d uniform ~10k", "dam_break_2d", ["particles.spacing=0.0035"], 0.25, 0.05),
-        ("dam_break_3d uniform ~25k", "dam_break_3d", [], 0.1, 0.01),
+        Case("dam_break_2d uniform ~10k", "dam_break_2d", ("particles.spacing=0.0035",), 0.1, 0.02),
+        Case("dam_break_3d uniform ~30k", "dam_break_3d", ("particles.spacing=0.0092",), 0.05, 0.005),
+        Case("dam_break_obstacle_2d s=3.5mm", "dam_break_obstacle_2d",
+             ("particles.spacing=0.0035",), 0.24, 0.01, "pair"),
+        Case("dam_break_obstacle_3d s=15mm", "dam_break_obstacle_3d",
+             ("particles.spacing=0.015",), 0.2, 0.01, "pair"),
+        Case("demo_2d rendered", "demo_2d", (), 1.0 / 30.0, 0.1, "demo"),
     ]
     if not full:
         return quick
     return quick + [
-        ("dam_break_2d uniform ~50k", "dam_break_2d", ["particles.spacing=0.0016"], 0.25, 0.02),
-        ("dam_break_3d uniform ~100k", "dam_break_3d", ["particles.spacing=0.0063"], 0.2, 0.01),
+        Case("dam_break_2d uniform ~50k", "dam_break_2d", ("particles.spacing=0.0016",), 0.25, 0.02),
+        Case("dam_break_3d uniform ~100k", "dam_break_3d", ("particles.spacing=0.0063",), 0.2, 0.01),
+        Case("dam_break_obstacle_2d s=2mm", "dam_break_obstacle_2d",
+             ("particles.spacing=0.002",), 0.24, 0.01, "pair"),
+        Case("dam_break_obstacle_3d s=10mm", "dam_break_obstacle_3d",
+             ("particles.spacing=0.01",), 0.2, 0.01, "pair"),
     ]
 
 
+# ----------------------------------------------------------------------------- helpers
 def _peak_mb() -> float:
+    """Peak resident memory of this process so far (Linux reports KiB)."""
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def run_case(name, scene_name, overrides, warm, interval, repeats, arch):
-    from .config import load_scene
-    from .solver import PHASES, Simulation
+def _rss_mb() -> float:
+    """Resident memory now (Linux /proc; the peak where that is missing)."""
+    try:
+        with open("/proc/self/statm") as fh:
+            return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+    except (OSError, ValueError, IndexError):
+        return _peak_mb()
 
-    scene = load_scene(scene_name, overrides)
+
+def fluid_volume(scene) -> float:
+    """Volume (area in 2D) of the scene's fluid blocks (they may not overlap obstacles)."""
+    return math.fsum(math.prod(hi - lo for lo, hi in zip(b["min"], b["max"]))
+                     for b in scene.data["fluid"]["blocks"])
+
+
+def _fresh_sim(scene, arch, threads):
+    """A Simulation in a fresh Taichi program, stepped once: (sim, seconds taken)."""
+    from . import runtime
+    from .solver import Simulation
+    runtime.reset()   # frees the previous case's fields; each case starts like a new run
     t0 = time.perf_counter()
-    sim = Simulation(scene, arch=arch)
-    sim.advance(min(warm, 0.01))          # compiles every kernel of the step
-    compile_s = time.perf_counter() - t0
-    sim.advance(warm)
-    state = sim.particles()
+    sim = Simulation(scene, arch=arch, threads=threads)
+    sim.step()        # compiles every kernel of the step (adapt runs on step 0)
+    return sim, time.perf_counter() - t0
+
+
+def _row(case_name, scene_name, overrides, scene, sim, kind, warm, interval, walls, steps_l,
+         reals, compile_s, timers, repeats) -> dict:
+    """The result row shared by every kind of case."""
+    wall = statistics.median(walls)
+    steps = statistics.median(steps_l)
+    n_real = statistics.median(reals)
+    st = sim.stats()
+    total = sum(timers.values()) or 1.0
+    return {
+        "case": case_name, "kind": kind, "scene": scene_name, "overrides": list(overrides),
+        "dim": sim.dim, "adaptive": sim.adaptive, "levels": sim.levels, "arch": sim.arch_name,
+        "finest_spacing": sim.s0, "uniform_equivalent": scene.estimate_particles(),
+        "warm": warm, "interval": interval,
+        "n_real": int(n_real), "n_virtual": st["n_virtual"],
+        "per_level": [st[f"n_level_{l}"] for l in range(sim.levels)],
+        "per_level_virtual": [st[f"n_virtual_level_{l}"] for l in range(sim.levels)],
+        "steps": int(steps), "wall_s": wall,
+        "steps_per_s": steps / wall, "particle_steps_per_s": n_real * steps / wall,
+        "sim_s_per_wall_s": interval / wall, "compile_s": compile_s,
+        "phase_share": {k: v / total for k, v in timers.items() if v > 0},
+        "rss_mb": _rss_mb(), "peak_mb": _peak_mb(), "repeats": repeats, "walls": walls,
+    }
+
+
+# ----------------------------------------------------------------------------- cases
+def run_case(name, scene_name, overrides, warm, interval, repeats, arch, threads=None,
+             kind="run") -> dict:
+    """Time one scene: ``repeats`` consecutive intervals of ``interval`` simulated
+    seconds after simulating up to ``warm`` seconds; then one profiled interval."""
+    from .config import load_scene
+    from .solver import PHASES
+
+    scene = load_scene(scene_name, list(overrides))
+    sim, compile_s = _fresh_sim(scene, arch, threads)
+    sim.advance(max(warm - sim.time, 0.0))
     walls, steps_l, reals = [], [], []
     for _ in range(repeats):
         t = time.perf_counter()
@@ -52,60 +161,202 @@ def run_case(name, scene_name, overrides, warm, interval, repeats, arch):
         walls.append(time.perf_counter() - t)
         steps_l.append(steps)
         reals.append(sim.stats()["n_real"])
-    # one profiled run for the phase shares
     sim.profile = True
     sim.timers = {k: 0.0 for k in PHASES}
     sim.advance(interval)
-    total = sum(sim.timers.values()) or 1.0
-    wall = statistics.median(walls)
-    steps = statistics.median(steps_l)
-    n_real = statistics.median(reals)
-    st = sim.stats()
+    return _row(name, scene_name, overrides, scene, sim, kind, warm, interval, walls, steps_l,
+                reals, compile_s, sim.timers, repeats)
+
+
+def pair_summary(adaptive: dict, uniform: dict) -> dict:
+    """The comparison of a pair's two rows (see the module docstring for each ratio).
+
+    Both must cover the same simulated interval after the same warm-up at the same
+    finest spacing and dimension, the first adaptive, the second uniform; otherwise
+    the ratios would mean nothing and this raises ValueError.
+    """
+    problems = [f"{key} differs (adaptive {adaptive[key]!r}, uniform {uniform[key]!r})"
+                for key in ("dim", "finest_spacing", "warm", "interval") if adaptive[key] != uniform[key]]
+    if not adaptive["adaptive"] or uniform["adaptive"]:
+        problems.append("expected an adaptive row and a uniform row, in that order")
+    if problems:
+        raise ValueError(f"pair {adaptive['case']!r} / {uniform['case']!r}: " + "; ".join(problems))
     return {
-        "case": name, "scene": scene_name, "overrides": overrides,
-        "n_real": int(n_real), "n_virtual": st["n_virtual"],
-        "per_level": [st[f"n_level_{l}"] for l in range(sim.levels)],
-        "steps": int(steps), "wall_s": wall,
-        "steps_per_s": steps / wall, "particle_steps_per_s": n_real * steps / wall,
-        "sim_s_per_wall_s": interval / wall, "compile_s": compile_s,
-        "phase_share": {k: v / total for k, v in sim.timers.items() if v > 0},
-        "peak_mb": _peak_mb(), "repeats": repeats, "walls": walls,
-        "initial_particles": int(len(state["x"])),
+        "pair": adaptive.get("pair", adaptive["case"]),
+        "adaptive_case": adaptive["case"], "uniform_case": uniform["case"],
+        "dim": adaptive["dim"], "finest_spacing": adaptive["finest_spacing"],
+        "levels": adaptive["levels"], "warm": adaptive["warm"], "interval": adaptive["interval"],
+        "speedup": uniform["wall_s"] / adaptive["wall_s"],
+        "particle_ratio": uniform["n_real"] / adaptive["n_real"],
+        "step_ratio": adaptive["steps"] / uniform["steps"],
+        "multires_share": math.fsum(adaptive["phase_share"].get(k, 0.0) for k in MULTIRES_PHASES),
     }
 
 
-def _table(rows) -> str:
-    head = f"{'case':34s} {'real':>8s} {'steps/s':>8s} {'Mpart-steps/s':>14s} {'sim s/wall s':>12s} {'compile s':>9s}"
+def run_pair(name, scene_name, overrides, warm, interval, repeats, arch, threads=None):
+    """The adaptive and the uniform run of one scene: ([adaptive row, uniform row], summary)."""
+    rows = []
+    for variant, extra in (("adaptive", ()), ("uniform", (UNIFORM_OVERRIDE,))):
+        row = run_case(f"{name} {variant}", scene_name, tuple(overrides) + extra, warm, interval,
+                       repeats, arch, threads, kind="pair")
+        row["pair"] = name
+        rows.append(row)
+    return rows, pair_summary(*rows)
+
+
+def run_demo(name, scene_name, overrides, warm, interval, repeats, arch, threads=None) -> dict:
+    """Record the scene offscreen as the app does: whole frames (``interval`` rounded to
+    frames, at least one), each advanced, snapshotted and rendered."""
+    from .app.palette import Style
+    from .app.record import DEFAULT_SIZE, _open_frames
+    from .app.view import scene_setting
+    from .config import load_scene
+    from .solver import PHASES
+
+    scene = load_scene(scene_name, list(overrides))
+    sim, compile_s = _fresh_sim(scene, arch, threads)
+    fps = float(scene.get("run.fps"))
+    n_frames = max(1, round(interval * fps))
+    width = int(scene_setting(scene, "render.width", DEFAULT_SIZE[0]))
+    height = int(scene_setting(scene, "render.height", DEFAULT_SIZE[1]))
+    t0 = time.perf_counter()
+    source = _open_frames("auto", width, height, Style.from_scene(scene), scene)
+
+    def frame() -> tuple[int, float]:
+        steps = sim.advance_frame()
+        t = time.perf_counter()
+        source.render(sim.snapshot(), "level", False, sim.rest_density)
+        return steps, time.perf_counter() - t
+
+    try:
+        source.render(sim.snapshot(), "level", False, sim.rest_density)   # compiles the renderer
+        render_compile_s = time.perf_counter() - t0   # Vulkan probe, window, first frame
+        while sim.time < warm - 1e-12:
+            frame()
+        walls, steps_l, reals, renders = [], [], [], []
+        for _ in range(repeats):
+            t = time.perf_counter()
+            done = [frame() for _ in range(n_frames)]
+            walls.append(time.perf_counter() - t)
+            steps_l.append(sum(s for s, _ in done))
+            renders.append(sum(r for _, r in done))
+            reals.append(sim.stats()["n_real"])
+        sim.profile = True
+        sim.timers = {k: 0.0 for k in PHASES}
+        render = sum(frame()[1] for _ in range(n_frames))
+        timers = {**sim.timers, "render": render}
+    finally:
+        source.close()
+    row = _row(name, scene_name, overrides, scene, sim, "demo", warm, n_frames / fps, walls,
+               steps_l, reals, compile_s, timers, repeats)
+    volume = fluid_volume(scene)
+    reference = (volume / DEMO_REFERENCE_PARTICLES) ** (1.0 / sim.dim)
+    wall = row["wall_s"]
+    row.update({
+        "renderer": source.name, "width": width, "height": height, "frames": n_frames,
+        "frames_per_s": n_frames / wall,
+        "render_ms": 1e3 * statistics.median(renders) / n_frames,
+        "render_share": statistics.median(renders) / wall,
+        "render_compile_s": render_compile_s,
+        "fluid_volume": volume, "reference_particles": DEMO_REFERENCE_PARTICLES,
+        "reference_spacing": reference, "spacing_ratio": reference / sim.s0,
+    })
+    return row
+
+
+# ----------------------------------------------------------------------------- report
+def _mm(x: float) -> str:
+    return f"{1e3 * x:.3g} mm"
+
+
+def _table(rows, pairs=()) -> str:
+    """One line per case and a line under it (levels, memory, phases); a pair gets a
+    third line after its uniform run, the demo a line with its frame rate."""
+    head = (f"{'case':40s} {'real':>8s} {'virtual':>8s} {'steps/s':>8s} {'Mpart-steps/s':>14s} "
+            f"{'sim s/wall s':>12s} {'compile s':>9s}")
     out = [head, "-" * len(head)]
+    by_uniform = {p["uniform_case"]: p for p in pairs}
     for r in rows:
-        out.append(f"{r['case']:34s} {r['n_real']:8d} {r['steps_per_s']:8.1f} "
-                   f"{r['particle_steps_per_s'] / 1e6:14.2f} {r['sim_s_per_wall_s']:12.3f} {r['compile_s']:9.1f}")
-        shares = ", ".join(f"{k} {100 * v:.0f}%" for k, v in sorted(r["phase_share"].items(), key=lambda kv: -kv[1]))
-        out.append(f"    phases: {shares}")
-    out.append(f"peak memory: {max(r['peak_mb'] for r in rows):.0f} MB")
+        out.append(f"{r['case']:40s} {r['n_real']:8d} {r['n_virtual']:8d} {r['steps_per_s']:8.1f} "
+                   f"{r['particle_steps_per_s'] / 1e6:14.2f} {r['sim_s_per_wall_s']:12.4f} "
+                   f"{r['compile_s']:9.1f}")
+        shares = ", ".join(f"{k} {100 * v:.0f}%"
+                           for k, v in sorted(r["phase_share"].items(), key=lambda kv: -kv[1])
+                           if v >= 0.005)
+        levels = f"levels {r['per_level']}, " if r["levels"] > 1 else ""
+        out.append(f"    {levels}{r['rss_mb']:.0f} MB; phases: {shares}")
+        if r["kind"] == "demo":
+            out.append(f"    => {r['frames_per_s']:.2f} rendered frames/s ({r['renderer']}, "
+                       f"{r['width']}x{r['height']}, {r['render_ms']:.0f} ms a frame, "
+                       f"{100 * r['render_share']:.0f}% of it); finest spacing "
+                       f"{_mm(r['finest_spacing'])} vs {_mm(r['reference_spacing'])} for "
+                       f"{r['reference_particles'] // 1000}k uniform particles "
+                       f"({r['spacing_ratio']:.2f}x finer; uniform at the finest spacing: "
+                       f"{r['uniform_equivalent']} particles)")
+        p = by_uniform.get(r["case"])
+        if p:
+            out.append(f"    => adaptive vs uniform: {p['speedup']:.2f}x faster, "
+                       f"{p['particle_ratio']:.2f}x fewer real particles, {p['step_ratio']:.2f}x "
+                       f"the steps; multires phases {100 * p['multires_share']:.0f}% of the "
+                       f"adaptive step")
+    if rows:
+        out.append(f"peak memory: {max(r['peak_mb'] for r in rows):.0f} MB")
     return "\n".join(out)
 
 
+def run_cases(cases, repeats, arch, threads=None, log=None) -> tuple[list, list]:
+    """Run cases in order: (rows, pair summaries)."""
+    rows, pairs = [], []
+    for c in cases:
+        if log:
+            log(f"running {c.name} ({c.kind}) ...")
+        args = (c.name, c.scene, c.overrides, c.warm, c.interval, repeats, arch, threads)
+        if c.kind == "pair":
+            pair_rows, summary = run_pair(*args)
+            rows += pair_rows
+            pairs.append(summary)
+        elif c.kind == "demo":
+            rows.append(run_demo(*args))
+        else:
+            rows.append(run_case(*args))
+    return rows, pairs
+
+
 def main(argv=None) -> int:
+    from .cli import _Formatter, _positive_float, _positive_int
     ap = argparse.ArgumentParser(prog="main.py bench", description=__doc__.splitlines()[0],
-                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    ap.add_argument("--full", action="store_true", help="the long set (50k 2D, 100k 3D)")
-    ap.add_argument("--repeats", type=int, default=3, help="timed runs per case (median)")
-    ap.add_argument("--arch", default="cpu", choices=("auto", "cpu", "gpu"))
-    ap.add_argument("--json", metavar="FILE", help="also write the results as JSON")
+                                 formatter_class=_Formatter)
+    ap.add_argument("--full", action="store_true",
+                    help="the long set: adds 50k 2D and 100k 3D dam breaks and finer pairs")
+    ap.add_argument("--repeats", type=_positive_int, default=3, help="timed runs per case (median)")
+    ap.add_argument("--arch", default="cpu", choices=("auto", "cpu", "gpu"), help="Taichi backend")
+    ap.add_argument("--threads", type=_positive_int, default=None,
+                    help="CPU threads for the cpu backend (default: all cores)")
+    ap.add_argument("--interval-scale", type=_positive_float, default=1.0, metavar="F",
+                    help="multiply every warm-up and timed interval by F (0.05: a smoke run)")
+    ap.add_argument("--json", metavar="FILE", help="also write the results as JSON (default: no file)")
     ap.add_argument("--case", action="append", default=None,
-                    help="run only cases whose name contains this text (repeatable)")
+                    help="run only cases whose name contains this text (repeatable; default: all)")
+    ap.add_argument("--list", action="store_true", help="list the cases and exit")
     args = ap.parse_args(argv)
-    rows = []
-    for case in _cases(args.full):
-        if args.case and not any(c in case[0] for c in args.case):
-            continue
-        print(f"running {case[0]} ...", file=sys.stderr, flush=True)
-        rows.append(run_case(*case, repeats=args.repeats, arch=args.arch))
-    print(_table(rows))
+    cases = [c for c in _cases(args.full) if not args.case or any(t in c.name for t in args.case)]
+    if args.list:
+        for c in _cases(args.full):
+            print(f"{c.name:40s} {c.kind:5s} {c.scene} {' '.join(c.overrides)}")
+        return 0
+    if not cases:
+        print(f"main.py bench: no case matches {args.case} (see --list"
+              f"{'' if args.full else ' and --full'})", file=sys.stderr)
+        return 2
+    scale = args.interval_scale
+    cases = [c._replace(warm=c.warm * scale, interval=c.interval * scale) for c in cases]
+    rows, pairs = run_cases(cases, args.repeats, args.arch, args.threads,
+                            log=lambda m: print(m, file=sys.stderr, flush=True))
+    print(_table(rows, pairs))
     if args.json:
         import platform
         with open(args.json, "w") as fh:
-            json.dump({"machine": platform.processor() or platform.machine(),
-                       "cpus": __import__("os").cpu_count(), "cases": rows}, fh, indent=2)
+            json.dump({"machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
+                       "arch": args.arch, "threads": args.threads, "repeats": args.repeats,
+                       "interval_scale": scale, "cases": rows, "pairs": pairs}, fh, indent=2)
     return 0

@@ -1,4 +1,5 @@
-"""Shared test set-up: the dimension parameter, Taichi initialisation, the ``slow`` marker.
+"""Shared test set-up: the dimension parameter, Taichi initialisation, the ``slow`` and
+``soak`` markers.
 
 Nothing here touches Taichi at import time.
 
@@ -11,6 +12,8 @@ Nothing here touches Taichi at import time.
   The Simulation itself picks the precision its scene asks for
   (:func:`mrsph.runtime.ensure`), so tests that need f64 say so in the scene; they are
   kept together at the end of their module so that precision switches are rare.
+- ``soak`` tests (long robustness runs, tools/soak.py) are skipped unless ``--soak`` is
+  given or the ``-m`` expression names them: ``python3 -m pytest -q --soak -m soak``.
 """
 
 import pytest
@@ -18,9 +21,25 @@ import pytest
 DIMS = (2, 3)
 
 
+def pytest_addoption(parser):
+    parser.addoption("--soak", action="store_true", default=False,
+                     help="also run the tests marked soak (long robustness runs)")
+
+
 def pytest_configure(config):
     config.addinivalue_line(
         "markers", "slow: long physics runs, deselect with -m 'not slow'")
+    config.addinivalue_line(
+        "markers", "soak: robustness runs of 10^5 steps; skipped unless --soak (or -m soak)")
+
+
+def pytest_collection_modifyitems(config, items):
+    if config.getoption("--soak") or "soak" in (config.getoption("-m") or ""):
+        return
+    skip = pytest.mark.skip(reason="soak test: run with --soak (python3 -m pytest --soak -m soak)")
+    for item in items:
+        if "soak" in item.keywords:
+            item.add_marker(skip)
 
 
 @pytest.fixture(params=DIMS, ids=[f"{d}d" for d in DIMS])

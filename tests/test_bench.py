@@ -1,0 +1,191 @@
+"""The benchmark (``python main.py bench``) and its plot (tools/plot_bench.py).
+
+The pair arithmetic, the table and the case sizes are checked on hand-made numbers
+(no Taichi); one smoke run of the command line checks that every kind of case runs and
+writes the documented JSON keys, not what the timings are.
+"""
+import importlib.util
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from mrsph.bench import MULTIRES_PHASES, UNIFORM_OVERRIDE, _cases, _table, fluid_volume, pair_summary
+from mrsph.config import load_scene
+
+REPO = Path(__file__).resolve().parent.parent
+TIMEOUT_S = 600
+
+ROW_KEYS = {"case", "kind", "scene", "overrides", "dim", "adaptive", "levels", "arch",
+            "finest_spacing", "uniform_equivalent", "warm", "interval", "n_real", "n_virtual",
+            "per_level", "per_level_virtual", "steps", "wall_s", "steps_per_s",
+            "particle_steps_per_s", "sim_s_per_wall_s", "compile_s", "phase_share", "rss_mb",
+            "peak_mb", "repeats", "walls"}
+PAIR_KEYS = {"pair", "adaptive_case", "uniform_case", "dim", "finest_spacing", "levels", "warm",
+             "interval", "speedup", "particle_ratio", "step_ratio", "multires_share"}
+DEMO_KEYS = {"renderer", "width", "height", "frames", "frames_per_s", "render_ms", "render_share",
+             "render_compile_s", "fluid_volume", "reference_particles", "reference_spacing",
+             "spacing_ratio"}
+
+
+def _row(case, adaptive, wall, n_real, steps, shares, **kw):
+    row = {"case": case, "kind": "pair", "pair": "p", "dim": 2, "adaptive": adaptive,
+           "levels": 2 if adaptive else 1, "finest_spacing": 0.0035, "warm": 0.24,
+           "interval": 0.01, "wall_s": wall, "n_real": n_real, "n_virtual": 10 if adaptive else 0,
+           "steps": steps, "steps_per_s": steps / wall, "particle_steps_per_s": n_real * steps / wall,
+           "sim_s_per_wall_s": 0.01 / wall, "compile_s": 1.0, "phase_share": shares,
+           "per_level": [100, n_real - 100] if adaptive else [n_real], "rss_mb": 100.0,
+           "peak_mb": 200.0}
+    row.update(kw)
+    return row
+
+
+ADAPTIVE = _row("p adaptive", True, 2.0, 3000, 600,
+                {"forces": 0.5, "adapt": 0.1, "virtual_coupling": 0.15, "virtual_advect": 0.05,
+                 "density": 0.2})
+UNIFORM = _row("p uniform", False, 8.0, 12000, 400, {"forces": 0.6, "density": 0.4})
+
+
+def test_pair_ratios_on_hand_made_rows():
+    p = pair_summary(ADAPTIVE, UNIFORM)
+    assert p["speedup"] == pytest.approx(4.0)          # 8 s uniform / 2 s adaptive
+    assert p["particle_ratio"] == pytest.approx(4.0)   # 12000 / 3000
+    assert p["step_ratio"] == pytest.approx(1.5)       # 600 / 400
+    assert p["multires_share"] == pytest.approx(0.3)   # adapt + virtual_coupling + virtual_advect
+    assert set(MULTIRES_PHASES) == {"adapt", "virtual_coupling", "virtual_advect"}
+    assert p["pair"] == "p" and p["adaptive_case"] == "p adaptive" and p["uniform_case"] == "p uniform"
+    assert set(p) == PAIR_KEYS
+
+
+@pytest.mark.parametrize("key, value", [("interval", 0.02), ("warm", 0.1), ("finest_spacing", 0.005),
+                                        ("dim", 3)])
+def test_a_pair_must_cover_the_same_interval_and_resolution(key, value):
+    with pytest.raises(ValueError, match=key):
+        pair_summary(ADAPTIVE, {**UNIFORM, key: value})
+
+
+def test_a_pair_is_adaptive_then_uniform():
+    with pytest.raises(ValueError, match="adaptive row and a uniform row"):
+        pair_summary(UNIFORM, ADAPTIVE)
+
+
+def test_table_has_a_pair_line_under_the_uniform_run():
+    text = _table([ADAPTIVE, UNIFORM], [pair_summary(ADAPTIVE, UNIFORM)])
+    lines = text.splitlines()
+    uniform = next(i for i, line in enumerate(lines) if line.startswith("p uniform"))
+    assert lines[uniform + 2].strip().startswith("=> adaptive vs uniform: 4.00x faster, 4.00x fewer "
+                                                 "real particles, 1.50x the steps; multires phases 30%")
+    assert "levels [100, 2900]" in text and "peak memory: 200 MB" in text
+
+
+def test_case_names_match_their_particle_counts():
+    """The "~10k" in a case's name is the lattice count its overrides give (within 10 %)."""
+    for case in _cases(full=True):
+        scene = load_scene(case.scene, list(case.overrides))
+        n = scene.estimate_particles()
+        if "~" in case.name:
+            nominal = float(case.name.split("~")[1].rstrip("k")) * 1000
+            assert abs(n - nominal) <= 0.1 * nominal, (case.name, n)
+        if case.kind == "pair":
+            assert scene.data["adaptivity"]["enabled"], case.name
+            assert load_scene(case.scene, list(case.overrides) + [UNIFORM_OVERRIDE]).estimate_particles() == n
+            assert 2_000 <= n <= 40_000, (case.name, n)
+    kinds = {c.kind for c in _cases(full=False)}
+    assert kinds == {"run", "pair", "demo"}
+    quick_pairs = {load_scene(c.scene).data["dim"] for c in _cases(full=False) if c.kind == "pair"}
+    assert quick_pairs == {2, 3}
+
+
+def test_fluid_volume_of_the_demo():
+    scene = load_scene("demo_2d")
+    blocks = scene.data["fluid"]["blocks"]
+    expected = sum((b["max"][0] - b["min"][0]) * (b["max"][1] - b["min"][1]) for b in blocks)
+    assert fluid_volume(scene) == pytest.approx(expected, rel=1e-12)
+
+
+def test_bench_smoke_writes_json_with_every_key(tmp_path):
+    """Smoke test: one short run of each kind of case through the command line (a run, a
+    pair, the rendered demo) at 5 % of their intervals; checks the JSON and the table,
+    not the timings."""
+    out = tmp_path / "bench.json"
+    proc = subprocess.run(
+        [sys.executable, "main.py", "bench", "--case", "dam_break_2d uniform ~10k",
+         "--case", "dam_break_obstacle_2d s=3.5mm", "--case", "demo_2d", "--repeats", "1",
+         "--interval-scale", "0.05", "--json", str(out)],
+        cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    result = json.loads(out.read_text())
+    rows = {r["case"]: r for r in result["cases"]}
+    assert list(rows) == ["dam_break_2d uniform ~10k", "dam_break_obstacle_2d s=3.5mm adaptive",
+                          "dam_break_obstacle_2d s=3.5mm uniform", "demo_2d rendered"]
+    for r in rows.values():
+        assert ROW_KEYS <= set(r), ROW_KEYS - set(r)
+        assert r["repeats"] == 1 and len(r["walls"]) == 1 and r["wall_s"] > 0 and r["steps"] > 0
+        if not r["adaptive"]:
+            assert r["per_level"] == [r["n_real"]]
+        assert math.isclose(sum(r["phase_share"].values()), 1.0, rel_tol=1e-9)
+    assert rows["dam_break_2d uniform ~10k"]["n_real"] == 10082
+    adaptive, uniform = rows["dam_break_obstacle_2d s=3.5mm adaptive"], rows["dam_break_obstacle_2d s=3.5mm uniform"]
+    assert adaptive["adaptive"] and not uniform["adaptive"] and uniform["levels"] == 1
+    assert uniform["n_real"] == uniform["uniform_equivalent"] == adaptive["uniform_equivalent"]
+    (pair,) = result["pairs"]
+    assert set(pair) == PAIR_KEYS
+    assert pair["speedup"] == pytest.approx(uniform["wall_s"] / adaptive["wall_s"])
+    demo = rows["demo_2d rendered"]
+    assert DEMO_KEYS <= set(demo) and demo["renderer"] in ("ggui", "raster")
+    assert demo["frames"] == 1 and demo["frames_per_s"] > 0 and "render" in demo["phase_share"]
+    assert demo["reference_spacing"] == pytest.approx((demo["fluid_volume"] / 10_000) ** 0.5)
+    for name in rows:
+        assert name in proc.stdout
+    assert "=> adaptive vs uniform:" in proc.stdout and "rendered frames/s" in proc.stdout
+
+
+def test_bench_rejects_an_unknown_case():
+    proc = subprocess.run([sys.executable, "main.py", "bench", "--case", "no such case"],
+                          cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S)
+    assert proc.returncode == 2 and "no case matches" in proc.stderr and "Traceback" not in proc.stderr
+
+
+# ----------------------------------------------------------------------------- the plot
+def _plot_tool():
+    spec = importlib.util.spec_from_file_location("plot_bench", REPO / "tools" / "plot_bench.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module   # dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module
+
+
+def _sweep_result():
+    rows = []
+    for dim, spacings in ((2, (0.005, 0.0035, 0.0025)), (3, (0.02, 0.015, 0.012))):
+        for s in spacings:
+            n = round(0.15 / s ** dim) if dim == 2 else round(0.02 / s ** dim)
+            for adaptive, wall in ((True, n * 1e-4), (False, n * 4e-4)):
+                rows.append({"kind": "pair", "dim": dim, "adaptive": adaptive, "finest_spacing": s,
+                             "uniform_equivalent": n, "wall_s": wall, "interval": 0.01})
+    rows.append({"kind": "run", "dim": 2, "adaptive": False, "finest_spacing": 0.0035,
+                 "uniform_equivalent": 10082, "wall_s": 1.0, "interval": 0.02})
+    return {"cases": rows, "pairs": [], "repeats": 1, "arch": "cpu"}
+
+
+def test_plot_curves_take_pair_rows_by_dimension_and_mode():
+    curves = _plot_tool().curves(_sweep_result())
+    assert sorted(curves) == [2, 3]
+    for dim in (2, 3):
+        for adaptive, factor in ((True, 1e-4), (False, 4e-4)):
+            pts = curves[dim][adaptive]
+            assert len(pts) == 3
+            assert [p[0] for p in pts] == sorted(p[0] for p in pts)   # by resolution
+            for n, seconds_per_s, _s in pts:
+                assert seconds_per_s == pytest.approx(n * factor / 0.01)
+
+
+def test_plot_writes_a_png(tmp_path):
+    pytest.importorskip("matplotlib")
+    import imageio.v3 as iio
+    path = _plot_tool().plot(_sweep_result(), tmp_path / "bench.png")
+    img = iio.imread(path)
+    assert img.ndim == 3 and img.shape[1] > img.shape[0] > 300

@@ -1,0 +1,110 @@
+"""The soak (tools/soak.py): demo_2d stirred at the strongest settings the window offers.
+
+- ``test_soak_full`` (marker ``soak``, skipped unless ``--soak``): 10^5 steps, tens of
+  minutes on 2 cores. Run it with ``python3 -m pytest -q --soak -m soak``.
+- ``test_soak_short``: a SHORT soak of 2000 steps (~15 s on 2 cores) in the default run,
+  with gestures of 0.05 s so that it pushes, pulls and lets go within its 0.18 s.
+- The checker itself is tested on hand-made particles, so that a passing soak means the
+  checks could have failed.
+"""
+import importlib.util
+import math
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def _soak_tool():
+    spec = importlib.util.spec_from_file_location("soak", REPO / "tools" / "soak.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module   # dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module
+
+
+soak_tool = _soak_tool()
+
+
+def test_strength_is_the_window_slider_maximum():
+    source = (REPO / "mrsph" / "app" / "window.py").read_text()
+    m = re.search(r'slider_float\("strength",[^,]+,\s*([0-9.]+),\s*([0-9.]+)\)', source)
+    assert m, "the window's strength slider was not found"
+    assert float(m.group(2)) == soak_tool.STRENGTH_MAX
+
+
+def test_obstacle_sdf_matches_boxes_and_circles():
+    obstacles = [{"shape": "box", "min": [1.0, 0.0], "max": [2.0, 1.0]},
+                 {"shape": "sphere", "center": [5.0, 5.0], "radius": 1.0}]
+    x = np.array([[1.5, 0.5], [1.1, 0.5], [0.0, 0.5], [3.0, 2.0], [5.0, 5.5], [5.0, 7.0]])
+    expected = [-0.5, -0.1, 1.0, math.sqrt(2.0), -0.5, 1.0]
+    np.testing.assert_allclose(soak_tool.obstacle_sdf(x, obstacles), expected, atol=1e-12)
+    assert np.isinf(soak_tool.obstacle_sdf(x, [])).all()
+
+
+def _parts(x, m, kind=None):
+    x = np.asarray(x, np.float32)
+    n = len(x)
+    return {"x": x, "v": np.zeros_like(x), "m": np.asarray(m, np.float32),
+            "kind": np.zeros(n, np.int32) if kind is None else np.asarray(kind, np.int32),
+            "level": np.zeros(n, np.int32)}
+
+
+SCENE = {"domain": {"min": [0.0, 0.0], "max": [2.0, 1.0]},
+         "obstacles": [{"shape": "box", "min": [1.0, 0.0], "max": [1.2, 0.5]}]}
+
+
+def test_checks_pass_on_a_clean_state_and_flag_each_fault():
+    good = _parts([[0.5, 0.5], [1.5, 0.2], [1.2, 0.3]], [0.1, 0.1, 0.2])
+    mass0 = math.fsum([float(np.float32(0.1)), float(np.float32(0.1)), float(np.float32(0.2))])
+    assert soak_tool.check_state(good, SCENE, mass0, 1e-6) == []
+    cases = {
+        "NaN": _parts([[np.nan, 0.5], [1.5, 0.2], [1.2, 0.3]], [0.1, 0.1, 0.2]),
+        "outside the domain": _parts([[2.1, 0.5], [1.5, 0.2], [1.2, 0.3]], [0.1, 0.1, 0.2]),
+        "inside an obstacle": _parts([[1.1, 0.3], [1.5, 0.2], [1.2, 0.3]], [0.1, 0.1, 0.2]),
+        "real mass": _parts([[0.5, 0.5], [1.5, 0.2], [1.2, 0.3]], [0.1, 0.1, 0.2000001]),
+    }
+    for what, parts in cases.items():
+        problems = soak_tool.check_state(parts, SCENE, mass0, 1e-6)
+        assert len(problems) == 1 and what in problems[0], (what, problems)
+    # virtual particles carry no mass of their own and may sit in walls (solver.py)
+    virtual = _parts([[0.5, 0.5], [1.5, 0.2], [1.2, 0.3], [1.1, 0.3]], [0.1, 0.1, 0.2, 0.4],
+                     kind=[0, 0, 0, 4])
+    assert soak_tool.check_state(virtual, SCENE, mass0, 1e-6) == []
+
+
+def test_cursor_pushes_pulls_and_lets_go_inside_the_fluid():
+    from mrsph.config import load_scene
+    data = load_scene("demo_2d").data
+    cursor = soak_tool.ScriptedCursor(data, speed=10.0, gesture_s=0.5)
+    assert [cursor.buttons(t) for t in (0.1, 0.6, 1.1, 1.6)] == [{"left"}, {"right"}, set(), {"left"}]
+    pts = np.array([cursor.position(t) for t in np.linspace(0.0, 3.0, 301)])
+    assert (pts >= [0.0, 0.0]).all() and (pts <= [1.6, 0.32]).all()
+    step = np.linalg.norm(np.diff(pts[:, :1], axis=0), axis=1) / 0.01
+    assert step.max() == pytest.approx(10.0, rel=1e-6)
+
+
+def test_soak_short(fresh_program):
+    """SHORT soak (2000 steps, not the 10^5 of test_soak_full): every check passes, the
+    stirring refines the fluid, and the summary line says so."""
+    res = soak_tool.soak(steps=2000, check_every=250, gesture_s=0.05)
+    assert res.ok, res.failures
+    assert res.steps == 2000 and res.checks == 8
+    assert res.splits > 0 and res.n_real_max > res.n_real_min
+    assert 0.0 < res.min_dt and res.max_speed > 1.0
+    assert res.refused == 0 or res.warnings
+    line = res.summary()
+    assert line.startswith("soak demo_2d: 2000 steps") and line.endswith("8 checks: OK")
+
+
+@pytest.mark.soak
+def test_soak_full(fresh_program):
+    """The soak proper: 10^5 steps at the strongest stirring (tens of minutes)."""
+    res = soak_tool.soak(steps=100_000, check_every=500)
+    print(res.summary())
+    assert res.ok, res.failures
+    assert res.steps == 100_000 and res.splits > 0 and res.merges > 0

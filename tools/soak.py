@@ -1,0 +1,287 @@
+"""Soak test: an adaptive 2D scene stirred as hard as the app allows, checked as it runs.
+
+    python3 tools/soak.py                                  # 100 000 steps of demo_2d
+    python3 tools/soak.py --steps 10000 --threads 1
+    python3 tools/soak.py --scene region_2d --set adaptivity.levels=2
+
+The stirrer is the window's own mouse logic (:class:`mrsph.app.mouse.MouseDisturbance`)
+fed a scripted cursor, at the strongest settings the window offers: strength at the HUD
+slider's maximum (:data:`STRENGTH_MAX`), radius at the mouse's clamp
+(``RADIUS_MAX_FRACTION`` of the domain's largest side), the cursor sweeping back and forth
+through the water at the mouse's speed clamp. It pushes, pulls, then lets go, in turn
+(:data:`GESTURES`, :data:`GESTURE_S` each), so that fluid refines under it and merges back behind it.
+
+Every ``--check-every`` steps, and after the last one, it checks:
+
+- no NaN or Inf in the position or velocity of any alive particle (the solver itself
+  stops on a NaN acceleration, and on a time step below ``physics.dt_min``: both count
+  as failures here);
+- every real particle inside the domain box and outside every obstacle (signed
+  distances evaluated in numpy from the scene, as ``mrsph/boundary.py`` defines them),
+  to within :data:`POSITION_TOLERANCE` finest spacings;
+- the real mass exactly equal to the mass at the start (``math.fsum`` over the float64
+  values of the masses: splits and merges are exact in binary);
+- capacity refusals (the pool's ``refused`` counter and ``sim.warnings``): reported, not
+  failures, since a full pool is a documented state (the simulation goes on coarser);
+  but refusals counted without a warning in ``sim.warnings`` fail.
+
+It stops at the first failed check, prints one summary line (steps, simulated time,
+wall time, smallest dt, largest speed, splits, merges, refusals) and exits 0 when every
+check passed, 1 otherwise.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+#: The upper end of the window's "strength" slider (mrsph/app/window.py, HUD panel), 1/s.
+STRENGTH_MAX = 100.0
+#: The cursor's gestures in turn; None lets go.
+GESTURES = ("push", "pull", None)
+#: How long each gesture lasts (simulated s): long enough for the fluid under the cursor
+#: to refine and, after letting go, to merge back.
+GESTURE_S = 0.5
+#: The mouse buttons of each gesture (a right drag pulls, see mrsph/app/mouse.py).
+BUTTONS = {"push": ("left",), "pull": ("right",), None: ()}
+#: The window hands the mouse to the solver once per rendered frame; 60 frames/s.
+MOUSE_RATE_HZ = 60.0
+#: A real particle may sit this many finest spacings outside the domain or inside an
+#: obstacle (float32 rounding of the projection onto a surface) before it counts.
+POSITION_TOLERANCE = 1e-3
+
+
+@dataclass
+class SoakResult:
+    scene: str
+    steps: int = 0
+    sim_time: float = 0.0
+    wall_s: float = 0.0
+    min_dt: float = math.inf
+    max_speed: float = 0.0
+    splits: int = 0
+    merges: int = 0
+    refused: int = 0
+    checks: int = 0
+    n_real_min: int = 0
+    n_real_max: int = 0
+    n_real_end: int = 0
+    mass0: float = 0.0
+    warnings: list = field(default_factory=list)
+    failures: list = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not self.failures
+
+    def summary(self) -> str:
+        verdict = "OK" if self.ok else f"FAILED ({len(self.failures)}): {self.failures[0]}"
+        return (f"soak {self.scene}: {self.steps} steps, {self.sim_time:.4g} s simulated in "
+                f"{self.wall_s:.4g} s wall ({self.steps / max(self.wall_s, 1e-9):.0f} steps/s); "
+                f"min dt {self.min_dt:.3g} s; max speed {self.max_speed:.3g} m/s; "
+                f"splits {self.splits}, merges {self.merges}; refused {self.refused}"
+                f"{' (warned)' if self.warnings else ''}; real particles "
+                f"{self.n_real_min}..{self.n_real_max} (at the end {self.n_real_end}); "
+                f"{self.checks} checks: {verdict}")
+
+
+# ----------------------------------------------------------------------------- geometry
+def obstacle_sdf(x: np.ndarray, obstacles) -> np.ndarray:
+    """Signed distance (positive outside) to the nearest obstacle, per row of x; +inf
+    without obstacles. Boxes and spheres as in ``Boundary.obstacle_sdf``."""
+    best = np.full(len(x), np.inf)
+    for o in obstacles:
+        if o["shape"] == "box":
+            lo, hi = np.asarray(o["min"], float), np.asarray(o["max"], float)
+            q = np.abs(x - 0.5 * (lo + hi)) - 0.5 * (hi - lo)
+            outside = np.linalg.norm(np.maximum(q, 0.0), axis=1)
+            dist = np.where(outside > 0.0, outside, q.max(axis=1))
+        else:
+            dist = np.linalg.norm(x - np.asarray(o["center"], float), axis=1) - float(o["radius"])
+        best = np.minimum(best, dist)
+    return best
+
+
+def check_state(parts: dict, scene_data: dict, mass0: float, tolerance: float) -> list[str]:
+    """The checks of one moment, as failure lines (empty when all pass)."""
+    from mrsph.particles import VIRTUAL_CHILD
+    problems = []
+    x, v = parts["x"].astype(np.float64), parts["v"].astype(np.float64)
+    bad = ~(np.isfinite(x).all(axis=1) & np.isfinite(v).all(axis=1))
+    if bad.any():
+        i = int(np.argmax(bad))
+        problems.append(f"{int(bad.sum())} particle(s) with NaN/Inf position or velocity "
+                        f"(first: level {int(parts['level'][i])}, kind {int(parts['kind'][i])})")
+    real = parts["kind"] < VIRTUAL_CHILD
+    xr = x[real & ~bad]
+    lo = np.asarray(scene_data["domain"]["min"], float)
+    hi = np.asarray(scene_data["domain"]["max"], float)
+    out = ((xr < lo - tolerance) | (xr > hi + tolerance)).any(axis=1)
+    if out.any():
+        problems.append(f"{int(out.sum())} real particle(s) outside the domain "
+                        f"(first at {np.round(xr[np.argmax(out)], 5).tolist()})")
+    if scene_data["obstacles"]:
+        phi = obstacle_sdf(xr, scene_data["obstacles"])
+        inside = phi < -tolerance
+        if inside.any():
+            problems.append(f"{int(inside.sum())} real particle(s) inside an obstacle "
+                            f"(deepest {-phi.min():.3g} m)")
+    mass = math.fsum(parts["m"][real].astype(np.float64).tolist())
+    if mass != mass0:
+        problems.append(f"real mass {mass!r} kg differs from the start's {mass0!r} kg "
+                        f"(by {mass - mass0:.3g} kg)")
+    return problems
+
+
+# ----------------------------------------------------------------------------- stirring
+class ScriptedCursor:
+    """A cursor sweeping back and forth across the fluid's bounding box at ``speed``
+    (m/s) along x, bobbing slowly in y, holding the buttons of :data:`GESTURES` in
+    turn for ``gesture_s`` each."""
+
+    def __init__(self, scene_data: dict, speed: float, gesture_s: float = GESTURE_S):
+        blocks = scene_data["fluid"]["blocks"]
+        self.lo = np.min([b["min"] for b in blocks], axis=0).astype(float)
+        self.hi = np.max([b["max"] for b in blocks], axis=0).astype(float)
+        self.speed = float(speed)
+        self.gesture_s = float(gesture_s)
+
+    def position(self, t: float) -> np.ndarray:
+        span = self.hi - self.lo
+        inner_lo, inner_span = self.lo + 0.1 * span, 0.8 * span
+        phase = (t * self.speed / inner_span[0]) % 2.0          # triangle wave along x
+        pos = inner_lo + 0.5 * inner_span
+        pos[0] = inner_lo[0] + inner_span[0] * (phase if phase < 1.0 else 2.0 - phase)
+        pos[1] = inner_lo[1] + inner_span[1] * (0.5 + 0.5 * math.sin(2.0 * math.pi * t / 1.3))
+        return pos
+
+    def gesture(self, t: float):
+        return GESTURES[int(t // self.gesture_s) % len(GESTURES)]
+
+    def buttons(self, t: float) -> set:
+        return set(BUTTONS[self.gesture(t)])
+
+
+# ----------------------------------------------------------------------------- the soak
+def soak(steps: int = 100_000, check_every: int = 500, scene="demo_2d", overrides=(),
+         arch: str = "cpu", threads: int | None = None, strength: float = STRENGTH_MAX,
+         radius_fraction: float | None = None, gesture_s: float = GESTURE_S,
+         progress=None) -> SoakResult:
+    """Run the soak (see the module docstring); ``progress(result)`` after every check."""
+    from mrsph.app.mouse import RADIUS_MAX_FRACTION, MouseDisturbance
+    from mrsph.config import load_scene
+    from mrsph.particles import VIRTUAL_CHILD
+    from mrsph.solver import Simulation, SimulationError
+
+    sc = load_scene(scene, list(overrides))
+    data = sc.data
+    if int(data["dim"]) != 2 or not data["adaptivity"]["enabled"]:
+        raise ValueError(f"{sc.name}: the soak wants a 2D adaptive scene (dim = {data['dim']}, "
+                         f"adaptivity.enabled = {data['adaptivity']['enabled']})")
+    sim = Simulation(sc, arch=arch, threads=threads)
+    lo, hi = np.asarray(data["domain"]["min"], float), np.asarray(data["domain"]["max"], float)
+    size = float(np.max(hi - lo))
+    mouse = MouseDisturbance.for_domain(lo, hi, strength=strength,
+                                        radius=(radius_fraction or RADIUS_MAX_FRACTION) * size)
+    cursor = ScriptedCursor(data, mouse.max_speed, gesture_s)
+    tolerance = POSITION_TOLERANCE * sim.s0
+
+    res = SoakResult(scene=sc.name)
+    parts = sim.particles()
+    st = sim.stats(parts)
+    res.mass0 = st["total_mass"]
+    res.n_real_min = res.n_real_max = res.n_real_end = st["n_real"]
+    res.failures += check_state(parts, data, res.mass0, tolerance)
+    mouse_every = 1.0 / MOUSE_RATE_HZ
+    last_mouse = -math.inf
+    t0 = time.perf_counter()
+    try:
+        while res.steps < steps and res.ok:
+            if sim.time - last_mouse >= mouse_every:
+                dt_mouse = sim.time - last_mouse if last_mouse > -math.inf else 0.0
+                sim.set_disturbance(mouse.update(cursor.position(sim.time), cursor.buttons(sim.time),
+                                                 dt_mouse))
+                last_mouse = sim.time
+            res.min_dt = min(res.min_dt, sim.step())
+            res.steps += 1
+            if res.steps % check_every == 0 or res.steps == steps:
+                parts = sim.particles()
+                st = sim.stats(parts)
+                res.checks += 1
+                res.splits += st["splits"]
+                res.merges += st["merges"]
+                res.refused = st["refused"]
+                res.n_real_min = min(res.n_real_min, st["n_real"])
+                res.n_real_max = max(res.n_real_max, st["n_real"])
+                res.n_real_end = st["n_real"]
+                real = parts["kind"] < VIRTUAL_CHILD
+                if real.any():
+                    speed = np.linalg.norm(parts["v"][real].astype(np.float64), axis=1)
+                    res.max_speed = max(res.max_speed, float(np.nanmax(speed)))
+                for line in check_state(parts, data, res.mass0, tolerance):
+                    res.failures.append(f"step {sim.steps} (t = {sim.time:.5g} s): {line}")
+                res.wall_s, res.sim_time = time.perf_counter() - t0, sim.time
+                if progress:
+                    progress(res)
+    except SimulationError as e:
+        res.failures.append(f"SimulationError: {e}")
+    res.wall_s, res.sim_time = time.perf_counter() - t0, sim.time
+    res.refused = int(sim.pool.refused[None])
+    res.warnings = list(sim.warnings)
+    if res.refused and not res.warnings:
+        res.failures.append(f"{res.refused} capacity refusal(s) counted but no warning in sim.warnings")
+    return res
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0],
+                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    ap.add_argument("--steps", type=int, default=100_000, help="time steps to run")
+    ap.add_argument("--check-every", type=int, default=500, metavar="N", help="steps between checks")
+    ap.add_argument("--scene", default="demo_2d", help="a 2D adaptive scene (name or path)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
+                    help="override a scene key (repeatable)")
+    ap.add_argument("--arch", default="cpu", choices=("auto", "cpu", "gpu"))
+    ap.add_argument("--threads", type=int, default=None, help="CPU threads (default: all cores)")
+    ap.add_argument("--strength", type=float, default=STRENGTH_MAX, help="stirring strength, 1/s")
+    ap.add_argument("--gesture-s", type=float, default=GESTURE_S,
+                    help="simulated seconds of each gesture (push, pull, let go)")
+    ap.add_argument("--quiet", action="store_true", help="only the summary line")
+    args = ap.parse_args(argv)
+    if args.steps < 1 or args.check_every < 1:
+        ap.error("--steps and --check-every must be positive")
+    from mrsph.config import SceneError
+    report_every = max(1, args.steps // args.check_every // 20)
+
+    def progress(r: SoakResult):
+        if not args.quiet and (r.checks % report_every == 0 or not r.ok):
+            print(f"  step {r.steps}: t = {r.sim_time:.4g} s, {r.wall_s:.0f} s wall, "
+                  f"real {r.n_real_end} ({r.n_real_min}..{r.n_real_max}), splits {r.splits}, merges {r.merges}, "
+                  f"refused {r.refused}, max speed {r.max_speed:.3g} m/s", file=sys.stderr, flush=True)
+
+    try:
+        res = soak(args.steps, args.check_every, args.scene, args.overrides, args.arch,
+                   args.threads, args.strength, gesture_s=args.gesture_s, progress=progress)
+    except SceneError as e:
+        for line in e.problems:
+            print(line, file=sys.stderr)
+        return 2
+    for line in res.warnings:
+        print(f"warning: {line}", file=sys.stderr)
+    for line in res.failures:
+        print(f"failed: {line}", file=sys.stderr)
+    print(res.summary())
+    return 0 if res.ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
