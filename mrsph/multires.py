@@ -191,6 +191,11 @@ class Multires:
                             elif li == c - 1:
                                 ti.atomic_or(p[i].flags, NEAR_COARSE)
                                 ti.atomic_or(p[j].flags, NEAR_FINE)
+                                if (ki & ROLE_CHILD) == 0 and (p[j].kind & ROLE_PARENT) != 0:
+                                    # §5.2: a transient parent that meets a fine particle
+                                    # with no virtual parent has moved into the fine side:
+                                    # it splits before its virtual children overlap it
+                                    ti.atomic_or(p[j].flags, MUST_SPLIT)
                             else:
                                 ti.atomic_or(p[j].flags, MUST_SPLIT)
 
@@ -201,7 +206,7 @@ class Multires:
         limit = self.release_factor * self._h(f)
         for i in range(n):
             if p[i].kind == VIRTUAL_PARENT and p[i].level == c:
-                anchored = (p[i].flags & VP_ANCHORED) != 0
+                anchored = (p[i].flags & VP_ANCHORED) != 0 or p[i].lam > c + self.hysteresis
                 release = False
                 spread = 0.0
                 for a in range(p[i].nchild):
@@ -336,8 +341,10 @@ class Multires:
         p = ti.static(self.pool.p)
         for i in range(n):
             k = p[i].kind
-            if is_real(k) and p[i].level == c - 1 and (k & ROLE_CHILD) == 0 \
-                    and (p[i].flags & NEAR_COARSE) != 0:
+            # §6: near a real coarse particle, or (so that a region that is fine all
+            # through can coarsen once nothing wants it fine) wanting the coarse level
+            if is_real(k) and p[i].level == c - 1 and (k & ROLE_CHILD) == 0 and \
+                    ((p[i].flags & NEAR_COARSE) != 0 or p[i].lam > c + self.hysteresis):
                 vp = self.pool.claim(1)
                 if vp >= 0:
                     for fld in ti.static(self._fields(split_inherited())):
