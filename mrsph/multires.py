@@ -191,11 +191,6 @@ class Multires:
                             elif li == c - 1:
                                 ti.atomic_or(p[i].flags, NEAR_COARSE)
                                 ti.atomic_or(p[j].flags, NEAR_FINE)
-                                if (ki & ROLE_CHILD) == 0 and (p[j].kind & ROLE_PARENT) != 0:
-                                    # §5.2: a transient parent that meets a fine particle
-                                    # with no virtual parent has moved into the fine side:
-                                    # it splits before its virtual children overlap it
-                                    ti.atomic_or(p[j].flags, MUST_SPLIT)
                             else:
                                 ti.atomic_or(p[j].flags, MUST_SPLIT)
 
