@@ -404,11 +404,13 @@ class Simulation:
         return phi < 0.0
 
     @ti.func
-    def _density_sum(self, xq, l, h2, c6, p0, nrm, check: ti.template()):
+    def _density_sum(self, xq, l, h2, c6, p0, nrm, check: ti.template(), i, record: ti.template()):
         """Σ_j m_j W_poly6(xq − x_j) over level l (real and virtual), for xq a particle's
-        position or one of its wall images (``check``: obstacle images, see above)."""
+        position or one of its wall images (``check``: obstacle images, see above).
+        ``record``: xq is particle i itself; list its neighbours and count them."""
         p = ti.static(self.pool.p)
         rho = 0.0
+        count = 0
         base = self.grids.around(xq, l)
         for o in ti.grouped(ti.ndrange(*self.grids.row_axes)):
             lo, hi = self.grids.row(base, o, l)
@@ -420,6 +422,13 @@ class Simulation:
                         ok = self._image_in_solid(p[j].x, p0, nrm)
                     if ok:
                         rho += p[j].m * poly6(r2, h2, c6)
+                    if ti.static(record):
+                        if j != i:
+                            if count < ti.static(self.max_neighbours):
+                                self.neighbours[i, count] = j
+                            count += 1
+        if ti.static(record):
+            self.neighbour_count[i] = count
         return rho
 
     @ti.kernel
@@ -431,7 +440,6 @@ class Simulation:
         moved since, so [0, n) holds no DEAD slot and every cell lists live particles."""
         p = ti.static(self.pool.p)
         rho0, k, gamma = self.rest_density, self.k[None], self.gamma
-        K = ti.static(self.max_neighbours)
         for i in range(n):
             if p[i].kind != DEAD:
                 l = p[i].level
@@ -440,27 +448,14 @@ class Simulation:
                 c6 = self.lev_poly6[l]
                 xi = p[i].x
                 zero = ti.Vector.zero(float, self.dim)
-                rho = 0.0
-                count = 0
-                base = self.grids.around(xi, l)
-                for o in ti.grouped(ti.ndrange(*self.grids.row_axes)):
-                    lo, hi = self.grids.row(base, o, l)
-                    for j in range(lo, hi):
-                        r2 = (xi - p[j].x).norm_sqr()
-                        if r2 < h2:
-                            rho += p[j].m * poly6(r2, h2, c6)
-                            if j != i:
-                                if count < K:
-                                    self.neighbours[i, count] = j
-                                count += 1
-                self.neighbour_count[i] = count
+                rho = self._density_sum(xi, l, h2, c6, zero, zero, False, i, True)
                 for mask in range(1, 2 ** self.dim):
                     ok, xr, _s = self.boundary.domain_image(xi, h, mask)
                     if ok:
-                        rho += self._density_sum(xr, l, h2, c6, zero, zero, False)
+                        rho += self._density_sum(xr, l, h2, c6, zero, zero, False, i, False)
                 ok, xo, nrm = self.boundary.obstacle_image(xi, h)
                 if ok:
-                    rho += self._density_sum(xo, l, h2, c6, 0.5 * (xi + xo), nrm, True)
+                    rho += self._density_sum(xo, l, h2, c6, 0.5 * (xi + xo), nrm, True, i, False)
                 p[i].rho = rho
                 p[i].p = pressure(rho, rho0, k, gamma, self.tait, self.clamp)
 

@@ -67,6 +67,17 @@ def uniform(scene: dict) -> dict:
     return out
 
 
+def adaptive_and_uniform(dim: int, scene: dict, run) -> dict:
+    """``run`` on the scene and on its uniform twin, each in a fresh Taichi program."""
+    from mrsph import runtime
+    runtime.reset()
+    out = {"dim": dim, "adaptive": run(scene)}
+    runtime.reset()
+    out["uniform"] = run(uniform(scene))
+    runtime.reset()
+    return out
+
+
 # ================================================================== pool at rest
 POOL_H = 0.3          # depth and width, m
 SETTLE_S = 1.5
@@ -109,14 +120,8 @@ def measure_pool(scene: dict) -> dict:
 
 @pytest.fixture(scope="module", params=DIMS, ids=[f"{d}d" for d in DIMS])
 def pool_runs(request):
-    from mrsph import runtime
     dim = request.param
-    runtime.reset()
-    scene = refined_pool(dim)
-    out = {"dim": dim, "adaptive": measure_pool(scene)}
-    runtime.reset()
-    out["uniform"] = measure_pool(uniform(scene))
-    runtime.reset()
+    out = adaptive_and_uniform(dim, refined_pool(dim), measure_pool)
     a, u = out["adaptive"], out["uniform"]
     print(f"\n{dim}D pool with a refined box after {SETTLE_S} s: mean speed {a['speed'] / math.sqrt(G * POOL_H):.4f} "
           f"sqrt(gH) (uniform {u['speed'] / math.sqrt(G * POOL_H):.4f}); largest density next to the "
@@ -196,14 +201,8 @@ def run_dam(scene: dict) -> dict:
 
 @pytest.fixture(scope="module", params=DIMS, ids=[f"{d}d" for d in DIMS])
 def dam_runs(request):
-    from mrsph import runtime
     dim = request.param
-    runtime.reset()
-    scene = refined_dam(dim)
-    out = {"dim": dim, "adaptive": run_dam(scene)}
-    runtime.reset()
-    out["uniform"] = run_dam(uniform(scene))
-    runtime.reset()
+    out = adaptive_and_uniform(dim, refined_dam(dim), run_dam)
     a, u = out["adaptive"], out["uniform"]
     out["saving"] = float(np.mean(u["counts"]) / np.mean(a["counts"]))
     print(f"\n{dim}D dam break refined near a block, t = {DAM_T} s: front {a['front']:.3f} m (uniform "
