@@ -4,7 +4,6 @@ The pair arithmetic, the table and the case sizes are checked on hand-made numbe
 (no Taichi); one smoke run of the command line checks that every kind of case runs and
 writes the documented JSON keys, not what the timings are.
 """
-import importlib.util
 import json
 import math
 import subprocess
@@ -15,6 +14,7 @@ import pytest
 
 from mrsph.bench import MULTIRES_PHASES, UNIFORM_OVERRIDE, _cases, _table, fluid_volume, pair_summary
 from mrsph.config import load_scene
+from toolload import load_tool
 
 REPO = Path(__file__).resolve().parent.parent
 TIMEOUT_S = 600
@@ -151,11 +151,7 @@ def test_bench_rejects_an_unknown_case():
 
 # ----------------------------------------------------------------------------- the plot
 def _plot_tool():
-    spec = importlib.util.spec_from_file_location("plot_bench", REPO / "tools" / "plot_bench.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module   # dataclasses look their module up there
-    spec.loader.exec_module(module)
-    return module
+    return load_tool("plot_bench")
 
 
 def _sweep_result():

@@ -2,29 +2,24 @@
 
 - ``test_soak_full`` (marker ``soak``, skipped unless ``--soak``): 10^5 steps, tens of
   minutes on 2 cores. Run it with ``python3 -m pytest -q --soak -m soak``.
-- ``test_soak_short``: a SHORT soak of 2000 steps (~15 s on 2 cores) in the default run,
-  with gestures of 0.05 s so that it pushes, pulls and lets go within its 0.18 s.
+- ``test_soak_short``: a SHORT soak of 1000 steps (~8 s on 2 cores) in the default run,
+  with gestures of 0.025 s so that it pushes, pulls and lets go within its ~0.09 s.
 - The checker itself is tested on hand-made particles, so that a passing soak means the
   checks could have failed.
 """
-import importlib.util
 import math
 import re
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from toolload import load_tool
 
 REPO = Path(__file__).resolve().parent.parent
 
 
 def _soak_tool():
-    spec = importlib.util.spec_from_file_location("soak", REPO / "tools" / "soak.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module   # dataclasses look their module up there
-    spec.loader.exec_module(module)
-    return module
+    return load_tool("soak")
 
 
 soak_tool = _soak_tool()
@@ -89,16 +84,16 @@ def test_cursor_pushes_pulls_and_lets_go_inside_the_fluid():
 
 
 def test_soak_short(fresh_program):
-    """SHORT soak (2000 steps, not the 10^5 of test_soak_full): every check passes, the
+    """SHORT soak (1000 steps, not the 10^5 of test_soak_full): every check passes, the
     stirring refines the fluid, and the summary line says so."""
-    res = soak_tool.soak(steps=2000, check_every=250, gesture_s=0.05)
+    res = soak_tool.soak(steps=1000, check_every=125, gesture_s=0.025)
     assert res.ok, res.failures
-    assert res.steps == 2000 and res.checks == 8
+    assert res.steps == 1000 and res.checks == 8
     assert res.splits > 0 and res.n_real_max > res.n_real_min
     assert 0.0 < res.min_dt and res.max_speed > 1.0
     assert res.refused == 0 or res.warnings
     line = res.summary()
-    assert line.startswith("soak demo_2d: 2000 steps") and line.endswith("8 checks: OK")
+    assert line.startswith("soak demo_2d: 1000 steps") and line.endswith("8 checks: OK")
 
 
 @pytest.mark.soak
