@@ -114,7 +114,7 @@ def _fresh_sim(scene, arch, threads):
     from .solver import Simulation
     runtime.reset()   # frees the previous case's fields; each case starts like a new run
     t0 = time.perf_counter()
-    sim = Simulation(scene, arch=arch, threads=threads)
+    sim = Simulation(scene, arch=arch, threads=runtime.auto_threads(scene, threads))
     sim.step()        # compiles every kernel of the step (adapt runs on step 0)
     return sim, time.perf_counter() - t0
 
@@ -131,6 +131,7 @@ def _row(case_name, scene_name, overrides, scene, sim, kind, warm, interval, wal
         "case": case_name, "kind": kind, "scene": scene_name, "overrides": list(overrides),
         "dim": sim.dim, "adaptive": sim.adaptive, "levels": sim.levels, "arch": sim.arch_name,
         "finest_spacing": sim.s0, "uniform_equivalent": scene.estimate_particles(),
+        "threads": sim.threads or "all",
         "warm": warm, "interval": interval,
         "n_real": int(n_real), "n_virtual": st["n_virtual"],
         "per_level": [st[f"n_level_{l}"] for l in range(sim.levels)],
@@ -323,15 +324,16 @@ def run_cases(cases, repeats, arch, threads=None, log=None) -> tuple[list, list]
 
 
 def main(argv=None) -> int:
-    from .cli import _Formatter, _positive_float, _positive_int
+    from .cli import _Formatter, _positive_float, _positive_int, threads_arg
     ap = argparse.ArgumentParser(prog="main.py bench", description=__doc__.splitlines()[0],
                                  formatter_class=_Formatter)
     ap.add_argument("--full", action="store_true",
                     help="the long set: adds 50k 2D and 100k 3D dam breaks and finer pairs")
     ap.add_argument("--repeats", type=_positive_int, default=3, help="timed runs per case (median)")
     ap.add_argument("--arch", default="cpu", choices=("auto", "cpu", "gpu"), help="Taichi backend")
-    ap.add_argument("--threads", type=_positive_int, default=None,
-                    help="CPU threads for the cpu backend (default: all cores)")
+    ap.add_argument("--threads", type=threads_arg, default="auto",
+                    help="CPU threads for the cpu backend (default auto: as the app, one pinned "
+                         "thread for scenes that start under 12k particles, else all cores)")
     ap.add_argument("--interval-scale", type=_positive_float, default=1.0, metavar="F",
                     help="multiply every warm-up and timed interval by F (0.05: a smoke run)")
     ap.add_argument("--json", metavar="FILE", help="also write the results as JSON (default: no file)")

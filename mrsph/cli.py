@@ -39,6 +39,11 @@ def _default_scene() -> str:
     return PREFERRED_DEFAULT_SCENES[-1]
 
 
+def threads_arg(text: str):
+    """--threads: "auto" or a positive integer."""
+    return text if text == "auto" else _positive_int(text)
+
+
 def _positive_int(text: str) -> int:
     try:
         value = int(text)
@@ -81,8 +86,11 @@ def build_parser() -> argparse.ArgumentParser:
                         help="scene name from scenes/ or a path to a .toml file")
     parser.add_argument("--arch", choices=("auto", "cpu", "gpu"), default="auto",
                         help="Taichi backend; auto takes a CUDA/Metal GPU if there is one")
-    parser.add_argument("--threads", type=_positive_int, default=None, metavar="N",
-                        help="CPU threads for the cpu backend (default: all cores)")
+    parser.add_argument("--threads", type=threads_arg, default="auto", metavar="N",
+                        help="CPU threads for the cpu backend, or auto: one thread pinned to "
+                             "one core for scenes that start with under 12k particles (Taichi's "
+                             "per-loop thread wake-up costs more than it saves there), else all "
+                             "cores (default: auto)")
     parser.add_argument("--headless", action="store_true",
                         help="no window: run --frames frames (or run.frames), then stop")
     parser.add_argument("--frames", type=_positive_int, default=None, metavar="N",
@@ -215,7 +223,7 @@ class _DumpingSim:
 def _make_sim(scene, args):
     from . import runtime
     from .solver import Simulation
-    sim = Simulation(scene, arch=args.arch, threads=args.threads)
+    sim = Simulation(scene, arch=args.arch, threads=runtime.auto_threads(scene, args.threads))
     notice = runtime.notice()
     if notice:
         _err(f"mrsph: {notice}")

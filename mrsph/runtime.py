@@ -6,10 +6,20 @@ test fixtures call it too.
 """
 from __future__ import annotations
 
+import os
+
 import taichi as ti
 
 ARCHES = ("auto", "cpu", "gpu")
-_state: dict = {"key": None, "arch_name": None, "notice": None}
+_state: dict = {"key": None, "arch_name": None, "notice": None, "affinity": None}
+
+# ``threads="auto"``: scenes that start with fewer real particles than this run on one
+# thread pinned to one core. Taichi's CPU backend hands every parallel loop to its thread
+# pool and waits for it; waking a pool thread on another core costs 50-100 µs on the
+# 2-core VM this was measured on, against ~15 µs on the same core, and a step has ~15
+# such loops, more than the work of a loop over a few thousand particles. Measured
+# (dam break steps, ms, one pinned thread vs two): see README "Performance".
+AUTO_ONE_THREAD_BELOW = 12000
 
 
 # CUDA and Metal only: Taichi's Vulkan backend would also run on a software Vulkan
@@ -44,6 +54,8 @@ def ensure(arch: str = "cpu", precision: str = "f32", threads: int | None = None
         raise ValueError(f"arch: expected one of {', '.join(ARCHES)} (got {arch!r})")
     if precision not in ("f32", "f64"):
         raise ValueError(f"precision: expected f32 or f64 (got {precision!r})")
+    if threads == "auto":
+        raise ValueError("threads: resolve 'auto' with auto_threads(scene) first")
     key = (arch, precision, threads)
     if _state["key"] == key:
         return _state["arch_name"]
@@ -54,6 +66,7 @@ def ensure(arch: str = "cpu", precision: str = "f32", threads: int | None = None
                   log_level=ti.WARN, offline_cache=True)
     if threads:
         kwargs["cpu_max_num_threads"] = threads
+    _pin(threads == 1)      # before ti.init: its pool threads inherit the affinity
     if not (arch in ("auto", "gpu") and _try_gpu(kwargs)):
         if arch == "gpu":
             _state["notice"] = ("--arch gpu: Taichi found no CUDA or Metal GPU on this "
@@ -62,6 +75,38 @@ def ensure(arch: str = "cpu", precision: str = "f32", threads: int | None = None
     _state["key"] = key
     _state["arch_name"] = _arch_name()
     return _state["arch_name"]
+
+
+def _pin(one_core: bool) -> None:
+    """Pin this thread (and the pool threads Taichi starts next) to one core, or undo it."""
+    if not hasattr(os, "sched_setaffinity"):
+        return
+    if one_core:
+        allowed = os.sched_getaffinity(0)
+        if len(allowed) > 1:
+            _state["affinity"] = _state["affinity"] or allowed
+            os.sched_setaffinity(0, {min(allowed)})
+    elif _state["affinity"]:
+        os.sched_setaffinity(0, _state["affinity"])
+        _state["affinity"] = None
+
+
+def starting_particles(scene) -> int:
+    """About how many real particles the scene starts with: its fluid at the finest
+    spacing, or for an adaptive scene at the coarsest (it starts there and refines only
+    where a criterion asks)."""
+    uniform = scene.estimate_particles()
+    if not scene.data["adaptivity"]["enabled"]:
+        return uniform
+    return uniform // 2 ** (int(scene.data["dim"]) * (int(scene.data["adaptivity"]["levels"]) - 1))
+
+
+def auto_threads(scene, threads="auto"):
+    """Resolve ``threads``: an int stays; "auto" is 1 for scenes that start with fewer
+    than AUTO_ONE_THREAD_BELOW particles (pinned, see there), else None (all cores)."""
+    if threads != "auto":
+        return threads
+    return 1 if starting_particles(scene) < AUTO_ONE_THREAD_BELOW else None
 
 
 def notice() -> str | None:
@@ -74,3 +119,4 @@ def reset() -> None:
     if _state["key"] is not None:
         ti.reset()
     _state["key"] = None
+    _pin(False)

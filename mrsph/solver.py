@@ -103,6 +103,7 @@ class Simulation:
         self.scene = _as_scene(scene)
         s = self.scene.data
         self.arch_name = runtime.ensure(arch, s["particles"]["precision"], threads)
+        self.threads = threads      # None: all cores (see runtime.auto_threads)
         self.dim = int(s["dim"])
         self.adaptive = bool(s["adaptivity"]["enabled"])
         self.levels = int(s["adaptivity"]["levels"]) if self.adaptive else 1

@@ -150,7 +150,7 @@ def test_help_lists_every_option_and_its_default():
                "--fps", "--set", "--dump", "--dump-format", "--quiet", "SCENE"]
     for option in options:
         assert option in out, option
-    for default in ["(default: auto)", "(default: all cores)", "(default: off)",
+    for default in ["(default: auto)", "under 12k particles", "(default: off)",
                     "(default: the scene's run.frames", "(default: no recording)",
                     "(default: the scene's render.width", "(default: the scene's render.height",
                     "(default: the scene's run.fps)", "(default: none)", "(default: no dump)",
