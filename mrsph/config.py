@@ -176,7 +176,20 @@ SCHEMA = Table(required=True, keys={
         "gather_factor": Key("float", 1.0, "(0, 2]", doc="virtual parents closer than "
                              "gather_factor * coarse spacing may gather"),
         "background_level": Key("int", -1, ">= -1", doc="level wanted where no criterion "
-                                "asks for finer; -1 = L-1, the coarsest")}),
+                                "asks for finer; -1 = L-1, the coarsest"),
+        "limit_virtual_density": Key("bool", True, doc="scale down the masses of virtual "
+                                     "children where they would raise a real particle's "
+                                     "density above that of the coarse particles they stand "
+                                     "for (their fixed lattices overlap where coarse "
+                                     "particles are closer than their spacing); false = "
+                                     "always 2^-d of the parent's mass"),
+        "split_relax_iterations": Key("int", 8, ">= 0", doc="iterations that move the "
+                                      "children of a split apart from each other and from "
+                                      "the real particles of their level already there, "
+                                      "velocities unchanged; 0 = children stay on the lattice"),
+        "split_min_distance": Key("float", 1.0, "(0, 2]", doc="distance, in spacings of the "
+                                  "children's level, that those iterations open between a "
+                                  "new child and its real neighbours")}),
     "criteria": Array(Table(
         {"type": Key("choice", choices=("region", "obstacles", "disturbance"),
                      doc="what wants the finer level"),

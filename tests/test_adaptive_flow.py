@@ -27,12 +27,16 @@ pytestmark = pytest.mark.usefixtures("fresh_program")
 _REST = ("the interface still stirs the pool: with the variational coupling and the topology "
          "frozen after the start the 2D pool comes to 0.0069 sqrt(gH), but splits, releases "
          "and gathers, each a jump in the virtual particles' mass or position, keep it at "
-         "0.016 (2D) and 0.019 (3D); the symmetric coupling gives 0.039 and 0.064. Measured "
-         "mean speed / sqrt(gH)")
-_FRONT = ("children of coarse particles that split next to the obstacle are thrown off where "
-          "the fine lattices of neighbouring coarse particles overlap (fine density +8 %), so "
-          "the flow over the block breaks into spray and a thin fast film: body front at 1 s "
-          "0.91 m (2D) and 1.69 m (3D) against 1.56 m uniform. Measured relative front error")
+         "0.033 (2D) and 0.048 (3D), of which the virtual-mass limiter "
+         "(adaptivity.limit_virtual_density) adds about half (0.019 in 3D without it); the "
+         "symmetric coupling gives 0.039 and 0.064. Measured mean speed / sqrt(gH)")
+_FRONT = ("the 2D coarsest level (s = 4 cm, 50 particles, a one-particle sheet on the floor) "
+          "runs like a uniform run at that spacing, which reaches the block with 17 % less "
+          "momentum and is 11 % short at 1 s (1.39 m); the fine flow over the block then lags: "
+          "body front at 1 s 1.471 m against 1.531 m uniform, -3.9 % (-5.3 % before the force "
+          "pass's sums were reordered for speed: too close to the 5 % to count on; before the "
+          "split children were spread and virtual masses limited: 0.91 m, spray). Measured "
+          "relative front error")
 _SAVING = ("the refined zone holds most of the fluid once it reaches the obstacle, and thin "
            "fine films rarely form the full groups that merge. Measured uniform / adaptive "
            "real particles, time-averaged")
@@ -43,9 +47,13 @@ _PEAK = ("the 3D runs are not repeatable to the last bit (the reactions handed t
          "of virtual particles are summed by parallel atomics) and the 3D pool's motion is "
          "chaotic enough that its peak density next to the interface has ranged from +0.4 % "
          "to +4.8 % of the uniform run's between runs of the same code. Measured relative error")
+_MERGES_2D = ("with the split children spread and the virtual masses limited (no spray any "
+              "more), no fine fluid has left the refined zone (0.3 m past the block) by 1 s; the "
+              "3 merges measured before came from spray. Measured merges")
 KNOWN_FAILURES = {("rest_speed", 2): _REST, ("rest_speed", 3): _REST, ("rest_peak", 3): _PEAK,
-                  ("dam_front", 2): _FRONT, ("dam_front", 3): _FRONT,
-                  ("dam_saving", 3): _SAVING, ("dam_merges", 3): _MERGES}
+                  ("dam_front", 2): _FRONT,
+                  ("dam_saving", 3): _SAVING, ("dam_merges", 3): _MERGES,
+                  ("dam_merges", 2): _MERGES_2D}
 
 
 def known_xfail(request, dim, key, measured):
