@@ -103,6 +103,8 @@ class Multires:
             self.offsets[k] = o
         self.counters = ti.field(ti.i32, shape=len(COUNTERS))
         self.partner = ti.field(ti.i32, shape=self.pool.capacity)
+        self.fresh = ti.field(ti.i32, shape=self.pool.capacity)   # children split this pass
+        self.n_fresh = ti.field(ti.i32, shape=())
 
     # ------------------------------------------------------------------ host driver
     def adapt(self) -> None:
@@ -110,22 +112,27 @@ class Multires:
         sim = self.sim
         sim.criteria.update(sim.time)
         for c in range(self.levels - 1, 0, -1):
-            n = self.g.sort(self.pool)
-            self._wanted(n)
-            self._flags(n, c)
-            self._release(n, c)
-            self._unlink_splitters(n, c)
-            self._split(n, c)
-            for _ in range(self.relax_iterations):
-                self._relax_fresh_push(c)
-                self._relax_fresh_move(c)
-            self._parent_roles(n, c)
-            self._couple_fine(n, c)
-            for _ in range(GATHER_ROUNDS):
-                self._propose(n, c)
-                self._accept(n, c)
-            self._merge(n, c)
-            self.pool.settle()
+            self._pair_pass(self.g.sort(self.pool), c)
+
+    @ti.kernel
+    def _pair_pass(self, n: ti.i32, c: ti.i32):
+        """The level pair (c − 1, c), §5–6, in order; one kernel, since at a few thousand
+        particles the launches of separate kernels, not their loops, were the cost
+        (demo_2d: ~30 launches a pass)."""
+        self._wanted(n)
+        self._flags(n, c)
+        self._release(n, c)
+        self._unlink_splitters(n, c)
+        self.n_fresh[None] = 0
+        self._split(n, c)
+        self._relax_fresh(c)
+        self._parent_roles(n, c)
+        self._couple_fine(n, c)
+        for _ in ti.static(range(GATHER_ROUNDS)):
+            self._propose(n, c)
+            self._accept(n, c)
+        self._merge(n, c)
+        self.pool.clamp_n()
 
     def take_counters(self) -> dict:
         vals = self.counters.to_numpy()
@@ -166,15 +173,15 @@ class Multires:
         p[i].kind = p[i].kind & ~ROLE_PARENT
 
     # ------------------------------------------------------------------ kernels
-    @ti.kernel
-    def _wanted(self, n: ti.i32):
+    @ti.func
+    def _wanted(self, n):
         for i in range(n):
             if self.pool.p[i].kind != DEAD:
                 self.pool.p[i].lam = self.sim.criteria.wanted(
                     self.pool.p[i].x, self.sim.boundary, self.sim.disturbances)
 
-    @ti.kernel
-    def _flags(self, n: ti.i32, c: ti.i32):
+    @ti.func
+    def _flags(self, n, c):
         p = ti.static(self.pool.p)
         for i in range(n):
             p[i].flags = 0
@@ -203,8 +210,8 @@ class Multires:
                             else:
                                 ti.atomic_or(p[j].flags, MUST_SPLIT)
 
-    @ti.kernel
-    def _release(self, n: ti.i32, c: ti.i32):
+    @ti.func
+    def _release(self, n, c):
         p = ti.static(self.pool.p)
         f = c - 1
         limit = self.release_factor * self._h(f)
@@ -228,8 +235,8 @@ class Multires:
                 if release or not anchored or spread > limit:
                     self._release_group(i)
 
-    @ti.kernel
-    def _unlink_splitters(self, n: ti.i32, c: ti.i32):
+    @ti.func
+    def _unlink_splitters(self, n, c):
         """A level-c transient child that must split first leaves its group (§5.3)."""
         p = ti.static(self.pool.p)
         for i in range(n):
@@ -240,8 +247,8 @@ class Multires:
                     if (ti.atomic_or(p[vp].flags, RELEASED) & RELEASED) == 0:
                         self._release_group(vp)
 
-    @ti.kernel
-    def _split(self, n: ti.i32, c: ti.i32):
+    @ti.func
+    def _split(self, n, c):
         p = ti.static(self.pool.p)
         f = c - 1
         s_f = self.sim.lev_s[f]
@@ -271,17 +278,22 @@ class Multires:
                             # down (``Simulation._limit_virtual_mass``)
                             p[ch].m = p[i].m / self.nmax
                             p[ch].flags = FRESH
+                            self.fresh[ti.atomic_add(self.n_fresh[None], 1)] = ch
                         self._fit_children(i, s_f)
                         p[i].kind = VIRTUAL_PARENT
                         ti.atomic_add(self.counters[0], 1)
 
-    @ti.kernel
-    def _relax_fresh_push(self, c: ti.i32):
-        """One Jacobi iteration of spreading the children made by this pass's splits: each
+    @ti.func
+    def _relax_fresh(self, c):
+        """``split_relax_iterations`` Jacobi iterations spreading the children made by this
+        pass's splits (listed in ``fresh`` by ``_split``): each
         is pushed away from every real level-f particle closer than ``split_min_distance``
         fine spacings, by the whole overlap from an older particle and half of it from
-        another new one (which moves too). The displacement is kept in ``a`` (not in use
-        during the adaptivity pass; zeroed by ``_relax_fresh_move``).
+        another new one (which moves too), then kept half a fine spacing inside the walls
+        and outside the obstacles (as ``_fit_children``). The displacement is kept in ``a``
+        (not in use during the adaptivity pass). A few dozen children at most per pass, so
+        the loops run serially over the list: cheaper than a parallel loop over the pool
+        per iteration.
 
         Why: a split puts 2^d children on the fine lattice of the parent's cell, but coarse
         particles are often closer than their spacing (in a thin sheet the coarse density
@@ -295,10 +307,14 @@ class Multires:
         range), so they push only against sorted particles; a regular parent has no real
         fine particle within its support, so they rarely overlap any."""
         p = ti.static(self.pool.p)
+        b = self.sim.boundary
         f = c - 1
         dmin = self.relax_distance * self.sim.lev_s[f]
-        for i in range(self.pool.n[None]):
-            if (p[i].flags & FRESH) != 0 and is_real(p[i].kind):
+        margin = 0.5 * self.sim.lev_s[f]
+        ti.loop_config(serialize=True)
+        for _ in range(self.relax_iterations):
+            for q in range(self.n_fresh[None]):
+                i = self.fresh[q]
                 xi = p[i].x
                 push = ti.Vector.zero(float, self.dim)
                 base = self.g.around(xi, f)
@@ -312,16 +328,8 @@ class Multires:
                                 share = 0.5 if (p[j].flags & FRESH) != 0 else 1.0
                                 push += share * (dmin - rn) * r / ti.max(rn, 1e-6 * dmin)
                 p[i].a = push
-
-    @ti.kernel
-    def _relax_fresh_move(self, c: ti.i32):
-        """Apply the displacements of ``_relax_fresh_push``, keeping each child half a fine
-        spacing inside the walls and outside the obstacles (as ``_fit_children``)."""
-        p = ti.static(self.pool.p)
-        b = self.sim.boundary
-        margin = 0.5 * self.sim.lev_s[c - 1]
-        for i in range(self.pool.n[None]):
-            if (p[i].flags & FRESH) != 0 and is_real(p[i].kind):
+            for q in range(self.n_fresh[None]):
+                i = self.fresh[q]
                 x = p[i].x + p[i].a
                 p[i].a = ti.Vector.zero(float, self.dim)
                 for k in ti.static(range(self.dim)):
@@ -380,8 +388,8 @@ class Multires:
         p[ch].parent = i
         p[ch].kind = VIRTUAL_CHILD
 
-    @ti.kernel
-    def _parent_roles(self, n: ti.i32, c: ti.i32):
+    @ti.func
+    def _parent_roles(self, n, c):
         p = ti.static(self.pool.p)
         f = c - 1
         s_f = self.sim.lev_s[f]
@@ -400,8 +408,8 @@ class Multires:
                 elif not near and (k & ROLE_PARENT) != 0:
                     self._kill_virtual_children(i)
 
-    @ti.kernel
-    def _couple_fine(self, n: ti.i32, c: ti.i32):
+    @ti.func
+    def _couple_fine(self, n, c):
         p = ti.static(self.pool.p)
         for i in range(n):
             k = p[i].kind
@@ -448,8 +456,8 @@ class Multires:
             ch = self.pool.children[j, a - ni]
         return ch
 
-    @ti.kernel
-    def _propose(self, n: ti.i32, c: ti.i32):
+    @ti.func
+    def _propose(self, n, c):
         p = ti.static(self.pool.p)
         reach = self.gather_factor * self.sim.lev_s[c]
         # a gathered group must stay well inside the release limit, or it is released at
@@ -474,8 +482,8 @@ class Multires:
                                     best, best_d2 = j, d2
                 self.partner[i] = best
 
-    @ti.kernel
-    def _accept(self, n: ti.i32, c: ti.i32):
+    @ti.func
+    def _accept(self, n, c):
         p = ti.static(self.pool.p)
         for i in range(n):
             j = self.partner[i]
@@ -495,8 +503,8 @@ class Multires:
                 p[j].kind = DEAD
                 ti.atomic_add(self.counters[4], 1)
 
-    @ti.kernel
-    def _merge(self, n: ti.i32, c: ti.i32):
+    @ti.func
+    def _merge(self, n, c):
         p = ti.static(self.pool.p)
         for i in range(n):
             if p[i].kind == VIRTUAL_PARENT and p[i].level == c and p[i].nchild >= self.merge_min \

@@ -135,6 +135,10 @@ class ParticlePool:
 
     @ti.kernel
     def settle(self):
+        self.clamp_n()
+
+    @ti.func
+    def clamp_n(self):
         if self.n[None] > self.capacity:
             self.n[None] = self.capacity
 
