@@ -198,7 +198,8 @@ class Simulation:
         self.inv_rho = ti.field(float, shape=self.capacity)
         self.press_term = ti.field(float, shape=self.capacity)
         # per slot, for one step: the share of their nominal mass that the virtual children
-        # near real particle i may carry (see ``_limit_virtual_mass``)
+        # near real particle i may carry, and the least share a virtual child got
+        # (see ``_limit_virtual_mass``)
         self.virtual_share = ti.field(float, shape=self.capacity) if self.limit_virtual else None
 
         from .multires import Multires
@@ -328,7 +329,6 @@ class Simulation:
             self._phase("adapt", self._adapt)
         n = self._phase("grid", self.grids.sort, self.pool)
         if self.limit_virtual:
-            self._phase("density", self._virtual_shares, n)
             self._phase("density", self._limit_virtual_mass, n)
         self._phase("density", self._density, n)
         if self.adaptive and self.variational:
@@ -520,12 +520,14 @@ class Simulation:
         self.press_term[i] = self._partner_pressure(p[i].kind, p[i].p) * inv * inv
 
     @ti.func
-    def _share_sums(self, xq, l, h2, c6, p0, nrm, check: ti.template()):
+    def _share_sums(self, xq, l, h2, c6, p0, nrm, check: ti.template(), i, record: ti.template()):
         """(Σ m_j W over level l's particles other than virtual children, Σ m̂_j W over its
         virtual children with m̂_j = 2^-d of the parent's mass, Σ m̂_j W ρ_parent), at xq
-        (a particle or one of its wall images, as in ``_density_sum``)."""
+        (a particle or one of its wall images, as in ``_density_sum``). ``record``: xq is
+        particle i; list its neighbours (the density pass lists them again after)."""
         p = ti.static(self.pool.p)
         acc = ti.Vector.zero(float, 3)
+        count = 0
         base = self.grids.around(xq, l)
         for o in ti.grouped(ti.ndrange(*self.grids.row_axes)):
             lo, hi = self.grids.row(base, o, l)
@@ -543,45 +545,28 @@ class Simulation:
                             acc += ti.Vector([0.0, wv, wv * p[par].rho])
                         else:
                             acc[0] += p[j].m * w
+                    if ti.static(record):
+                        if j != i:
+                            self.neighbours[i, ti.min(count, ti.static(self.max_neighbours))] = j
+                            count += 1
+        if ti.static(record):
+            self.neighbour_count[i] = count
         return acc
 
     @ti.kernel
-    def _virtual_shares(self, n: ti.i32):
-        """For each real particle i below the coarsest level: the largest share s_i in
-        [0, 1] of their nominal masses that the virtual children around i may carry so that
+    def _limit_virtual_mass(self, n: ti.i32):
+        """Scale each virtual child's mass for this step so that no real particle's
+        density is pushed past its target by virtual children: 2^-d of its parent's mass
+        times the least share s_i allowed by the real particles i within its support.
+
+        s_i in [0, 1], for a real particle i below the coarsest level, is the largest share
+        of their nominal masses that the virtual children around i may carry so that
         ρ_i = R_i + s_i V_i stays at or below the target ρ_t (R_i: from the other particles
         of the level, V_i: from the virtual children at nominal mass). ρ_t is the mean
         density of the parents of those virtual children, weighted as in V_i, or i's own
         density of the last step if higher, so that a fine particle compressed by its real
-        neighbours keeps its virtual ones."""
-        p = ti.static(self.pool.p)
-        top = self.levels - 1
-        for i in range(n):
-            self.virtual_share[i] = 1.0
-            if is_real(p[i].kind) and p[i].level < top:
-                l = p[i].level
-                h = self.lev_h[l]
-                h2 = h * h
-                c6 = self.lev_poly6[l]
-                xi = p[i].x
-                zero = ti.Vector.zero(float, self.dim)
-                acc = self._share_sums(xi, l, h2, c6, zero, zero, False)
-                for mask in range(1, 2 ** self.dim):
-                    ok, xr, _s = self.boundary.domain_image(xi, h, mask)
-                    if ok:
-                        acc += self._share_sums(xr, l, h2, c6, zero, zero, False)
-                ok, xo, nrm = self.boundary.obstacle_image(xi, h)
-                if ok:
-                    acc += self._share_sums(xo, l, h2, c6, 0.5 * (xi + xo), nrm, True)
-                if acc[1] > 0.0:
-                    target = ti.max(acc[2] / acc[1], p[i].rho)
-                    self.virtual_share[i] = ti.min(ti.max((target - acc[0]) / acc[1], 0.0), 1.0)
-
-    @ti.kernel
-    def _limit_virtual_mass(self, n: ti.i32):
-        """Mass of each virtual child for this step: 2^-d of its parent's, times the least
-        share allowed by the real particles within its support (``_virtual_shares``), so
-        that no real particle's density is pushed past its target by virtual children.
+        neighbours keeps its virtual ones. Each real particle hands s_i to the virtual
+        children it lists (a virtual child keeps the least): one scan serves both.
 
         Why: virtual children sit on a fixed lattice around their parents, but coarse
         particles are often closer than their spacing (in a thin sheet the coarse density
@@ -591,21 +576,48 @@ class Simulation:
         a split particle became a transient parent, the fine density of the new children
         jumped from 0.79 to 1.25 rho0 and they were thrown off at 5.9 m/s in a 2.4 m/s
         front. Virtual masses are not part of the fluid's mass (METHOD.md §3), and a force
-        on a virtual child still goes to its parent, so mass and momentum are kept."""
+        on a virtual child still goes to its parent, so mass and momentum are kept.
+        """
         p = ti.static(self.pool.p)
+        top = self.levels - 1
+        for i in range(n):
+            self.virtual_share[i] = 1.0
+        for i in range(n):
+            if is_real(p[i].kind) and p[i].level < top:
+                l = p[i].level
+                h = self.lev_h[l]
+                h2 = h * h
+                c6 = self.lev_poly6[l]
+                xi = p[i].x
+                zero = ti.Vector.zero(float, self.dim)
+                acc = self._share_sums(xi, l, h2, c6, zero, zero, False, i, True)
+                for mask in range(1, 2 ** self.dim):
+                    ok, xr, _s = self.boundary.domain_image(xi, h, mask)
+                    if ok:
+                        acc += self._share_sums(xr, l, h2, c6, zero, zero, False, i, False)
+                ok, xo, nrm = self.boundary.obstacle_image(xi, h)
+                if ok:
+                    acc += self._share_sums(xo, l, h2, c6, 0.5 * (xi + xo), nrm, True, i, False)
+                if acc[1] > 0.0:
+                    target = ti.max(acc[2] / acc[1], p[i].rho)
+                    share = ti.min(ti.max((target - acc[0]) / acc[1], 0.0), 1.0)
+                    if share < 1.0:
+                        count = self.neighbour_count[i]
+                        if count <= ti.static(self.max_neighbours):
+                            for q in range(count):
+                                j = self.neighbours[i, q]
+                                if p[j].kind == VIRTUAL_CHILD:
+                                    ti.atomic_min(self.virtual_share[j], share)
+                        else:
+                            base = self.grids.around(xi, l)
+                            for o in ti.grouped(ti.ndrange(*self.grids.row_axes)):
+                                lo, hi = self.grids.row(base, o, l)
+                                for j in range(lo, hi):
+                                    if p[j].kind == VIRTUAL_CHILD and (xi - p[j].x).norm_sqr() < h2:
+                                        ti.atomic_min(self.virtual_share[j], share)
         for j in range(n):
             if p[j].kind == VIRTUAL_CHILD:
-                l = p[j].level
-                h2 = self.lev_h[l] * self.lev_h[l]
-                xj = p[j].x
-                share = 1.0
-                base = self.grids.around(xj, l)
-                for o in ti.grouped(ti.ndrange(*self.grids.row_axes)):
-                    lo, hi = self.grids.row(base, o, l)
-                    for i in range(lo, hi):
-                        if is_real(p[i].kind) and (xj - p[i].x).norm_sqr() < h2:
-                            share = ti.min(share, self.virtual_share[i])
-                p[j].m = share * p[p[j].parent].m / ti.static(2 ** self.dim)
+                p[j].m = self.virtual_share[j] * p[p[j].parent].m / ti.static(2 ** self.dim)
 
     @ti.kernel
     def _virtual_state(self, n: ti.i32):
