@@ -333,7 +333,7 @@ def main(argv=None) -> int:
     ap.add_argument("--arch", default="cpu", choices=("auto", "cpu", "gpu"), help="Taichi backend")
     ap.add_argument("--threads", type=threads_arg, default="auto",
                     help="CPU threads for the cpu backend (default auto: as the app, one pinned "
-                         "thread for scenes that start under 12k particles, else all cores)")
+                         "thread for scenes that start under 12k particles in 2D, 4k in 3D, else all cores)")
     ap.add_argument("--interval-scale", type=_positive_float, default=1.0, metavar="F",
                     help="multiply every warm-up and timed interval by F (0.05: a smoke run)")
     ap.add_argument("--json", metavar="FILE", help="also write the results as JSON (default: no file)")

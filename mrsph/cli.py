@@ -88,9 +88,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="Taichi backend; auto takes a CUDA/Metal GPU if there is one")
     parser.add_argument("--threads", type=threads_arg, default="auto", metavar="N",
                         help="CPU threads for the cpu backend, or auto: one thread pinned to "
-                             "one core for scenes that start with under 12k particles (Taichi's "
-                             "per-loop thread wake-up costs more than it saves there), else all "
-                             "cores (default: auto)")
+                             "one core for scenes that start under 12k particles in 2D, 4k in "
+                             "3D (Taichi's per-loop thread wake-up costs more than it saves "
+                             "there), else all cores (default: auto)")
     parser.add_argument("--headless", action="store_true",
                         help="no window: run --frames frames (or run.frames), then stop")
     parser.add_argument("--frames", type=_positive_int, default=None, metavar="N",

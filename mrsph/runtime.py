@@ -13,13 +13,14 @@ import taichi as ti
 ARCHES = ("auto", "cpu", "gpu")
 _state: dict = {"key": None, "arch_name": None, "notice": None, "affinity": None}
 
-# ``threads="auto"``: scenes that start with fewer real particles than this run on one
-# thread pinned to one core. Taichi's CPU backend hands every parallel loop to its thread
-# pool and waits for it; waking a pool thread on another core costs 50-100 µs on the
-# 2-core VM this was measured on, against ~15 µs on the same core, and a step has ~15
-# such loops, more than the work of a loop over a few thousand particles. Measured
-# (dam break steps, ms, one pinned thread vs two): see README "Performance".
-AUTO_ONE_THREAD_BELOW = 12000
+# ``threads="auto"``: scenes that start with fewer real particles than this (by
+# dimension: a 3D particle has ~6x the candidates of a 2D one) run on one thread pinned to
+# one core. Taichi's CPU backend hands every parallel loop to its thread pool and waits for
+# it; waking a pool thread on another core costs 50-100 µs on the 2-core VM this was
+# measured on, against ~15 µs on the same core, and a step has ~12 such loops. Measured
+# (ms a step, one pinned thread / two threads): 2D dam break 10k 2.77 / 2.77, 20k
+# 5.16 / 4.13; 3D adaptive dam break, 4k slots, 4.90 / 4.74; demo_2d 1.31 / 3.02.
+AUTO_ONE_THREAD_BELOW = {2: 12000, 3: 4000}
 
 
 # CUDA and Metal only: Taichi's Vulkan backend would also run on a software Vulkan
@@ -106,7 +107,8 @@ def auto_threads(scene, threads="auto"):
     than AUTO_ONE_THREAD_BELOW particles (pinned, see there), else None (all cores)."""
     if threads != "auto":
         return threads
-    return 1 if starting_particles(scene) < AUTO_ONE_THREAD_BELOW else None
+    small = starting_particles(scene) < AUTO_ONE_THREAD_BELOW[int(scene.data["dim"])]
+    return 1 if small else None
 
 
 def notice() -> str | None:

@@ -14,7 +14,7 @@ def test_auto_threads_by_starting_particles():
     assert runtime.starting_particles(demo) == demo.estimate_particles() // 16
     assert runtime.auto_threads(demo) == 1
     big = load_scene("dam_break_2d", ["particles.spacing=0.0016"])   # ~48k particles
-    assert runtime.starting_particles(big) > runtime.AUTO_ONE_THREAD_BELOW
+    assert runtime.starting_particles(big) > runtime.AUTO_ONE_THREAD_BELOW[2]
     assert runtime.auto_threads(big) is None
     assert runtime.auto_threads(big, 3) == 3 and runtime.auto_threads(demo, None) is None
 
