@@ -145,7 +145,7 @@ def _row(case_name, scene_name, overrides, scene, sim, kind, warm, interval, wal
 
 
 # ----------------------------------------------------------------------------- cases
-def run_case(name, scene_name, overrides, warm, interval, repeats, arch, threads=None,
+def run_case(name, scene_name, overrides, warm, interval, repeats, arch, threads="auto",
              kind="run") -> dict:
     """Time one scene: ``repeats`` consecutive intervals of ``interval`` simulated
     seconds after simulating up to ``warm`` seconds; then one profiled interval."""
@@ -194,7 +194,7 @@ def pair_summary(adaptive: dict, uniform: dict) -> dict:
     }
 
 
-def run_pair(name, scene_name, overrides, warm, interval, repeats, arch, threads=None):
+def run_pair(name, scene_name, overrides, warm, interval, repeats, arch, threads="auto"):
     """The adaptive and the uniform run of one scene: ([adaptive row, uniform row], summary)."""
     rows = []
     for variant, extra in (("adaptive", ()), ("uniform", (UNIFORM_OVERRIDE,))):
@@ -205,7 +205,7 @@ def run_pair(name, scene_name, overrides, warm, interval, repeats, arch, threads
     return rows, pair_summary(*rows)
 
 
-def run_demo(name, scene_name, overrides, warm, interval, repeats, arch, threads=None) -> dict:
+def run_demo(name, scene_name, overrides, warm, interval, repeats, arch, threads="auto") -> dict:
     """Record the scene offscreen as the app does: whole frames (``interval`` rounded to
     frames, at least one), each advanced, snapshotted and rendered."""
     from .app.palette import Style
@@ -305,7 +305,7 @@ def _table(rows, pairs=()) -> str:
     return "\n".join(out)
 
 
-def run_cases(cases, repeats, arch, threads=None, log=None) -> tuple[list, list]:
+def run_cases(cases, repeats, arch, threads="auto", log=None) -> tuple[list, list]:
     """Run cases in order: (rows, pair summaries)."""
     rows, pairs = [], []
     for c in cases:

@@ -100,8 +100,11 @@ def plot(result: dict, path: Path) -> Path:
         ax.grid(True, which="both", linewidth=0.4, alpha=0.5)
         ax.legend(fontsize=8, loc="upper left")
     machine = f"{result.get('arch', 'cpu')}"
-    if result.get("threads"):
-        machine += f", {result['threads']} thread{'s' if result['threads'] > 1 else ''}"
+    threads = result.get("threads")
+    if threads == "auto":
+        machine += ", threads as the app picks them"
+    elif threads:
+        machine += f", {threads} thread{'s' if threads > 1 else ''}"
     fig.suptitle(f"mrsph: adaptive vs uniform ({machine}; median of {result.get('repeats', '?')})",
                  fontsize=10)
     fig.tight_layout()
@@ -112,6 +115,7 @@ def plot(result: dict, path: Path) -> Path:
 
 
 def main(argv=None) -> int:
+    from mrsph.cli import threads_arg
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0],
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     ap.add_argument("json", nargs="?", help="a bench result (python3 main.py bench --json FILE)")
@@ -122,7 +126,8 @@ def main(argv=None) -> int:
                     help="with --sweep: multiply the timed interval (not the warm-up)")
     ap.add_argument("--dims", type=int, nargs="+", default=[2, 3], choices=(2, 3))
     ap.add_argument("--arch", default="cpu", choices=("auto", "cpu", "gpu"))
-    ap.add_argument("--threads", type=int, default=None)
+    ap.add_argument("--threads", type=threads_arg, default="auto",
+                    help="CPU threads: a count, or auto (as the app: one pinned thread for small scenes)")
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT, help="the picture to write")
     args = ap.parse_args(argv)
     if args.sweep == bool(args.json):
