@@ -192,6 +192,9 @@ class Simulation:
         # one spare slot: the density pass writes every candidate and keeps the neighbours
         self.neighbours = ti.field(ti.i32, shape=(self.capacity, self.max_neighbours + 1))
         self.neighbour_count = ti.field(ti.i32, shape=self.capacity)
+        # variational coupling: reactions of the forces from virtual particles, handed on
+        # to their owners during the force pass (see ``_hand_on``)
+        self.reaction = ti.Vector.field(d, float, shape=self.capacity) if self.variational else None
         # per-step pair-force factors, set with the density: 1/ρ, and p/ρ² with the
         # pressure a particle shows its neighbours (``_partner_pressure``); they take
         # three divisions out of every pair
@@ -333,8 +336,8 @@ class Simulation:
         self._phase("density", self._density, n)
         if self.adaptive and self.variational:
             self._phase("density", self._virtual_state, n)
-        self._phase("forces", self._forces, n)
-        if self.adaptive:
+        self._phase("forces", self._forces, n)    # variational: with the reactions handed on
+        if self.adaptive and not self.variational:
             self._phase("virtual_coupling", self._virtual_coupling, n)
         dt = self._phase("timestep", self._timestep, n, max_dt)
         self._phase("integrate", self._integrate, n, dt)
@@ -489,7 +492,12 @@ class Simulation:
         p = ti.static(self.pool.p)
         rho0, k, gamma = self.rest_density, self.k[None], self.gamma
         for i in range(n):
-            if p[i].kind != DEAD:
+            skip = p[i].kind == DEAD
+            if ti.static(self.variational):
+                # a virtual particle's state comes from its owners (_virtual_state), and
+                # its reactions are handed on by the force pass: no sum, no list
+                skip = skip or is_virtual(p[i].kind)
+            if not skip:
                 l = p[i].level
                 h = self.lev_h[l]
                 h2 = h * h
@@ -771,11 +779,40 @@ class Simulation:
             w = p[i].m / p[i].rho * poly6(r2, h2, c6)
         return reaction, w
 
+    @ti.func
+    def _hand_on(self, j, f):
+        """Hand the reaction −f of the force f that virtual particle j exerts on a real
+        particle to the real particle(s) j stands for, split evenly (METHOD.md §4, thesis
+        Fig. 7): a virtual child's transient parent, or a virtual parent's children."""
+        p = ti.static(self.pool.p)
+        if p[j].kind == VIRTUAL_CHILD:
+            ti.atomic_add(self.reaction[p[j].parent], -f)
+        else:
+            share = -f / ti.max(p[j].nchild, 1)
+            for q in range(p[j].nchild):
+                ti.atomic_add(self.reaction[self.pool.children[j, q]], share)
+
+    @ti.func
+    def _force_and_reaction(self, i, j, xi, h, cs, cv, mu, reach2):
+        """``_force_from``; with the variational coupling a virtual j also hands the
+        reaction on to its owners here, since it computes no force of its own."""
+        f = self._force_from(i, j, xi, h, cs, cv, mu, reach2)
+        if ti.static(self.variational):
+            if is_virtual(self.pool.p[j].kind):
+                self._hand_on(j, f)
+        return f
+
     @ti.kernel
     def _forces(self, n: ti.i32):
-        """Internal forces on real particles from every same-level neighbour, real or virtual."""
+        """Internal forces on real particles from every same-level neighbour, real or
+        virtual. With the variational coupling the reactions of the virtual ones are
+        handed on to their owners in the same pass (the symmetric coupling does it in
+        ``_virtual_coupling``, which also needs the virtual velocities first)."""
         p = ti.static(self.pool.p)
         mu = self.mu[None]
+        if ti.static(self.variational):
+            for i in range(n):
+                self.reaction[i] = ti.Vector.zero(float, self.dim)
         for i in range(n):
             f = ti.Vector.zero(float, self.dim)
             if is_real(p[i].kind):
@@ -788,13 +825,13 @@ class Simulation:
                 listed = count <= ti.static(self.max_neighbours)
                 if listed:
                     for q in range(count):
-                        f += self._force_from(i, self.neighbours[i, q], xi, h, cs, cv, mu, reach2)
+                        f += self._force_and_reaction(i, self.neighbours[i, q], xi, h, cs, cv, mu, reach2)
                 else:   # more neighbours than the list holds: the grid, as the density did
                     base = self.grids.around(xi, l)
                     for o in ti.grouped(ti.ndrange(*self.grids.row_axes)):
                         lo, hi = self.grids.row(base, o, l)
                         for j in range(lo, hi):
-                            f += self._force_from(i, j, xi, h, cs, cv, mu, reach2)
+                            f += self._force_and_reaction(i, j, xi, h, cs, cv, mu, reach2)
                 # walls: forces from the mirror images of the neighbours (boundary.py)
                 for mask in range(1, 2 ** self.dim):
                     ok, xr, sgn = self.boundary.domain_image(xi, h, mask)
@@ -808,12 +845,20 @@ class Simulation:
                     Lo = ti.Matrix.identity(float, self.dim) - 2.0 * nrm.outer_product(nrm)
                     f += self._ghost_force(i, xo, Lo, l, h, cs, cv, mu, 0.5 * (xi + xo), nrm, True, False)
             p[i].a = f
+        if ti.static(self.variational):
+            for i in range(n):
+                if is_real(p[i].kind):
+                    p[i].a += self.reaction[i]
 
     @ti.kernel
     def _virtual_coupling(self, n: ti.i32):
         """Hand the reaction of each real–virtual force to the real particles the virtual one
         stands for, split evenly (METHOD.md §4, thesis Fig. 7), and interpolate the
-        virtual particle's velocity from the real particles of its level."""
+        virtual particle's velocity from the real particles of its level.
+
+        Symmetric coupling only; the variational coupling hands its reactions on in the
+        force pass (``_hand_on``) and takes its velocities from the owners.
+        """
         p = ti.static(self.pool.p)
         mu = self.mu[None]
         for j in range(n):
@@ -852,11 +897,8 @@ class Simulation:
                     share = reaction / ti.max(p[j].nchild, 1)
                     for q in range(p[j].nchild):
                         ti.atomic_add(p[self.pool.children[j, q]].a, share)
-                # symmetric coupling: the velocity interpolated from the real particles of
-                # the level (variational: the owners' velocity, set in _virtual_state)
-                if ti.static(self.variational):
-                    pass
-                elif wsum > 0.0:
+                # the velocity interpolated from the real particles of the level
+                if wsum > 0.0:
                     p[j].v = vsum / wsum
                 elif kj == VIRTUAL_CHILD:
                     p[j].v = p[p[j].parent].v
