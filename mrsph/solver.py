@@ -1,8 +1,9 @@
 """The SPH solver: ``Simulation.step()`` reads like METHOD.md.
 
-    emit → adapt (criteria, split/merge) → neighbour grids → (virtual masses) → density → forces
-         → virtual coupling → accelerations and time step → advect virtual → integrate
-         → boundaries
+    emit → adapt (criteria, split/merge) → neighbour grids → virtual masses → density
+         → virtual state → forces (variational coupling: + reactions handed to the owners)
+         → [symmetric coupling: virtual coupling] → accelerations and time step
+         → integrate → boundaries → advect virtual
 
 Each phase is one or a few Taichi kernels and can be timed on its own
 (``Simulation(…, profile=True)``, used by ``python main.py bench``).
@@ -331,11 +332,12 @@ class Simulation:
         if self.adaptive and self.steps % int(self.scene.data["adaptivity"]["interval"]) == 0:
             self._phase("adapt", self._adapt)
         n = self._phase("grid", self.grids.sort, self.pool)
+        # the virtual particles' masses and state are coupling work, timed as such
         if self.limit_virtual:
-            self._phase("density", self._limit_virtual_mass, n)
+            self._phase("virtual_coupling", self._limit_virtual_mass, n)
         self._phase("density", self._density, n)
         if self.adaptive and self.variational:
-            self._phase("density", self._virtual_state, n)
+            self._phase("virtual_coupling", self._virtual_state, n)
         self._phase("forces", self._forces, n)    # variational: with the reactions handed on
         if self.adaptive and not self.variational:
             self._phase("virtual_coupling", self._virtual_coupling, n)
