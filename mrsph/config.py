@@ -171,8 +171,11 @@ SCHEMA = Table(required=True, keys={
                            "interface drift and gain energy"),
         "release_factor": Key("float", 1.0, "[0.5, 2]", doc="siblings are released when "
                               "their largest distance exceeds release_factor * h_n"),
-        "merge_min_children": Key("int", 0, ">= 0", doc="least group size that merges; "
-                                  "0 = 2^dim (only full groups); <= 2^dim"),
+        "merge_min_children": Key("int", 0, ">= 0", doc="least group size that merges once "
+                                  "no neighbouring group can join it (a full group of 2^dim "
+                                  "always merges); 0 = 2^(dim-1), one layer of the coarse "
+                                  "cell, so that a film one fine particle thick can coarsen; "
+                                  "<= 2^dim"),
         "gather_factor": Key("float", 1.0, "(0, 2]", doc="virtual parents closer than "
                              "gather_factor * coarse spacing may gather"),
         "background_level": Key("int", -1, ">= -1", doc="level wanted where no criterion "
@@ -529,7 +532,7 @@ def _check_levels(c: _Checker, d: dict) -> None:
         if ad["merge_min_children"] > 2 ** dim:
             c.add("adaptivity.merge_min_children", "more children than a parent has",
                   str(ad["merge_min_children"]), f"an integer <= 2^dim = {2 ** dim}, or 0")
-        ad["merge_min_children"] = ad["merge_min_children"] or 2 ** dim
+        ad["merge_min_children"] = ad["merge_min_children"] or 2 ** (dim - 1)
 
 
 def _check_sizes(c: _Checker, d: dict) -> None:

@@ -42,8 +42,9 @@ coarsest down (§5.4), rebuilding the grids between pairs, and for the coarse le
    under one (mutual nearest pairs, so the parallel pass has no races) — merging is
    incremental.
 7. ``_merge``: a virtual parent whose position no longer wants level f (λ > c + η) and
-   whose group has at least ``merge_min_children`` children, none of them carrying
-   virtual children of its own, becomes a real regular level-c particle with the group's
+   whose group is full, or has at least ``merge_min_children`` children and no group
+   within reach that it could take in (§6: "a group need not be full"), none of them
+   carrying virtual children of its own, becomes a real regular level-c particle with the group's
    total mass, mass-weighted velocity and centre of mass; the children are removed.
    Virtual parents exist only in the transition layer, so merges happen only there.
 
@@ -94,7 +95,7 @@ class Multires:
         a = sim.scene["adaptivity"]
         self.hysteresis = float(a["hysteresis"])
         self.release_factor = float(a["release_factor"])
-        self.merge_min = int(a["merge_min_children"]) or self.nmax
+        self.merge_min = int(a["merge_min_children"]) or self.nmax // 2
         self.gather_factor = float(a["gather_factor"])
         self.relax_iterations = int(a["split_relax_iterations"])
         self.relax_distance = float(a["split_min_distance"])
@@ -507,7 +508,15 @@ class Multires:
     def _merge(self, n, c):
         p = ti.static(self.pool.p)
         for i in range(n):
-            if p[i].kind == VIRTUAL_PARENT and p[i].level == c and p[i].nchild >= self.merge_min \
+            # a full group merges; a partial one of at least merge_min children only once
+            # it can gather no more (no group within reach that it could take in; partner
+            # is from the last gathering round). Half a group by default: in a film one
+            # fine particle thick (the 3D dam break past its block) the 2^d nearest
+            # particles span more than the release distance, so full groups never form
+            # and, with full groups only, the film stayed fine for good (0 merges)
+            k = p[i].nchild
+            if p[i].kind == VIRTUAL_PARENT and p[i].level == c and \
+                    (k == self.nmax or (k >= self.merge_min and self.partner[i] == -1)) \
                     and p[i].lam > c + self.hysteresis and (p[i].flags & MUST_SPLIT) == 0:
                 ok = True
                 for q in range(p[i].nchild):

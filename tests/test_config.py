@@ -107,7 +107,7 @@ def test_automatic_values_resolved(dim):
     assert n == 10 ** dim
     assert scene.particles.capacity == int(1.5 * n) + 1024
     assert scene.adaptivity.background_level == 2
-    assert scene.adaptivity.merge_min_children == 2 ** dim
+    assert scene.adaptivity.merge_min_children == 2 ** (dim - 1)
     assert scene.adaptivity.band == pytest.approx(2 * 2.0 * 0.05 * 4)
 
 

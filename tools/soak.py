@@ -20,7 +20,9 @@ Every ``--check-every`` steps, and after the last one, it checks:
   distances evaluated in numpy from the scene, as ``mrsph/boundary.py`` defines them),
   to within :data:`POSITION_TOLERANCE` finest spacings;
 - the real mass exactly equal to the mass at the start (``math.fsum`` over the float64
-  values of the masses: splits and merges are exact in binary);
+  values of the masses: splits and merges of full groups are exact in binary; the demo
+  merges full groups only, and a scene that lets partial groups merge keeps its mass to
+  round-off only, see ``tests/test_multires.py``);
 - capacity refusals (the pool's ``refused`` counter and ``sim.warnings``): reported, not
   failures, since a full pool is a documented state (the simulation goes on coarser);
   but refusals counted without a warning in ``sim.warnings`` fail.
