@@ -186,6 +186,17 @@ SCHEMA = Table(required=True, keys={
                                      "for (their fixed lattices overlap where coarse "
                                      "particles are closer than their spacing); false = "
                                      "always 2^-d of the parent's mass"),
+        "virtual_density_tolerance": Key("float", 0.03, "[0, 1]", doc="how far above the "
+                                         "coarse particles' density (and never below rho0) "
+                                         "the limiter lets virtual children raise a real "
+                                         "particle's density; 0 = not at all, which in a "
+                                         "resting pool cuts virtual masses at every small "
+                                         "overlap and stirs the interface"),
+        "gather_coarse_only": Key("bool", True, doc="virtual parents gather only where the "
+                                  "criteria want the coarse level (wanted level > c), where "
+                                  "their groups may go on to merge; false = anywhere in the "
+                                  "transition layer (each gather moves mass at the coarse "
+                                  "level and stirs a resting interface)"),
         "split_relax_iterations": Key("int", 8, ">= 0", doc="iterations that move the "
                                       "children of a split apart from each other and from "
                                       "the real particles of their level already there, "

@@ -24,20 +24,17 @@ DIMS = (2, 3)
 
 pytestmark = pytest.mark.usefixtures("fresh_program")
 
-_REST = ("the interface still stirs the pool. Two drivers, measured one at a time: gathers "
-         "(each lumps two virtual parents into one, a ~1 % jump in coarse density, and in a "
-         "2-level pool they never lead to a merge; freezing them: 2D 0.022 -> 0.013 with the "
-         "limiter off) and the virtual-mass limiter (adaptivity.limit_virtual_density), which "
-         "ratchets: a cut virtual mass lowers the fine pressure beside it, fine particles move "
-         "in and the limiter cuts more (with the topology frozen the shares fall from 0.95 to "
-         "0.42 in 1 s and the 2D pool reaches 0.10). Limiter off and gathers only where the "
-         "coarse level is wanted: 0.015 (2D), 0.010 (3D), but without the limiter the dam break "
-         "sprays. Measured mean speed / sqrt(gH)")
-_FRONT = ("the 2D coarsest level (s = 4 cm, 50 particles, a one-particle sheet on the floor) "
-          "reaches the block late, and the adaptive flow past the block is chaotic: this run is "
-          "near -3.6 %, but with the viscosity 2 % higher the main body splits apart and its "
-          "front reads 1.016 m against uniform runs that stay at 1.54-1.57 m. Measured "
-          "relative front error")
+_REST = ("the interface still stirs the pool, less than it did (2D 0.029 -> 0.012, 3D ~0.05 -> "
+         "0.028 since the limiter tolerates 3 % above the coarse density and gathers happen only "
+         "where the coarse level is wanted). What is left: the even split of each virtual "
+         "parent's reaction over its children (METHOD.md §4) is not the force each child "
+         "would feel in a uniform fluid, so the fine particles next to the interface start at "
+         "2-3 g of residual acceleration (2D mean 27 m/s^2, 3D 22) and rearrange; the topology "
+         "changes that follow (new transient parents, releases, a split where a coarse particle "
+         "drifts past the threshold) each move virtual mass at once. The 3D pool (s = 2 cm) is "
+         "nearly all interface: 1104 of its 1128 fine particles are transient children, and the "
+         "limiter still cuts 30-55 % of its virtual children (0.010 with the limiter off, which "
+         "the dam break cannot do without). Measured mean speed / sqrt(gH)")
 _SAVING = ("with two levels the saving is at most 8x; the fluid between the split and the "
            "merge thresholds (x = 0.98-1.6 m with the hysteresis) is fine, and by 1 s about half "
            "of it is there (660 of the uniform run's 1200 at 1 s, 150 before 0.4 s). A 3-level "
@@ -49,7 +46,6 @@ _PEAK = ("the 3D runs are not repeatable to the last bit (the reactions handed t
          "chaotic enough that its peak density next to the interface has ranged from +0.4 % "
          "to +4.8 % of the uniform run's between runs of the same code. Measured relative error")
 KNOWN_FAILURES = {("rest_speed", 2): _REST, ("rest_speed", 3): _REST, ("rest_peak", 3): _PEAK,
-                  ("dam_front", 2): _FRONT,
                   ("dam_saving", 3): _SAVING}
 
 
