@@ -164,9 +164,10 @@ DAM_L = 3.2           # tank length: the front is still running at 1 s
 DAM_T = 1.0
 # Merges are counted over a longer adaptive run: fine fluid first gets far enough past the
 # block to want the coarse level again (0.1 m + 1.25 bands of 0.16 m, x > 1.6 m) at about
-# 1.05 s in 2D (front 1.47 m at 1 s). By 1.4 s: 53 merges in 2D, 17 in 3D, where the fine
-# fluid past the block is a film one particle thick that only half groups can merge
-# (adaptivity.merge_min_children; with full groups only, 4 and 0).
+# 1 s (front 1.58 m in 2D, 1.63 m in 3D at 1 s). By 1.4 s: 48 merges in 2D, 23 in 3D, where
+# the fine fluid past the block is a film one particle thick that only half groups can
+# merge (adaptivity.merge_min_children; with full groups only, 4 and 0 in an earlier
+# version).
 MERGE_T = 1.4
 
 
