@@ -501,10 +501,7 @@ class Simulation:
                 # its reactions are handed on by the force pass: no sum, no list
                 skip = skip or is_virtual(p[i].kind)
             if not skip:
-                l = p[i].level
-                h = self.lev_h[l]
-                h2 = h * h
-                c6 = self.lev_poly6[l]
+                l, h, h2, c6 = self._support(i)
                 xi = p[i].x
                 zero = ti.Vector.zero(float, self.dim)
                 rho = self._density_sum(xi, l, h2, c6, zero, zero, False, i, True)
@@ -522,6 +519,13 @@ class Simulation:
                 p[i].rho = rho
                 p[i].p = pressure(rho, rho0, k, gamma, self.tait, self.clamp)
                 self._pair_factors(i)
+
+    @ti.func
+    def _support(self, i):
+        """Particle i's level, its support h, h² and poly6 constant."""
+        l = self.pool.p[i].level
+        h = self.lev_h[l]
+        return l, h, h * h, self.lev_poly6[l]
 
     @ti.func
     def _pair_factors(self, i):
@@ -610,10 +614,7 @@ class Simulation:
             self.virtual_share[i] = 1.0
         for i in range(n):
             if is_real(p[i].kind) and p[i].level < top:
-                l = p[i].level
-                h = self.lev_h[l]
-                h2 = h * h
-                c6 = self.lev_poly6[l]
+                l, h, h2, c6 = self._support(i)
                 xi = p[i].x
                 zero = ti.Vector.zero(float, self.dim)
                 acc = self._share_sums(xi, l, h2, c6, zero, zero, False, i, True)

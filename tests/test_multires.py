@@ -230,6 +230,19 @@ def test_links_hold_at_every_step_of_a_moving_refinement(dim):
 
 
 # ================================================================== 2. mass
+def event_steps(sim, events: int = 100, max_steps: int = 150):
+    """Step until at least ``events`` splits and as many merges (at most ``max_steps``
+    steps), yielding (steps, splits so far, merges so far, stats row) after each step."""
+    splits = merges = steps = 0
+    while steps < max_steps and (splits < events or merges < events):
+        sim.step()
+        steps += 1
+        ev = sim.stats()
+        splits += ev["splits"]
+        merges += ev["merges"]
+        yield steps, splits, merges, ev
+
+
 def test_mass_is_bit_identical_through_splits_and_merges(dim):
     """METHOD.md §5, §6, §8: with full groups only (merge_min_children = 2^d),
     the total real mass (math.fsum of the masses) is bit-identical at every step of a run
@@ -242,14 +255,7 @@ def test_mass_is_bit_identical_through_splits_and_merges(dim):
     nominal = sim.lev_m.to_numpy()
     pool = raw_pool(sim)
     m_start = real_mass(pool)
-    splits = merges = 0
-    steps = 0
-    while steps < 150 and (splits < 100 or merges < 100):
-        sim.step()
-        steps += 1
-        ev = sim.stats()
-        splits += ev["splits"]
-        merges += ev["merges"]
+    for steps, splits, merges, ev in event_steps(sim):
         assert ev["total_mass"] == m_start, (
             f"{dim}D, step {steps}: total real mass {ev['total_mass']!r} != {m_start!r} at the start "
             f"(difference {ev['total_mass'] - m_start:.3e} kg after {splits} splits, {merges} merges)")
@@ -279,15 +285,9 @@ def test_mass_is_kept_to_round_off_with_partial_groups(dim):
     sim = make_sim(scene)
     nominal = sim.lev_m.to_numpy()
     m_start = real_mass(raw_pool(sim))
-    splits = merges = steps = 0
     partial = 0          # steps after which some real particle had a non-nominal mass
     worst = 0.0
-    while steps < 150 and (splits < 100 or merges < 100):
-        sim.step()
-        steps += 1
-        ev = sim.stats()
-        splits += ev["splits"]
-        merges += ev["merges"]
+    for steps, splits, merges, _ev in event_steps(sim):
         pool = raw_pool(sim)
         assert pool["m"].dtype == np.float64, f"precision f64 gave {pool['m'].dtype} masses"
         real = np.isin(pool["kind"], REAL_KINDS)
