@@ -165,10 +165,11 @@ SCHEMA = Table(required=True, keys={
                         "consistent); symmetric = the thesis's same-level symmetric pair "
                         "force with virtual particles' own summed density and interpolated "
                         "velocity (see the README)"),
-        "spring_rate": Key("float", 5000.0, ">= 0", "1/s", "rate at which the Hooke springs "
+        "spring_rate": Key("float", 100000.0, ">= 0", "1/s", "rate at which the Hooke springs "
                            "return virtual particles to their anchors, integrated implicitly "
-                           "(rate * dt >= 1 puts them on the anchor); loose springs let the "
-                           "interface drift and gain energy"),
+                           "(rate * dt >= 1 puts them on the anchor: the default does so for "
+                           "any dt >= 1e-5 s); loose springs let the interface drift and gain "
+                           "energy"),
         "release_factor": Key("float", 1.0, "[0.5, 2]", doc="siblings are released when "
                               "their largest distance exceeds release_factor * h_n"),
         "merge_min_children": Key("int", 0, ">= 0", doc="least group size that merges once "
