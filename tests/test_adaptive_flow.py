@@ -46,8 +46,17 @@ _PEAK = ("the 3D runs are not repeatable to the last bit (the reactions handed t
          "of virtual particles are summed by parallel atomics) and the 3D pool's motion is "
          "chaotic enough that its peak density next to the interface has ranged from +0.4 % "
          "to +4.8 % of the uniform run's between runs of the same code. Measured relative error")
+_FRONT3 = ("passes at the default viscosity by luck: at viscosity x0.98 and x1.02 the main "
+           "body breaks at the block and its front reads 1.000 m (uniform 1.572, 1.547 m), and "
+           "in all three runs ~2 % of the mass runs ahead as a film of fine particles at 2.3 m/s "
+           "(98 % mass quantile 1.89 m against 1.51; furthest particle 2.25 m against 1.58), "
+           "where the uniform run's overflow moves at 0.8 m/s. Within 0.05 s of the first "
+           "splits the fluid before the block stands 8.5 cm high, over the 6 cm block "
+           "(uniform: 3.5 cm), and flies over it; splitting earlier "
+           "(criterion distance 0.25 m) keeps the body whole (+2.6..+3.5 %) but not the film. "
+           "At s = 2 cm the coarse flow is one 4 cm particle thick. Measured relative error")
 KNOWN_FAILURES = {("rest_speed", 2): _REST, ("rest_speed", 3): _REST, ("rest_peak", 3): _PEAK,
-                  ("dam_saving", 3): _SAVING}
+                  ("dam_saving", 3): _SAVING, ("dam_front", 3): _FRONT3}
 
 
 def known_xfail(request, dim, key, measured):
