@@ -1,7 +1,8 @@
 """Dense uniform neighbour grids, one per level, and the counting sort that fills them.
 
-Level l has cells of its support radius h_l = 2^l h0, so a particle's neighbours lie in
-the 3^d cells around its own. The grids of all levels are laid end to end in one cell
+Level l has cells of h_l / k, its support radius h_l = 2^l h0 split k ways
+(``cells_per_support``), so a particle's neighbours lie in the (2k+1)^d cells around its
+own. The grids of all levels are laid end to end in one cell
 array: a particle's key is ``offset[l] + linear cell index``, and a single counting sort
 (count, serial prefix sum, scatter) reorders the whole pool in cell order each step. The
 sort is linear in the number of particles and cells, keeps particles that are close in
@@ -18,21 +19,25 @@ import taichi as ti
 
 from .particles import DEAD, ParticlePool
 
-PAD_CELLS = 2  # cells of padding around the domain, so that ±2 cell look-ups never leave the grid
+PAD_SUPPORTS = 2  # padding around the domain, in supports, so that block look-ups never leave the grid
 
 
 @ti.data_oriented
 class LevelGrids:
-    def __init__(self, dim: int, levels: int, domain_min, domain_max, h0: float, capacity: int):
+    def __init__(self, dim: int, levels: int, domain_min, domain_max, h0: float, capacity: int,
+                 cells_per_support: int = 1):
         self.dim = dim
         self.levels = levels
-        self.row_axes = ((-1, 2),) * (dim - 1)   # offsets of the rows of a 3^d block
+        k = self.reach = int(cells_per_support)     # cells per support radius
+        self.row_axes = ((-k, k + 1),) * (dim - 1)   # offsets of the rows of a (2k+1)^d block
+        self.pad = PAD_SUPPORTS * k                 # padding, in cells
         lo = np.asarray(domain_min, dtype=np.float64)
         hi = np.asarray(domain_max, dtype=np.float64)
         self.h = [h0 * 2**l for l in range(levels)]
+        self.cell_size = [h / k for h in self.h]
         res, offsets, total = [], [], 0
         for l in range(levels):
-            r = [int(math.ceil((hi[k] - lo[k]) / self.h[l])) + 2 * PAD_CELLS for k in range(dim)]
+            r = [int(math.ceil((hi[a] - lo[a]) / self.cell_size[l])) + 2 * self.pad for a in range(dim)]
             res.append(r)
             offsets.append(total)
             total += int(np.prod(r))
@@ -43,8 +48,8 @@ class LevelGrids:
         self.res = ti.Vector.field(dim, ti.i32, shape=levels)
         self.offset = ti.field(ti.i32, shape=levels)
         for l in range(levels):
-            self.origin[l] = (lo - PAD_CELLS * self.h[l]).tolist()
-            self.inv_cell[l] = 1.0 / self.h[l]
+            self.origin[l] = (lo - self.pad * self.cell_size[l]).tolist()
+            self.inv_cell[l] = 1.0 / self.cell_size[l]
             self.res[l] = res[l]
             self.offset[l] = offsets[l]
         # count[c] particles in cell c; the last bucket holds DEAD slots.
@@ -69,24 +74,25 @@ class LevelGrids:
 
     @ti.func
     def around(self, x, l):
-        """x's cell, kept one cell inside the grid so that the 3^d block around it exists."""
+        """x's cell, kept k cells inside the grid so that the block around it exists."""
+        k = ti.static(self.reach)
         c = ti.cast(ti.floor((x - self.origin[l]) * self.inv_cell[l]), ti.i32)
-        return ti.max(ti.min(c, self.res[l] - 2), 1)
+        return ti.max(ti.min(c, self.res[l] - 1 - k), k)
 
     @ti.func
     def row(self, base, o, l):
-        """Pool slots [lo, hi) of the three cells base + (o, -1 … +1).
+        """Pool slots [lo, hi) of the 2k+1 cells base + (o, -k … +k).
 
         The last axis varies fastest in the cell index, so those cells are consecutive
         and, the pool being in cell order, so are their particles: a neighbour loop is
-        3^(d-1) contiguous ranges:
+        (2k+1)^(d-1) contiguous ranges:
         ``for o in ti.grouped(ti.ndrange(*grid.row_axes)): lo, hi = grid.row(base, o, l)``."""
         c = base
         for k in ti.static(range(self.dim - 1)):
             c[k] += o[k]
-        c[self.dim - 1] -= 1
+        c[self.dim - 1] -= ti.static(self.reach)
         first = self.cell_id(c, l)
-        return self.start[first], self.start[first + 3]
+        return self.start[first], self.start[first + ti.static(2 * self.reach + 1)]
 
 
     @ti.func

@@ -1,8 +1,9 @@
 """Neighbour grids (mrsph/grid.py) against brute force, and the counting sort's bookkeeping.
 
 A pool with particles of two levels is sorted by ``LevelGrids.sort``; a small Taichi
-kernel then enumerates, for every particle, the candidates of the 3^d cells around its
-own cell on its level and keeps those closer than h_l. The lists must be exactly the
+kernel then enumerates, for every particle, the candidates of the grid block around its
+own cell on its level (the rows ``around``/``row`` give the solver: 3^d cells of h_l, or
+5^d of h_l/2) and keeps those closer than h_l. The lists must be exactly the
 brute-force neighbour sets (same level, |x_i - x_j| < h_l), computed with a k-d tree.
 """
 
@@ -24,7 +25,7 @@ MAX_NEIGHBOURS = 160
 BORDERLINE = 1e-5
 
 
-def build(dim, xs, levels, kinds=None, extra_capacity=8):
+def build(dim, xs, levels, kinds=None, extra_capacity=8, cells_per_support=1):
     """A ParticlePool and LevelGrids holding the given particles (ids stored in ``slot``)."""
     from mrsph.grid import LevelGrids
     from mrsph.particles import ParticlePool
@@ -32,7 +33,8 @@ def build(dim, xs, levels, kinds=None, extra_capacity=8):
     n = len(xs)
     cap = n + extra_capacity
     pool = ParticlePool(dim, cap)
-    grids = LevelGrids(dim, LEVELS, [DOMAIN_MIN] * dim, [DOMAIN_MAX] * dim, H0, cap)
+    grids = LevelGrids(dim, LEVELS, [DOMAIN_MIN] * dim, [DOMAIN_MAX] * dim, H0, cap,
+                       cells_per_support)
     pad = lambda a, fill: np.concatenate([a, np.full((cap - n,) + a.shape[1:], fill, a.dtype)])  # noqa: E731
     pool.p.x.from_numpy(pad(xs.astype(np.float32), 0.0))
     pool.p.v.from_numpy(pad((xs * 3.0 + 1.0).astype(np.float32), 0.0))
@@ -66,10 +68,10 @@ def grid_neighbours(pool, grids, n):
             c = 0
             l = p[i].level
             hl = h[l]
-            base = grids.cell(p[i].x, l)
-            for off in ti.static(ti.grouped(ti.ndrange(*((-1, 2),) * dim))):
-                cid = grids.cell_id(base + off, l)
-                for j in range(grids.start[cid], grids.start[cid + 1]):
+            base = grids.around(p[i].x, l)
+            for o in ti.grouped(ti.ndrange(*grids.row_axes)):
+                lo, hi = grids.row(base, o, l)
+                for j in range(lo, hi):
                     if p[j].level != l:
                         wrong_level[None] += 1
                     # deliberately no level filter: the grid alone must keep levels apart
@@ -135,8 +137,12 @@ def jittered_lattice(rng, dim, spacing):
     return pts + rng.uniform(-0.2, 0.2, size=pts.shape) * spacing
 
 
+CELLS = pytest.mark.parametrize("cells", [1, 2], ids=["h-cells", "half-h-cells"])
+
+
+@CELLS
 @pytest.mark.parametrize("layout", ["random", "lattice"])
-def test_grid_neighbours_equal_brute_force(dim, layout):
+def test_grid_neighbours_equal_brute_force(dim, layout, cells):
     rng = np.random.default_rng(100 * dim + (layout == "lattice"))
     if layout == "random":
         xs = random_positions(rng, dim, 1500 if dim == 2 else 2500)
@@ -147,18 +153,19 @@ def test_grid_neighbours_equal_brute_force(dim, layout):
     # put the particles at the domain edges and corners too (clamped cells, padding)
     xs[:dim, :] = DOMAIN_MIN
     xs[dim: 2 * dim, :] = DOMAIN_MAX
-    pool, grids = build(dim, xs, levels)
+    pool, grids = build(dim, xs, levels, cells_per_support=cells)
     n = grids.sort(pool)
     assert n == len(xs), f"sort returned {n} particles; expected {len(xs)} (none is DEAD)"
     expected, borderline = brute_force(xs, levels)
-    compare(grid_neighbours(pool, grids, n), expected, borderline, f"{dim}D {layout}")
+    compare(grid_neighbours(pool, grids, n), expected, borderline, f"{dim}D {layout}, {cells} cell(s) per h")
 
 
-def test_sort_orders_by_cell_and_carries_every_attribute(dim):
+@CELLS
+def test_sort_orders_by_cell_and_carries_every_attribute(dim, cells):
     rng = np.random.default_rng(7 + dim)
     xs = random_positions(rng, dim, 400)
     levels = (rng.uniform(size=len(xs)) < 0.5).astype(np.int32)
-    pool, grids = build(dim, xs, levels)
+    pool, grids = build(dim, xs, levels, cells_per_support=cells)
     n = grids.sort(pool)
     ids = pool.p.slot.to_numpy()[:n]
     assert sorted(ids.tolist()) == list(range(len(xs))), "the sort is not a permutation"
@@ -169,7 +176,7 @@ def test_sort_orders_by_cell_and_carries_every_attribute(dim):
     assert np.array_equal(pool.p.m.to_numpy()[:n], ids.astype(np.float32) + 0.5), "masses not carried"
     assert np.array_equal(pool.p.level.to_numpy()[:n], levels[ids]), "levels not carried"
     # keys: offset of the level + linear cell index, non-decreasing along the pool
-    from mrsph.grid import PAD_CELLS
+    from mrsph.grid import PAD_SUPPORTS
     keys = []
     offset = 0
     offsets = []
@@ -177,9 +184,9 @@ def test_sort_orders_by_cell_and_carries_every_attribute(dim):
         offsets.append(offset)
         offset += int(np.prod(grids.res_host[l]))
     for xi, l in zip(x.astype(np.float64), levels[ids]):
-        h = H0 * 2**l
+        size = H0 * 2**l / cells
         res = np.array(grids.res_host[l])
-        c = np.clip(np.floor((xi - (DOMAIN_MIN - PAD_CELLS * h)) / h).astype(int), 0, res - 1)
+        c = np.clip(np.floor((xi - (DOMAIN_MIN - PAD_SUPPORTS * cells * size)) / size).astype(int), 0, res - 1)
         keys.append(offsets[l] + int(np.ravel_multi_index(tuple(c), tuple(res))))
     keys = np.array(keys)
     assert np.all(np.diff(keys) >= 0), \
