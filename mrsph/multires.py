@@ -95,7 +95,7 @@ class Multires:
         a = sim.scene["adaptivity"]
         self.hysteresis = float(a["hysteresis"])
         self.release_factor = float(a["release_factor"])
-        self.merge_min = int(a["merge_min_children"]) or self.nmax // 2
+        self.merge_min = int(a["merge_min_children"])   # 0 resolved by the config
         self.gather_factor = float(a["gather_factor"])
         self.gather_coarse_only = bool(a["gather_coarse_only"])
         self.relax_iterations = int(a["split_relax_iterations"])

@@ -807,17 +807,17 @@ class Simulation:
         return reaction, w
 
     @ti.func
-    def _hand_on(self, j, f):
-        """Hand the reaction −f of the force f that virtual particle j exerts on a real
-        particle to the real particle(s) j stands for, split evenly (METHOD.md §4, thesis
-        Fig. 7): a virtual child's transient parent, or a virtual parent's children."""
+    def _hand_on(self, j, r, into: ti.template()):
+        """Add the reaction r on virtual particle j to ``into`` of the real particle(s) j
+        stands for, split evenly (METHOD.md §4, thesis Fig. 7): a virtual child's
+        transient parent, or a virtual parent's children."""
         p = ti.static(self.pool.p)
         if p[j].kind == VIRTUAL_CHILD:
-            ti.atomic_add(self.reaction[p[j].parent], -f)
+            ti.atomic_add(into[p[j].parent], r)
         else:
-            share = -f / ti.max(p[j].nchild, 1)
+            share = r / ti.max(p[j].nchild, 1)
             for q in range(p[j].nchild):
-                ti.atomic_add(self.reaction[self.pool.children[j, q]], share)
+                ti.atomic_add(into[self.pool.children[j, q]], share)
 
     @ti.func
     def _force_and_reaction(self, i, j, xi, h, cs, cv, mu, reach2):
@@ -826,7 +826,7 @@ class Simulation:
         f = self._force_from(i, j, xi, h, cs, cv, mu, reach2)
         if ti.static(self.variational):
             if is_virtual(self.pool.p[j].kind):
-                self._hand_on(j, f)
+                self._hand_on(j, -f, self.reaction)
         return f
 
     @ti.kernel
@@ -918,12 +918,7 @@ class Simulation:
                                 reaction += dr
                                 vsum += w * p[i].v
                                 wsum += w
-                if kj == VIRTUAL_CHILD:
-                    ti.atomic_add(p[p[j].parent].a, reaction)
-                else:
-                    share = reaction / ti.max(p[j].nchild, 1)
-                    for q in range(p[j].nchild):
-                        ti.atomic_add(p[self.pool.children[j, q]].a, share)
+                self._hand_on(j, reaction, p.a)
                 # the velocity interpolated from the real particles of the level
                 if wsum > 0.0:
                     p[j].v = vsum / wsum
