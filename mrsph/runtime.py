@@ -33,8 +33,13 @@ def _arch_name() -> str:
 
 
 def _try_gpu(kwargs) -> bool:
-    """Initialise on the first GPU backend that works; False (and reset) if none does."""
-    for name in _GPU_ARCHES:
+    """Initialise on the first GPU backend that works; False (and reset) if none does.
+    Backends whose driver is missing are skipped before ti.init: a failed ti.init falls
+    back to the CPU and announces it, which printed "Starting on arch=x64" twice."""
+    ti.set_logging_level(ti.ERROR)      # the driver probe warns "libcuda.so lib not found"
+    present = [name for name in _GPU_ARCHES if ti.lang.misc.is_arch_supported(getattr(ti, name))]
+    ti.set_logging_level(ti.WARN)
+    for name in present:
         ti.init(**{**kwargs, "arch": getattr(ti, name), "log_level": ti.ERROR})
         if _arch_name() == name:
             ti.set_logging_level(ti.WARN)
