@@ -27,6 +27,7 @@ import taichi as ti
 
 from . import runtime
 from .boundary import Boundary
+from .config import LATTICE_EPS
 from .criteria import Criteria
 from .eos import hydrostatic_heights, pressure, sound_speed
 from .grid import LevelGrids
@@ -231,12 +232,11 @@ class Simulation:
         self._emit_acc = [0.0] * len(s["emitters"])
         self._refusal_warned = False
         self.warnings: list[str] = []
-        seed_level = self.levels - 1
         for b in s["fluid"]["blocks"]:
-            xs = self._lattice(b["min"], b["max"], self.s0 * 2**seed_level)
-            if s["fluid"]["hydrostatic_start"]:
-                xs = self._hydrostatic(xs, b["min"], b["max"])
-            self._append(xs, np.tile(np.asarray(b["velocity"], np.float64), (len(xs), 1)), seed_level)
+            for level, xs in self._block_lattices(b["min"], b["max"]):
+                if s["fluid"]["hydrostatic_start"]:
+                    xs = self._hydrostatic(xs, b["min"], b["max"])
+                self._append(xs, np.tile(np.asarray(b["velocity"], np.float64), (len(xs), 1)), level)
         self._stirrers(0.0)
         if self.adaptive:
             for _ in range(self.levels):
@@ -248,6 +248,36 @@ class Simulation:
                 f"{self.scene.path}: particles.capacity = {self.capacity} is too small for the "
                 f"initial fluid ({self.pool.refused[None]} claims refused); raise it or set 0 for automatic")
         self._snapshot_mass = None
+
+    def _block_lattices(self, lo, hi) -> list[tuple[int, np.ndarray]]:
+        """(level, lattice points) filling the block [lo, hi] with the fluid of a uniform
+        run at the finest spacing: whole cells of the coarsest level from ``lo``, and in
+        the slabs left over towards ``hi`` (a block side that is not a multiple of the
+        coarsest spacing) the next finer level, down to the finest, which leaves what a
+        uniform run leaves. Seeding only the coarsest lattice held up to 2^(L-1) - 1 fine
+        layers less fluid per side: a 0.3 m 3D pool at 4 cm seeded 7 columns of 28 cm,
+        19 % less fluid than its uniform twin, and the gap made it slump. The adaptivity
+        pass then merges the finer seeds where the criteria want coarse (§6)."""
+        out = []
+        boxes = [(np.asarray(lo, np.float64), np.asarray(hi, np.float64))]
+        for level in range(self.levels - 1, -1, -1):
+            s = self.s0 * 2**level
+            finer = []
+            for blo, bhi in boxes:
+                counts = np.floor((bhi - blo) / s + LATTICE_EPS).astype(int)
+                if level > 0 and counts.min() == 0:
+                    finer.append((blo, bhi))      # not one whole cell: all of it goes finer
+                    continue
+                out.append((level, self._lattice(blo, bhi, s)))
+                covered = blo + counts * s
+                for k in range(self.dim):         # box minus covered box, as disjoint slabs
+                    if bhi[k] - covered[k] > LATTICE_EPS * s:
+                        slo, shi = blo.copy(), bhi.copy()
+                        slo[k] = covered[k]
+                        shi[:k] = covered[:k]
+                        finer.append((slo, shi))
+            boxes = finer
+        return [(level, xs) for level, xs in out if len(xs)]
 
     @staticmethod
     def _lattice(lo, hi, spacing):
