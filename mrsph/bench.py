@@ -68,7 +68,7 @@ def _cases(full: bool) -> list[Case]:
     """
     quick = [
         Case("dam_break_2d uniform ~10k", "dam_break_2d", ("particles.spacing=0.0035",), 0.1, 0.02),
-        Case("dam_break_3d uniform ~30k", "dam_break_3d", ("particles.spacing=0.0092",), 0.05, 0.005),
+        Case("dam_break_3d uniform ~30k", "dam_break_3d", ("particles.spacing=0.0092",), 0.2, 0.005),
         Case("dam_break_obstacle_2d s=3.5mm", "dam_break_obstacle_2d",
              ("particles.spacing=0.0035",), 0.24, 0.01, "pair"),
         Case("dam_break_obstacle_3d s=15mm", "dam_break_obstacle_3d",

@@ -62,12 +62,16 @@ REACH_FACTOR = 1.5
 # overflows (it then loops over the grid instead; results are the same).
 MAX_NEIGHBOURS = {2: 40, 3: 80}
 
-# Density loop without a branch per candidate (2D) or with one (3D). In 2D a third of
-# the candidates of the 3x3 cells are neighbours and, once the fluid flows, which ones
-# is unpredictable: the mispredictions cost more than computing W for every candidate
-# (dam break, 50k particles, one thread: 7.6 -> 4.9 ms a pass). In 3D one in six is a
-# neighbour and the branch wins (30k particles: 15.1 ms with it, 16.3 without).
-BRANCH_FREE = {2: True, 3: False}
+# Density loop without a branch per candidate. In 2D a third of the candidates of the
+# 3x3 cells are neighbours and, once the fluid flows, which ones is unpredictable: the
+# mispredictions cost more than computing W for every candidate (dam break, 50k
+# particles, one thread: 7.6 -> 4.9 ms a pass). In 3D, with cells of a whole support,
+# one candidate in six was a neighbour and the branch won (30k: 15.1 ms with it, 16.3
+# without); with half-support cells it is one in four, and on the flowing 30k dam break
+# (t = 0.2 s, two threads) the pass takes 11.2-13.4 ms with the branch, 8.8-9.5 without.
+# On the initial lattice, where the branch is predictable, it is the other way round
+# (5.2 against 7.4 ms at t = 0.05 s): what matters is the fluid once it moves.
+BRANCH_FREE = {2: True, 3: True}
 
 # Cells per support radius of the neighbour grids (grid.py). Half-support cells cut the
 # density pass's candidates from 27 h³ to 125/8 h³ in 3D (30k dam break, one thread:
