@@ -124,8 +124,11 @@ SCHEMA = Table(required=True, keys={
             "min": Key("vec", unit="m", doc="lower corner"),
             "max": Key("vec", unit="m", doc="upper corner, > min in every component"),
             "velocity": Key("vec", unit="m/s", doc="initial velocity", **ZEROS)}),
-            doc="Boxes filled with level-0 particles on a lattice of spacing s0 at t = 0. "
-                "At least one, unless there is an emitter.")}),
+            doc="Boxes of fluid at t = 0: a lattice of spacing s0, or in an adaptive scene "
+                "the coarsest level's lattice where its whole cells fit and finer ones in the "
+                "slabs left over (the same fluid as the uniform run; sides that are whole "
+                "coarse cells start coarse everywhere). At least one, unless there is an "
+                "emitter.")}),
     "physics": Table({
         "gravity": Key("vec", lambda dim: (0.0, -9.81, 0.0)[:dim], unit="m/s^2",
                        doc="gravitational acceleration", default_doc="(0, -9.81[, 0])"),
