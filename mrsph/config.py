@@ -126,9 +126,9 @@ SCHEMA = Table(required=True, keys={
             "velocity": Key("vec", unit="m/s", doc="initial velocity", **ZEROS)}),
             doc="Boxes of fluid at t = 0: a lattice of spacing s0, or in an adaptive scene "
                 "the coarsest level's lattice where its whole cells fit and finer ones in the "
-                "slabs left over (the same fluid as the uniform run; sides that are whole "
-                "coarse cells start coarse everywhere). At least one, unless there is an "
-                "emitter.")}),
+                "slabs left over (the same fluid as the uniform run; a block whose sides "
+                "are all whole multiples of the coarsest spacing starts coarse everywhere). "
+                "At least one, unless there is an emitter.")}),
     "physics": Table({
         "gravity": Key("vec", lambda dim: (0.0, -9.81, 0.0)[:dim], unit="m/s^2",
                        doc="gravitational acceleration", default_doc="(0, -9.81[, 0])"),

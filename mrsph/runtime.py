@@ -37,8 +37,10 @@ def _try_gpu(kwargs) -> bool:
     Backends whose driver is missing are skipped before ti.init: a failed ti.init falls
     back to the CPU and announces it, which printed "Starting on arch=x64" twice."""
     ti.set_logging_level(ti.ERROR)      # the driver probe warns "libcuda.so lib not found"
-    present = [name for name in _GPU_ARCHES if ti.lang.misc.is_arch_supported(getattr(ti, name))]
-    ti.set_logging_level(ti.WARN)
+    try:
+        present = [name for name in _GPU_ARCHES if ti.lang.misc.is_arch_supported(getattr(ti, name))]
+    finally:
+        ti.set_logging_level(ti.WARN)
     for name in present:
         ti.init(**{**kwargs, "arch": getattr(ti, name), "log_level": ti.ERROR})
         if _arch_name() == name:
@@ -99,8 +101,8 @@ def _pin(one_core: bool) -> None:
 
 def starting_particles(scene) -> int:
     """About how many real particles the scene starts with: its fluid at the finest
-    spacing, or for an adaptive scene at the coarsest (it starts there and refines only
-    where a criterion asks)."""
+    spacing, or for an adaptive scene at the coarsest (it starts there, but for the
+    slabs that whole coarse cells leave, and refines only where a criterion asks)."""
     uniform = scene.estimate_particles()
     if not scene.data["adaptivity"]["enabled"]:
         return uniform

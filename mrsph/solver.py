@@ -267,15 +267,16 @@ class Simulation:
         for level in range(self.levels - 1, -1, -1):
             s = self.s0 * 2**level
             finer = []
+            eps = LATTICE_EPS * self.s0 / s    # the uniform run's tolerance, in cells of s
             for blo, bhi in boxes:
-                counts = np.floor((bhi - blo) / s + LATTICE_EPS).astype(int)
+                counts = np.floor((bhi - blo) / s + eps).astype(int)
                 if level > 0 and counts.min() == 0:
                     finer.append((blo, bhi))      # not one whole cell: all of it goes finer
                     continue
-                out.append((level, self._lattice(blo, bhi, s)))
+                out.append((level, self._lattice(blo, counts, s)))
                 covered = blo + counts * s
                 for k in range(self.dim):         # box minus covered box, as disjoint slabs
-                    if bhi[k] - covered[k] > LATTICE_EPS * s:
+                    if bhi[k] - covered[k] > LATTICE_EPS * self.s0:
                         slo, shi = blo.copy(), bhi.copy()
                         slo[k] = covered[k]
                         shi[:k] = covered[:k]
@@ -284,10 +285,8 @@ class Simulation:
         return [(level, xs) for level, xs in out if len(xs)]
 
     @staticmethod
-    def _lattice(lo, hi, spacing):
-        """Cell centres of a lattice of the given spacing filling the box [lo, hi]."""
-        lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
-        counts = np.floor((hi - lo) / spacing + 1e-9).astype(int)
+    def _lattice(lo, counts, spacing):
+        """Cell centres of ``counts`` cells of the given spacing per axis from ``lo``."""
         axes = [lo[k] + (np.arange(counts[k]) + 0.5) * spacing for k in range(len(lo))]
         return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, len(lo))
 

@@ -3,9 +3,10 @@ a pool at rest with a refined box inside, and a dam break refined near an obstac
 
 Each scenario runs once per dimension, adaptive and uniform, in a module fixture; the
 tests below read the numbers. Scenes are built in code and coarse, so that the file
-stays near five minutes on a 2-core CPU (the 3D dam break's uniform twin takes half). Tests that fail because of the library
-are listed in ``KNOWN_FAILURES`` with what was measured: they run and print their
-numbers, and their failure does not fail the suite (xfail, not strict).
+stays near five minutes on a 2-core CPU (the 3D dam break's two runs take half of it).
+Tests that fail because of the library are listed in ``KNOWN_FAILURES`` with what was
+measured: they run and print their numbers, and their failure does not fail the suite
+(xfail, not strict).
 """
 
 import math
