@@ -395,19 +395,28 @@ class Simulation:
         self._stirrers(self.time)
         return dt
 
-    def advance(self, seconds: float) -> int:
-        """Advance by ``seconds`` of simulated time, ending exactly on it; returns steps."""
+    def advance(self, seconds: float, wall_budget: float | None = None) -> int:
+        """Advance by ``seconds`` of simulated time, ending exactly on it; returns steps.
+
+        ``wall_budget`` (seconds of wall time): stop early, after the step that spends it
+        (at least one step is taken), so that an interactive window stays responsive on a
+        machine too slow for its frames; the fluid then runs in slow motion."""
         end = self.time + seconds
+        deadline = None if wall_budget is None else _time.perf_counter() + wall_budget
         steps = 0
         while self.time < end - 1e-12:
             self.step(max_dt=end - self.time)
             steps += 1
-        self.time = end
+            if deadline is not None and _time.perf_counter() >= deadline:
+                break
+        if self.time >= end - 1e-12:
+            self.time = end
         return steps
 
-    def advance_frame(self) -> int:
-        """Advance by one frame (1/fps simulated seconds)."""
-        steps = self.advance(1.0 / float(self.scene.data["run"]["fps"]))
+    def advance_frame(self, wall_budget: float | None = None) -> int:
+        """Advance by one frame (1/fps simulated seconds), or less within ``wall_budget``
+        (see :meth:`advance`; ``None``, the whole frame, is what recordings need)."""
+        steps = self.advance(1.0 / float(self.scene.data["run"]["fps"]), wall_budget)
         self.frame += 1
         return steps
 

@@ -138,6 +138,7 @@ def test_bad_option_values(tmp_path):
     assert_usage_error(run(path, "--headless", "--frames", 0), "--frames")
     assert_usage_error(run(path, "--arch", "tpu"), "--arch")
     assert_usage_error(run(path, "--dump-format", "csv"), "--dump-format")
+    assert_usage_error(run(path, "--frame-budget", "-5"), "--frame-budget", "milliseconds >= 0")
     assert_usage_error(run(path, "--frames", 2, "--out", tmp_path / "x.avi"), "--out", ".mp4")
 
 
@@ -147,13 +148,13 @@ def test_help_lists_every_option_and_its_default():
     assert proc.returncode == 0, proc.stderr
     out = " ".join(proc.stdout.split())     # undo argparse's line wrapping
     options = ["--arch", "--threads", "--headless", "--frames", "--out", "--width", "--height",
-               "--fps", "--set", "--dump", "--dump-format", "--quiet", "SCENE"]
+               "--fps", "--frame-budget", "--set", "--dump", "--dump-format", "--quiet", "SCENE"]
     for option in options:
         assert option in out, option
     for default in ["(default: auto)", "under 12k particles", "(default: off)",
                     "(default: the scene's run.frames", "(default: no recording)",
                     "(default: the scene's render.width", "(default: the scene's render.height",
-                    "(default: the scene's run.fps)", "(default: none)", "(default: no dump)",
+                    "(default: the scene's run.fps)", "(default: 40)", "(default: none)", "(default: no dump)",
                     "(default: npz)", "(default: dam_break_2d)" if not (REPO / "scenes/demo_2d.toml").exists()
                     else "(default: demo_2d)"]:
         assert default in out, default

@@ -436,3 +436,21 @@ def test_time_step_obeys_cfl_and_force_bounds(dim, bound):
             f"dt_max {ph['dt_max']}) by more than round-off")
         binding = "cfl" if cfl <= force else "force"
         assert binding == bound, f"{dim}D: the {binding} bound binds (CFL {cfl:.4e}, force {force:.4e})"
+
+
+def test_frame_within_a_wall_budget_stops_early_and_whole_frames_end_exactly(dim):
+    """The window's slow motion (``advance_frame(wall_budget)``): a spent budget stops
+    the frame after one step, and a frame without one ends exactly on 1/fps."""
+    sim = make_sim(dam_scene(dim))
+    frame = 1.0 / float(sim.scene.data["run"]["fps"])
+    steps = sim.advance_frame(wall_budget=0.0)
+    assert steps == 1, f"{dim}D: {steps} steps within a spent budget, expected exactly 1"
+    assert 0.0 < sim.time == sim.dt < frame, (
+        f"{dim}D: one step should advance by its dt ({sim.dt:.3e} s), less than a frame "
+        f"({frame:.4f} s); the time is {sim.time:.6e} s")
+    start = sim.time
+    steps = sim.advance_frame()
+    assert steps > 1 and sim.time == start + frame, (
+        f"{dim}D: a whole frame from t = {start:.6e} s ended at {sim.time!r} in {steps} steps, "
+        f"expected {start + frame!r}")
+    assert sim.frame == 2, f"{dim}D: frame counter {sim.frame} after two frames"

@@ -8,6 +8,7 @@ to make videos move. It is not SPH and never claims to be.
 """
 from __future__ import annotations
 
+import time
 
 import numpy as np
 
@@ -120,9 +121,12 @@ class FakeSimulation:
             self.v = np.where(hit & (self.v * sign < 0), -0.3 * self.v, self.v)
         self.time += dt
 
-    def advance_frame(self) -> None:
+    def advance_frame(self, wall_budget: float | None = None) -> None:
+        deadline = time.perf_counter() + wall_budget if wall_budget is not None else None
         for _ in range(self.steps_per_frame):
             self.step()
+            if deadline is not None and time.perf_counter() >= deadline:
+                break
         self.frame += 1
 
     def snapshot(self) -> FakeSnapshot:

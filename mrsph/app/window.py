@@ -1,6 +1,8 @@
 """The interactive window: watch the fluid, stir it with the mouse, tune it live.
 
-One window frame = one ``sim.advance_frame()`` (unless paused), then one snapshot,
+One window frame = one ``sim.advance_frame(frame_budget)`` (unless paused): a frame of
+simulated time, or as much of it as fits in the wall-clock budget (slow motion on a
+machine too slow for the scene, with the window still responsive), then one snapshot,
 drawn by the shared :class:`~mrsph.app.render.Renderer`, plus a HUD of GGUI widgets.
 The physics never sees the window: the window only calls the Simulation API
 (``advance_frame``, ``snapshot``, ``set_param``, ``set_disturbance``, ``reset``).
@@ -28,7 +30,8 @@ Esc                    quit
 Test hooks (environment variables)
 ----------------------------------
 ``MRSPH_WINDOW_STATS=path``: append one JSON line per frame: frame, time,
-kinetic_energy, n_real, n_virtual, disturbance_active, paused, scene, wall_s, fps.
+kinetic_energy, n_real, n_virtual, disturbance_active, paused, scene, wall_s, fps,
+speed (simulated seconds per wall second).
 ``MRSPH_WINDOW_SCREENSHOT=path``: write the screenshot there (frame 10, and on ``p``).
 """
 from __future__ import annotations
@@ -149,7 +152,7 @@ class _Rates:
 class _App:
     """State of the running window; :func:`run_window` is its only user."""
 
-    def __init__(self, make_sim, scene_name, scene_names, width, height):
+    def __init__(self, make_sim, scene_name, scene_names, width, height, frame_budget=None):
         import taichi as ti
         from .render import ImguiIniGuard, Renderer
         self.ti = ti
@@ -173,6 +176,8 @@ class _App:
         self.dirty = True
         self.rates = _Rates()
         self.fps = 0.0
+        self.frame_budget = frame_budget
+        self.speed = 0.0              # simulated seconds per wall second, smoothed
         self.start = time.perf_counter()
         self.last = self.start
         self.cursor_prev = None
@@ -210,6 +215,7 @@ class _App:
                            "fluid.stiffness": 4.0 * self.params["fluid.stiffness"]}
         self.refinement = bool(scene_setting(scene, "adaptivity.enabled", self.sim.levels > 1))
         self.frame_dt = 1.0 / float(scene_setting(scene, "run.fps", 30.0))
+        self.frame_sim = self.frame_dt  # simulated time the last frame advanced
         self.renderer.reset_view(scene, palette.Style.from_scene(scene))
         self.rates = _Rates()
         self.drag_owner, self.drag_plane = None, None
@@ -294,16 +300,25 @@ class _App:
             # The drag velocity is measured in simulated time: the cursor moves so far
             # per frame and the fluid should follow it on screen, however fast the
             # simulation runs compared to the wall clock.
-            d = self._mouse(dt_wall if self.paused else self.frame_dt)
+            d = self._mouse(dt_wall if self.paused else self.frame_sim)
             self.sim.set_disturbance(d)
+            advanced = 0.0
             if not self.paused or self.step_once:
+                t0 = float(self.sim.time)
                 try:
-                    self.sim.advance_frame()
+                    # a frame cut to the budget keeps the window responsive where the
+                    # machine is too slow for the scene (slow motion); a single step
+                    # (n) is a whole frame
+                    self.sim.advance_frame(None if self.step_once else self.frame_budget)
                 except Exception as e:  # blow-up: stop and say so, keep the window
                     self.paused = True
                     self.message = f"simulation stopped: {str(e).splitlines()[0][:160]} (r: reset)"
+                advanced = max(float(self.sim.time) - t0, 0.0)
+                if advanced > 0.0:
+                    self.frame_sim = advanced
                 self.step_once = False
                 self.dirty = True
+            self.speed = 0.9 * self.speed + 0.1 * advanced / dt_wall
             if self.dirty:
                 self.snap = self.sim.snapshot()
                 self.dirty = False
@@ -497,6 +512,8 @@ class _App:
             gui.text(f"scene {self.scene_name} ({snap.dim}D)   h: help  u: hide")
             gui.text(f"{self.fps:5.1f} fps   frame {snap.frame}" + ("   PAUSED" if self.paused else ""))
             gui.text(f"t = {float(snap.time):.3f} s   dt = {float(st.get('dt', 0.0)):.2e} s")
+            slow = "   (slow motion)" if self.frame_sim < 0.999 * self.frame_dt else ""
+            gui.text(f"speed {self.speed:.3g}x real time{slow}")
             gui.text(f"real {st.get('n_real', '?')}   virtual {st.get('n_virtual', '?')}"
                      f"   transient {st.get('n_transient', '?')}")
             for lvl in range(int(snap.levels)):
@@ -550,7 +567,7 @@ class _App:
                "n_real": int(st.get("n_real", 0)), "n_virtual": int(st.get("n_virtual", 0)),
                "disturbance_active": d is not None, "paused": self.paused,
                "scene": self.scene_name, "wall_s": round(time.perf_counter() - self.start, 4),
-               "fps": round(self.fps, 2)}
+               "fps": round(self.fps, 2), "speed": round(self.speed, 4)}
         self.stats_file.write(json.dumps(row) + "\n")
         self.stats_file.flush()
 
@@ -566,16 +583,17 @@ class _App:
 
 
 def run_window(make_sim, scene_name: str, scene_names: list[str], width: int = 1280,
-               height: int = 720) -> None:
+               height: int = 720, frame_budget: float | None = None) -> None:
     """Open the interactive window on ``scene_name`` and run until closed (Esc).
 
     ``make_sim(scene_name)`` builds a Simulation (and so initialises Taichi). If it also
     accepts overrides, ``make_sim(scene_name, overrides: dict)``, the refinement
     checkbox can rebuild the scene with ``{"adaptivity.enabled": bool}``.
     ``scene_names`` are the scenes offered by Tab, 1-9 and the HUD buttons.
+    ``frame_budget``: wall seconds of simulation per drawn frame (None: whole frames).
     """
     ok, why = display_available()
     if not ok:
         raise RuntimeError(f"cannot open a window: {why}")
-    app = _App(make_sim, scene_name, scene_names, width, height)
+    app = _App(make_sim, scene_name, scene_names, width, height, frame_budget)
     app.run()
