@@ -28,9 +28,10 @@ FALLBACK_FRAMES = 60
 #: Where that fallback recording goes, relative to the working directory.
 FALLBACK_DIR = Path("out")
 WINDOW_SIZE = (1280, 720)
-#: Simulation per window frame: with ~30 ms to draw a frame on a CPU (lavapipe), the window
-#: stays near 15 frames/s however slow the scene is
-WINDOW_FRAME_BUDGET_MS = 40.0
+#: Simulation per window frame, ms (a string: argparse converts it): with ~30 ms to draw a
+#: frame on a CPU (lavapipe), the window stays near 15 frames/s wherever a step takes less
+#: than the budget
+WINDOW_FRAME_BUDGET_MS = "40"
 PREFERRED_DEFAULT_SCENES = ("demo_2d", "dam_break_2d")
 NO_END = "error: a headless run needs an end: pass --frames N (or set run.frames in the scene)"
 
@@ -68,14 +69,16 @@ def _positive_float(text: str) -> float:
     return value
 
 
-def budget_ms(text: str) -> float:
+def frame_budget_arg(text: str) -> float | None:
+    """--frame-budget: milliseconds >= 0 -> seconds, or None (whole frames) for 0."""
     try:
         value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected milliseconds >= 0 (got {text!r})") from None
+        value = math.nan
     if not (value >= 0 and math.isfinite(value)):
-        raise argparse.ArgumentTypeError(f"expected milliseconds >= 0 (got {text})")
-    return value
+        raise argparse.ArgumentTypeError(f"expected a finite number of milliseconds >= 0 "
+                                         f"(got {text!r})")
+    return value / 1000.0 if value > 0 else None
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -121,12 +124,12 @@ def build_parser() -> argparse.ArgumentParser:
                              f"{WINDOW_SIZE[1]})")
     parser.add_argument("--fps", type=_positive_float, default=None,
                         help="frames per second of the recorded video (default: the scene's run.fps)")
-    parser.add_argument("--frame-budget", type=budget_ms, default=WINDOW_FRAME_BUDGET_MS,
-                        metavar="MS", help="window only: wall-clock milliseconds of simulation "
-                        "per drawn frame; where a frame's simulated time (1/run.fps) takes "
-                        "longer, the window draws what is done and the fluid runs in slow "
-                        "motion, instead of the window freezing between frames; 0 = whole "
-                        f"frames always (default: {WINDOW_FRAME_BUDGET_MS:g})")
+    parser.add_argument("--frame-budget", type=frame_budget_arg, default=WINDOW_FRAME_BUDGET_MS,
+                        metavar="MS", help="window only: simulate until the first step that "
+                        "ends past MS milliseconds of wall time, then draw; where a frame's "
+                        "simulated time (1/run.fps) takes longer, the fluid runs in slow "
+                        "motion instead of the window freezing between frames; 0 = whole "
+                        f"frames always (default: {WINDOW_FRAME_BUDGET_MS})")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
                         help="override a scene key, value as TOML (repeatable), e.g. "
                              "--set fluid.viscosity=2.0 (default: none)")
@@ -316,7 +319,7 @@ def _run_window_or_video(scene, args) -> int:
             return _make_sim(s, args)
 
         run_window(make_sim, first, names, args.width or WINDOW_SIZE[0], args.height or WINDOW_SIZE[1],
-                   frame_budget=args.frame_budget / 1000.0 if args.frame_budget > 0 else None)
+                   frame_budget=args.frame_budget)
         return EXIT_OK
     frames = args.frames or FALLBACK_FRAMES
     out = FALLBACK_DIR / f"{scene.name}.mp4"

@@ -398,9 +398,10 @@ class Simulation:
     def advance(self, seconds: float, wall_budget: float | None = None) -> int:
         """Advance by ``seconds`` of simulated time, ending exactly on it; returns steps.
 
-        ``wall_budget`` (seconds of wall time): stop early, after the step that spends it
-        (at least one step is taken), so that an interactive window stays responsive on a
-        machine too slow for its frames; the fluid then runs in slow motion."""
+        ``wall_budget`` (seconds of wall time): stop early, after the first step that ends
+        past it (so at least one step, even with 0), so that an interactive window stays
+        responsive on a machine too slow for its frames; the fluid then runs in slow
+        motion. ``None``: no limit."""
         end = self.time + seconds
         deadline = None if wall_budget is None else _time.perf_counter() + wall_budget
         steps = 0
@@ -415,7 +416,8 @@ class Simulation:
 
     def advance_frame(self, wall_budget: float | None = None) -> int:
         """Advance by one frame (1/fps simulated seconds), or less within ``wall_budget``
-        (see :meth:`advance`; ``None``, the whole frame, is what recordings need)."""
+        (see :meth:`advance`; ``None``, the whole frame, is what recordings need). The
+        frame counter counts calls: a frame cut short by the budget counts as one."""
         steps = self.advance(1.0 / float(self.scene.data["run"]["fps"]), wall_budget)
         self.frame += 1
         return steps

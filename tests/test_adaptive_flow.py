@@ -233,7 +233,7 @@ def run_dam(scene: dict) -> dict:
         out["transient"] |= st["n_transient"] > 0
         out["virtual"] |= st["n_virtual"] > 0
         out["counts"].append(st["n_real"])
-        if abs(sim.time - EARLY_T) < 1e-9:
+        if sim.time > EARLY_T - 1e-9 and "front_early" not in out:
             out["front_early"] = body_front(sim.particles(virtual=False), sim.h0)
     out["front"] = body_front(sim.particles(virtual=False), sim.h0)
     if scene["adaptivity"].get("enabled", True):

@@ -139,7 +139,16 @@ def test_bad_option_values(tmp_path):
     assert_usage_error(run(path, "--arch", "tpu"), "--arch")
     assert_usage_error(run(path, "--dump-format", "csv"), "--dump-format")
     assert_usage_error(run(path, "--frame-budget", "-5"), "--frame-budget", "milliseconds >= 0")
+    assert_usage_error(run(path, "--frame-budget", "inf"), "--frame-budget", "finite")
     assert_usage_error(run(path, "--frames", 2, "--out", tmp_path / "x.avi"), "--out", ".mp4")
+
+
+def test_frame_budget_is_read_in_milliseconds_and_zero_means_whole_frames():
+    from mrsph.cli import build_parser
+    parse = build_parser().parse_args
+    budgets = {args: parse(list(args)).frame_budget for args in
+               [(), ("--frame-budget", "25"), ("--frame-budget", "0")]}
+    assert budgets == {(): 0.04, ("--frame-budget", "25"): 0.025, ("--frame-budget", "0"): None}, budgets
 
 
 # ------------------------------------------------------------------------ help, list

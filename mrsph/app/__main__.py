@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from mrsph.cli import WINDOW_FRAME_BUDGET_MS, budget_ms
+from mrsph.cli import WINDOW_FRAME_BUDGET_MS, frame_budget_arg
 
 
 def main(argv=None) -> int:
@@ -19,11 +19,10 @@ def main(argv=None) -> int:
     parser.add_argument("--width", type=int, default=1280)
     parser.add_argument("--height", type=int, default=720)
     parser.add_argument("--fake", type=int, choices=(2, 3), help="use the stand-in simulation")
-    parser.add_argument("--frame-budget", type=budget_ms, default=WINDOW_FRAME_BUDGET_MS,
-                        metavar="MS", help="wall-clock milliseconds of simulation per drawn "
-                        "frame, as main.py's; 0 = whole frames")
+    parser.add_argument("--frame-budget", type=frame_budget_arg, default=WINDOW_FRAME_BUDGET_MS,
+                        metavar="MS", help="milliseconds of simulation per drawn frame "
+                        f"(default: {WINDOW_FRAME_BUDGET_MS}; 0 = whole frames)")
     args = parser.parse_args(argv)
-    budget = args.frame_budget / 1000.0 if args.frame_budget > 0 else None
 
     from mrsph import runtime
     from .window import run_window
@@ -35,7 +34,7 @@ def main(argv=None) -> int:
         def make_sim(name, overrides=None):
             return FakeSimulation(dim=args.fake)
         run_window(make_sim, f"fake_{args.fake}d", [f"fake_{args.fake}d"], args.width, args.height,
-                   budget)
+                   args.frame_budget)
         return 0
 
     from mrsph.config import SceneError, list_scenes, load_scene
@@ -49,7 +48,7 @@ def main(argv=None) -> int:
     def make_sim(name, overrides=None):
         return Simulation(load_scene(name, overrides), arch=args.arch)
     try:
-        run_window(make_sim, scene, names, args.width, args.height, budget)
+        run_window(make_sim, scene, names, args.width, args.height, args.frame_budget)
     except (SceneError, RuntimeError) as e:
         print(f"mrsph: {e}", file=sys.stderr)
         return 1

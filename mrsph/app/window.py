@@ -149,6 +149,30 @@ class _Rates:
         return s / span, m / span
 
 
+class _Speed:
+    """Simulated seconds per wall second over the frames of the last RATE_WINDOW_S of
+    wall time while the simulation runs (cleared on pause, single steps and resets)."""
+
+    def __init__(self):
+        self.samples = collections.deque()
+
+    def add(self, wall: float, sim_time: float) -> None:
+        if self.samples and sim_time < self.samples[-1][1]:
+            self.samples.clear()  # reset or new scene: time went back
+        self.samples.append((wall, sim_time))
+        while len(self.samples) > 2 and self.samples[0][0] < wall - RATE_WINDOW_S:
+            self.samples.popleft()
+
+    def clear(self) -> None:
+        self.samples.clear()
+
+    def value(self) -> float | None:
+        if len(self.samples) < 2:
+            return None
+        (w0, t0), (w1, t1) = self.samples[0], self.samples[-1]
+        return (t1 - t0) / (w1 - w0) if w1 > w0 else None
+
+
 class _App:
     """State of the running window; :func:`run_window` is its only user."""
 
@@ -177,7 +201,7 @@ class _App:
         self.rates = _Rates()
         self.fps = 0.0
         self.frame_budget = frame_budget
-        self.speed = 0.0              # simulated seconds per wall second, smoothed
+        self.speed = _Speed()
         self.start = time.perf_counter()
         self.last = self.start
         self.cursor_prev = None
@@ -217,7 +241,7 @@ class _App:
         self.frame_dt = 1.0 / float(scene_setting(scene, "run.fps", 30.0))
         self.frame_sim = self.frame_dt  # simulated time the last frame advanced
         self.renderer.reset_view(scene, palette.Style.from_scene(scene))
-        self.rates = _Rates()
+        self.rates, self.speed = _Rates(), _Speed()
         self.drag_owner, self.drag_plane = None, None
 
     def switch_scene(self, name: str, overrides=None) -> bool:
@@ -302,7 +326,8 @@ class _App:
             # simulation runs compared to the wall clock.
             d = self._mouse(dt_wall if self.paused else self.frame_sim)
             self.sim.set_disturbance(d)
-            advanced = 0.0
+            if self.paused or self.step_once:
+                self.speed.clear()
             if not self.paused or self.step_once:
                 t0 = float(self.sim.time)
                 try:
@@ -313,12 +338,13 @@ class _App:
                 except Exception as e:  # blow-up: stop and say so, keep the window
                     self.paused = True
                     self.message = f"simulation stopped: {str(e).splitlines()[0][:160]} (r: reset)"
-                advanced = max(float(self.sim.time) - t0, 0.0)
+                advanced = float(self.sim.time) - t0
                 if advanced > 0.0:
                     self.frame_sim = advanced
+                if not (self.paused or self.step_once):
+                    self.speed.add(time.perf_counter(), float(self.sim.time))
                 self.step_once = False
                 self.dirty = True
-            self.speed = 0.9 * self.speed + 0.1 * advanced / dt_wall
             if self.dirty:
                 self.snap = self.sim.snapshot()
                 self.dirty = False
@@ -512,8 +538,12 @@ class _App:
             gui.text(f"scene {self.scene_name} ({snap.dim}D)   h: help  u: hide")
             gui.text(f"{self.fps:5.1f} fps   frame {snap.frame}" + ("   PAUSED" if self.paused else ""))
             gui.text(f"t = {float(snap.time):.3f} s   dt = {float(st.get('dt', 0.0)):.2e} s")
-            slow = "   (slow motion)" if self.frame_sim < 0.999 * self.frame_dt else ""
-            gui.text(f"speed {self.speed:.3g}x real time{slow}")
+            speed = self.speed.value()
+            if speed is None:
+                gui.text("speed: paused" if self.paused else "speed: measuring")
+            else:
+                slow = "   (slow motion)" if self.frame_sim < 0.999 * self.frame_dt else ""
+                gui.text(f"speed {speed:.3g}x real time{slow}")
             gui.text(f"real {st.get('n_real', '?')}   virtual {st.get('n_virtual', '?')}"
                      f"   transient {st.get('n_transient', '?')}")
             for lvl in range(int(snap.levels)):
@@ -567,7 +597,7 @@ class _App:
                "n_real": int(st.get("n_real", 0)), "n_virtual": int(st.get("n_virtual", 0)),
                "disturbance_active": d is not None, "paused": self.paused,
                "scene": self.scene_name, "wall_s": round(time.perf_counter() - self.start, 4),
-               "fps": round(self.fps, 2), "speed": round(self.speed, 4)}
+               "fps": round(self.fps, 2), "speed": round(self.speed.value() or 0.0, 4)}
         self.stats_file.write(json.dumps(row) + "\n")
         self.stats_file.flush()
 
