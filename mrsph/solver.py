@@ -908,9 +908,16 @@ class Simulation:
         f = ti.Vector.zero(float, self.dim)
         r = xi - p[j].x
         r2 = r.norm_sqr()
-        if 0.0 < r2 < h * h:
-            if self._interacts(j, r2, skip2):
+        if ti.static(self.adaptive):
+            if 0.0 < r2 < h * h and self._interacts(j, r2, skip2):
                 f = self._pair_force(i, j, r, ti.sqrt(r2), h, cs, cv, mu)
+        else:
+            # branch-free: computed for every candidate (finite for any r2, |r| kept in
+            # (0, h]) and zeroed where it does not apply; listed neighbours are all
+            # within h, so nothing is wasted. One thread, 2D 50k dam break: forces 4.5 ->
+            # 3.8 ms; the adaptive 3D 15 mm pair's went from 1.06 to 1.15 ms this way
+            rn = ti.min(ti.sqrt(ti.max(r2, 1e-30)), h)
+            f = self._pair_force(i, j, r, rn, h, cs, cv, mu) * ti.cast(0.0 < r2 < h * h, float)
         return f
 
     @ti.func
