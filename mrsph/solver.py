@@ -819,7 +819,6 @@ class Simulation:
     @ti.func
     def _ghost_pair(self, i, j, xq, L, l, h, cs, cv, mu, p0, nrm, check: ti.template()):
         p = ti.static(self.pool.p)
-        f = ti.Vector.zero(float, self.dim)
         rq = xq - p[j].x
         r2 = rq.norm_sqr()
         ok = 0.0 < r2 < h * h and self._interacts(j, r2, skip_reach2(p[i].kind, self.lev_reach2[l]))
