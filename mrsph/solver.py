@@ -798,30 +798,30 @@ class Simulation:
                     self._pair_factors(j)
 
     @ti.func
-    def _ghost_force(self, i, xq, L, l, h, cs, cv, mu, p0, nrm, check: ti.template(), listed):
+    def _ghost_force(self, i, xq, L, l, h, cs, cv, mu, skip2, p0, nrm, check: ti.template(), listed):
         """Force on i from the mirror images of its level's particles: xq is i's image and
         L the reflection's linear part, so x_i − x_j' = L (xq − x_j) and u_j' = L u_j.
         ``listed``: the images of i and its neighbour list are all there are (domain
         walls, see ``_listed_density``); otherwise the cells around xq are scanned."""
         f = ti.Vector.zero(float, self.dim)
         if listed:
-            f = self._ghost_pair(i, i, xq, L, l, h, cs, cv, mu, p0, nrm, check)
+            f = self._ghost_pair(i, i, xq, L, h, cs, cv, mu, skip2, p0, nrm, check)
             for q in range(self.neighbour_count[i]):
-                f += self._ghost_pair(i, self.neighbours[i, q], xq, L, l, h, cs, cv, mu, p0, nrm, check)
+                f += self._ghost_pair(i, self.neighbours[i, q], xq, L, h, cs, cv, mu, skip2, p0, nrm, check)
         else:
             base = self.grids.around(xq, l)
             for o in ti.grouped(ti.ndrange(*self.grids.row_axes)):
                 lo, hi = self.grids.row(base, o, l)
                 for j in range(lo, hi):
-                    f += self._ghost_pair(i, j, xq, L, l, h, cs, cv, mu, p0, nrm, check)
+                    f += self._ghost_pair(i, j, xq, L, h, cs, cv, mu, skip2, p0, nrm, check)
         return f
 
     @ti.func
-    def _ghost_pair(self, i, j, xq, L, l, h, cs, cv, mu, p0, nrm, check: ti.template()):
+    def _ghost_pair(self, i, j, xq, L, h, cs, cv, mu, skip2, p0, nrm, check: ti.template()):
         p = ti.static(self.pool.p)
         rq = xq - p[j].x
         r2 = rq.norm_sqr()
-        ok = 0.0 < r2 < h * h and self._interacts(j, r2, skip_reach2(p[i].kind, self.lev_reach2[l]))
+        ok = 0.0 < r2 < h * h and self._interacts(j, r2, skip2)
         if ti.static(check):
             if ok:
                 ok = self._image_in_solid(p[j].x, p0, nrm)
@@ -1000,11 +1000,11 @@ class Simulation:
                         Ld = ti.Matrix.zero(float, self.dim, self.dim)
                         for k in ti.static(range(self.dim)):
                             Ld[k, k] = sgn[k]
-                        f += self._ghost_force(i, xr, Ld, l, h, cs, cv, mu, xi, xi, False, listed)
+                        f += self._ghost_force(i, xr, Ld, l, h, cs, cv, mu, skip2, xi, xi, False, listed)
                 ok, xo, nrm = self.boundary.obstacle_image(xi, h)
                 if ok:
                     Lo = ti.Matrix.identity(float, self.dim) - 2.0 * nrm.outer_product(nrm)
-                    f += self._ghost_force(i, xo, Lo, l, h, cs, cv, mu, 0.5 * (xi + xo), nrm, True, False)
+                    f += self._ghost_force(i, xo, Lo, l, h, cs, cv, mu, skip2, 0.5 * (xi + xo), nrm, True, False)
             p[i].a = f
         if ti.static(self.variational):
             for i in range(n):
