@@ -113,11 +113,10 @@ class LevelGrids:
         """One kernel, five passes (one launch: at a few thousand particles the launches,
         not the passes, were the cost): keys, ranks (serial, so that the order and every
         floating-point sum after it are the same from run to run), the prefix sum
-        (serial; about 0.3 % of a step), the scatter to the spare pool and the copy back
-        with the links remapped."""
+        (serial; about 0.3 % of a step; it also zeroes the counts for the next sort, which
+        saves a parallel pass over every cell), the scatter to the spare pool and the
+        copy back with the links remapped."""
         n = pool.n[None]
-        for c in self.count:
-            self.count[c] = 0
         for i in range(n):
             k = self.total_cells
             if pool.p.kind[i] != DEAD:
@@ -135,6 +134,7 @@ class LevelGrids:
             for c in range(self.total_cells + 1):
                 self.start[c] = total
                 total += self.count[c]
+                self.count[c] = 0   # ready for the next sort (fields start zeroed)
             self.start[self.total_cells + 1] = total
         for i in range(n):
             j = self.start[self.key[i]] + self.rank[i]
