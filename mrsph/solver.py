@@ -98,6 +98,9 @@ def interacts(kind_j, r2, skip2):
     return r2 >= skip2 or kind_j != VIRTUAL_PARENT
 
 
+# Parts of ``_end_step``: one launch runs them all, a profiled step one a call.
+END_TIMESTEP, END_INTEGRATE, END_BOUNDARIES, END_ADVECT = 1, 2, 4, 8
+
 PHASES = ("emit", "adapt", "grid", "density", "forces", "virtual_coupling", "timestep",
           "integrate", "boundaries", "virtual_advect")
 
@@ -203,6 +206,11 @@ class Simulation:
         # reductions of the time-step phase: [max (c+|u|)/h, max |a|/h, bad count, first bad]
         self.red_f = ti.field(float, shape=2)
         self.red_i = ti.field(ti.i32, shape=2)
+        # the step's dt (f64, so that a step cut to the end of a frame ends on it), and
+        # whether the step may move the particles (no NaN, dt not below dt_min)
+        self.step_dt = ti.field(ti.f64, shape=())
+        self.step_go = ti.field(ti.i32, shape=())
+        self._end_parts = END_TIMESTEP | END_INTEGRATE | END_BOUNDARIES | (END_ADVECT if self.adaptive else 0)
 
         # neighbour lists (same level, r < h), filled by the density pass and read by the
         # force and coupling passes, which then visit ~13 (2D) / ~33 (3D) neighbours
@@ -390,11 +398,9 @@ class Simulation:
         self._phase("forces", self._forces, n)    # variational: with the reactions handed on
         if self.adaptive and not self.variational:
             self._phase("virtual_coupling", self._virtual_coupling, n)
-        dt = self._phase("timestep", self._timestep, n, max_dt)
-        self._phase("integrate", self._integrate, n, dt)
-        self._phase("boundaries", self._boundaries, n)
-        if self.adaptive:   # after the owners moved, so that the anchors are current
-            self._phase("virtual_advect", self._advect_virtual, n, dt)
+        # the time step, integration, boundaries, and (after the owners moved, so that
+        # the anchors are current) the virtual particles' advection
+        dt = self._finish_step(n, max_dt)
         self.time += dt
         self.steps += 1
         self.dt = dt
@@ -891,7 +897,7 @@ class Simulation:
         Variational coupling (``adaptivity.coupling``): 0 for a virtual j. The pressure
         forces then derive from one energy, Σ over real particles of m u(ρ), in which
         each real particle's density sums its own level, virtual particles included, and
-        each virtual position is a function of its owners' (``_advect_virtual``): a real
+        each virtual position is a function of its owners' (``_advect_one``): a real
         particle's pressure pushes its same-level neighbours, real or virtual, and the
         virtual ones hand the reaction to their owners. A fine–coarse pair thus meets
         twice, once with each particle's own pressure, and no pair is counted twice.
@@ -1065,8 +1071,88 @@ class Simulation:
                         vm += p[self.pool.children[j, q]].v
                     p[j].v = vm / ti.max(p[j].nchild, 1)
 
+    # ------------------------------------------------------------------ end of the step
+    def _finish_step(self, n: int, max_dt: float | None) -> float:
+        """Accelerations, the time step, integration, boundaries and (adaptive runs) the
+        virtual particles' advection: one kernel launch, integration and boundaries in one
+        loop, or when profiling one call a phase, each timed as its own. Returns dt.
+
+        dt = min(dt_max, CFL bound, force bound, disturbance bound), then cut to
+        ``max_dt`` (the end of a frame) after the check against ``physics.dt_min``."""
+        ph = self.scene.data["physics"]
+        cap = float(ph["dt_max"])
+        strength = self.disturbances.max_strength()
+        if strength > 0:
+            cap = min(cap, 0.5 / strength)   # the disturbance relaxation stays stable
+        limits = [float(ph["cfl"]), float(ph["force_factor"]), cap, float(ph["dt_min"]),
+                  math.inf if max_dt is None else float(max_dt)]
+        args = (n, self._c_sound, int(self.disturbances.any_active()), limits)
+        if self.profile:
+            out = self._phase("timestep", self._end_step, *args, END_TIMESTEP)
+            for name, part in (("integrate", END_INTEGRATE), ("boundaries", END_BOUNDARIES),
+                               ("virtual_advect", END_ADVECT)):
+                if part & self._end_parts:
+                    self._phase(name, self._end_step, *args, part)
+        else:
+            out = self._end_step(*args, self._end_parts)
+        stable_dt, dt, cfl_lim, force_lim, bad, first_bad = out
+        if bad > 0:
+            self._report_bad(int(first_bad), int(bad))
+        if stable_dt < float(ph["dt_min"]):
+            raise SimulationError(
+                f"step {self.steps} (t = {self.time:.6g} s): time step {stable_dt:.3g} s is below "
+                f"physics.dt_min = {ph['dt_min']:g} s (max |a|·/h = {force_lim:.3g}); the fluid "
+                f"is blowing up: lower the disturbance strength or raise fluid.stiffness")
+        return dt
+
     @ti.kernel
-    def _accelerations(self, n: ti.i32, c_sound: float, stirred: ti.i32) -> ti.types.vector(4, ti.f64):
+    def _end_step(self, n: ti.i32, c_sound: float, stirred: ti.i32, limits: ti.types.vector(5, ti.f64),
+                  parts: ti.template()) -> ti.types.vector(6, ti.f64):
+        """The phases after the forces, those in ``parts`` (END_* bits):
+
+        - timestep: a = F/m + g + disturbances, the CFL and force limits, NaN/Inf, and dt
+          from ``limits`` = (cfl, force_factor, cap, dt_min, max_dt);
+        - integrate: symplectic Euler, u += dt a, then x += dt u;
+        - boundaries: walls and obstacles (in integrate's loop when both are asked);
+        - advect: virtual particles follow their owners (see ``_advect_one``).
+
+        Nothing moves when a particle is bad or dt is below dt_min: the host reports it
+        with the particles as the step found them. Returns (dt before the cut to max_dt,
+        dt, CFL limit, force limit, bad count, first bad); zeros without timestep."""
+        p = ti.static(self.pool.p)
+        out = ti.Vector.zero(ti.f64, 6)
+        if ti.static(parts & END_TIMESTEP):
+            self._accelerations(n, c_sound, stirred)
+            cfl_lim = ti.cast(self.red_f[0], ti.f64)
+            force_lim = ti.cast(self.red_f[1], ti.f64)
+            dt = limits[2]
+            if cfl_lim > 0.0:
+                dt = ti.min(dt, limits[0] / cfl_lim)
+            if force_lim > 0.0:
+                dt = ti.min(dt, limits[1] / ti.sqrt(force_lim))
+            self.step_go[None] = ti.cast(self.red_i[0] == 0 and dt >= limits[3], ti.i32)
+            self.step_dt[None] = ti.min(dt, limits[4])
+            out = ti.Vector([dt, self.step_dt[None], cfl_lim, force_lim, self.red_i[0], self.red_i[1]],
+                            ti.f64)
+        if ti.static(parts & (END_INTEGRATE | END_BOUNDARIES)):
+            for i in range(n):
+                if self.step_go[None] and is_real(p[i].kind):
+                    x, v = p[i].x, p[i].v
+                    if ti.static(parts & END_INTEGRATE):
+                        v += ti.cast(self.step_dt[None], float) * p[i].a
+                        x += ti.cast(self.step_dt[None], float) * v
+                    if ti.static(parts & END_BOUNDARIES):
+                        x, v = self.boundary.collide(x, v)
+                    p[i].x = x
+                    p[i].v = v
+        if ti.static(parts & END_ADVECT):
+            for j in range(n):
+                if self.step_go[None] and is_virtual(p[j].kind):
+                    self._advect_one(j, ti.cast(self.step_dt[None], float))
+        return out
+
+    @ti.func
+    def _accelerations(self, n, c_sound, stirred):
         """a = F/m + g + disturbances; reduce the CFL and force limits; find NaN/Inf.
         ``stirred``: some disturbance is active (else its per-particle loop over the slots
         is skipped)."""
@@ -1101,30 +1187,6 @@ class Simulation:
             ti.atomic_max(self.red_f[1], force)
             ti.atomic_add(self.red_i[0], bad_count)
             ti.atomic_min(self.red_i[1], first_bad)
-        return ti.Vector([self.red_f[0], self.red_f[1], self.red_i[0], self.red_i[1]], ti.f64)
-
-    def _timestep(self, n: int, max_dt: float | None) -> float:
-        ph = self.scene.data["physics"]
-        cfl_lim, force_lim, bad, first_bad = self._accelerations(n, self._c_sound,
-                                                                 int(self.disturbances.any_active()))
-        if bad > 0:
-            self._report_bad(int(first_bad), int(bad))
-        dt = float(ph["dt_max"])
-        if cfl_lim > 0:
-            dt = min(dt, float(ph["cfl"]) / cfl_lim)
-        if force_lim > 0:
-            dt = min(dt, float(ph["force_factor"]) / math.sqrt(force_lim))
-        strength = self.disturbances.max_strength()
-        if strength > 0:
-            dt = min(dt, 0.5 / strength)   # the disturbance relaxation stays stable
-        if dt < float(ph["dt_min"]):
-            raise SimulationError(
-                f"step {self.steps} (t = {self.time:.6g} s): time step {dt:.3g} s is below "
-                f"physics.dt_min = {ph['dt_min']:g} s (max |a|·/h = {force_lim:.3g}); the fluid "
-                f"is blowing up: lower the disturbance strength or raise fluid.stiffness")
-        if max_dt is not None and max_dt < dt:
-            dt = max_dt
-        return dt
 
     def _report_bad(self, i: int, count: int):
         x = self.pool.p.x[i].to_numpy() if hasattr(self.pool.p.x[i], "to_numpy") else self.pool.p.x[i]
@@ -1133,62 +1195,40 @@ class Simulation:
             f"velocity or acceleration; first: particle {i}, level {int(self.pool.p.level[i])}, "
             f"kind {int(self.pool.p.kind[i])}, x = {np.round(np.asarray(x, float), 4).tolist()}")
 
-    @ti.kernel
-    def _advect_virtual(self, n: ti.i32, dt: float):
-        """Virtual particles follow their level's flow, tied by Hooke springs (Eq. 24):
+    @ti.func
+    def _advect_one(self, j, dt):
+        """Virtual particle j follows its level's flow, tied by a Hooke spring (Eq. 24):
         a virtual child to its transient parent at its sampling offset (rest length half
         the level spacing per axis), a virtual parent to its children's barycentre (rest
         length zero). The springs act on virtual particles only."""
         p = ti.static(self.pool.p)
         relax = ti.min(self.spring_rate[None] * dt, 1.0)
-        for j in range(n):
-            kj = p[j].kind
-            if is_virtual(kj):
-                anchor = p[j].x
-                if kj == VIRTUAL_CHILD:
-                    par = p[j].parent
-                    anchor = p[par].x + self.multires.offsets[p[j].slot] * self.lev_s[p[j].level]
-                else:
-                    mass = 0.0
-                    acc = ti.Vector.zero(float, self.dim)
-                    for q in range(p[j].nchild):
-                        ch = self.pool.children[j, q]
-                        acc += p[ch].m * p[ch].x
-                        mass += p[ch].m
-                    if mass > 0.0:
-                        anchor = acc / mass
-                # advected, then pulled towards the anchor by the spring, integrated
-                # implicitly (a relaxation by k dt, capped at 1) so that any stiffness is
-                # stable; at k dt >= 1 the virtual particle sits on its anchor, an exact
-                # function of its owners' positions, as the energy balance of the
-                # coupling needs (see ``_partner_pressure``)
-                x = p[j].x + dt * p[j].v
-                x += relax * (anchor - x)
-                # not projected out of walls: a virtual particle stands for part of its
-                # owner's mass at a fixed offset; projecting it would stack the children of
-                # neighbouring parents onto the same wall points (measured: virtual density
-                # 1.8 rho0 on the floor of demo_2d within 0.05 s). The grid is padded by
-                # two cells, so a position slightly inside a wall is still binned.
-                p[j].x = x
-
-    @ti.kernel
-    def _integrate(self, n: ti.i32, dt: float):
-        """Symplectic Euler: u += dt a, then x += dt u."""
-        p = ti.static(self.pool.p)
-        for i in range(n):
-            if is_real(p[i].kind):
-                v = p[i].v + dt * p[i].a
-                p[i].v = v
-                p[i].x += dt * v
-
-    @ti.kernel
-    def _boundaries(self, n: ti.i32):
-        p = ti.static(self.pool.p)
-        for i in range(n):
-            if is_real(p[i].kind):
-                x, v = self.boundary.collide(p[i].x, p[i].v)
-                p[i].x = x
-                p[i].v = v
+        anchor = p[j].x
+        if p[j].kind == VIRTUAL_CHILD:
+            par = p[j].parent
+            anchor = p[par].x + self.multires.offsets[p[j].slot] * self.lev_s[p[j].level]
+        else:
+            mass = 0.0
+            acc = ti.Vector.zero(float, self.dim)
+            for q in range(p[j].nchild):
+                ch = self.pool.children[j, q]
+                acc += p[ch].m * p[ch].x
+                mass += p[ch].m
+            if mass > 0.0:
+                anchor = acc / mass
+        # advected, then pulled towards the anchor by the spring, integrated implicitly
+        # (a relaxation by k dt, capped at 1) so that any stiffness is stable; at
+        # k dt >= 1 the virtual particle sits on its anchor, an exact function of its
+        # owners' positions, as the energy balance of the coupling needs (see
+        # ``_partner_pressure``)
+        x = p[j].x + dt * p[j].v
+        x += relax * (anchor - x)
+        # not projected out of walls: a virtual particle stands for part of its owner's
+        # mass at a fixed offset; projecting it would stack the children of neighbouring
+        # parents onto the same wall points (measured: virtual density 1.8 rho0 on the
+        # floor of demo_2d within 0.05 s). The grid is padded by two cells, so a
+        # position slightly inside a wall is still binned.
+        p[j].x = x
 
     # ================================================================== reading out
     def particles(self, virtual: bool = True) -> dict:
