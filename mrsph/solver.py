@@ -1095,7 +1095,7 @@ class Simulation:
                     self._phase(name, self._end_step, *args, part)
         else:
             out = self._end_step(*args, self._end_parts)
-        stable_dt, dt, cfl_lim, force_lim, bad, first_bad = out
+        stable_dt, dt, force_lim, bad, first_bad = out
         if bad > 0:
             self._report_bad(int(first_bad), int(bad))
         if stable_dt < float(ph["dt_min"]):
@@ -1107,7 +1107,7 @@ class Simulation:
 
     @ti.kernel
     def _end_step(self, n: ti.i32, c_sound: float, stirred: ti.i32, limits: ti.types.vector(5, ti.f64),
-                  parts: ti.template()) -> ti.types.vector(6, ti.f64):
+                  parts: ti.template()) -> ti.types.vector(5, ti.f64):
         """The phases after the forces, those in ``parts`` (END_* bits):
 
         - timestep: a = F/m + g + disturbances, the CFL and force limits, NaN/Inf, and dt
@@ -1118,9 +1118,9 @@ class Simulation:
 
         Nothing moves when a particle is bad or dt is below dt_min: the host reports it
         with the particles as the step found them. Returns (dt before the cut to max_dt,
-        dt, CFL limit, force limit, bad count, first bad); zeros without timestep."""
+        dt, force limit, bad count, first bad); zeros without timestep."""
         p = ti.static(self.pool.p)
-        out = ti.Vector.zero(ti.f64, 6)
+        out = ti.Vector.zero(ti.f64, 5)
         if ti.static(parts & END_TIMESTEP):
             self._accelerations(n, c_sound, stirred)
             cfl_lim = ti.cast(self.red_f[0], ti.f64)
@@ -1132,8 +1132,7 @@ class Simulation:
                 dt = ti.min(dt, limits[1] / ti.sqrt(force_lim))
             self.step_go[None] = ti.cast(self.red_i[0] == 0 and dt >= limits[3], ti.i32)
             self.step_dt[None] = ti.min(dt, limits[4])
-            out = ti.Vector([dt, self.step_dt[None], cfl_lim, force_lim, self.red_i[0], self.red_i[1]],
-                            ti.f64)
+            out = ti.Vector([dt, self.step_dt[None], force_lim, self.red_i[0], self.red_i[1]], ti.f64)
         if ti.static(parts & (END_INTEGRATE | END_BOUNDARIES)):
             for i in range(n):
                 if self.step_go[None] and is_real(p[i].kind):

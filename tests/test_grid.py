@@ -160,6 +160,27 @@ def test_grid_neighbours_equal_brute_force(dim, layout, cells):
     compare(grid_neighbours(pool, grids, n), expected, borderline, f"{dim}D {layout}, {cells} cell(s) per h")
 
 
+
+@CELLS
+def test_a_sort_after_the_particles_moved_finds_their_new_neighbours(dim, cells):
+    """Each sort starts from cell counts that the previous one left zeroed (its prefix
+    pass clears them): a second sort, after every particle moved, must still bin them
+    right."""
+    rng = np.random.default_rng(31 + dim)
+    xs = random_positions(rng, dim, 1200 if dim == 2 else 2000)
+    levels = (rng.uniform(size=len(xs)) < 0.35).astype(np.int32)
+    pool, grids = build(dim, xs, levels, cells_per_support=cells)
+    n = grids.sort(pool)
+    moved = random_positions(rng, dim, len(xs))
+    ids = pool.p.slot.to_numpy()[:n]
+    x = pool.p.x.to_numpy()
+    x[:n] = moved[ids].astype(np.float32)
+    pool.p.x.from_numpy(x)
+    n = grids.sort(pool)
+    expected, borderline = brute_force(moved, levels)
+    compare(grid_neighbours(pool, grids, n), expected, borderline,
+            f"{dim}D, second sort, {cells} cell(s) per h")
+
 @CELLS
 def test_sort_orders_by_cell_and_carries_every_attribute(dim, cells):
     rng = np.random.default_rng(7 + dim)
