@@ -363,23 +363,29 @@ def test_dam_break_front_matches_experiment(dam_run):
 
 
 # ================================================================== blow-up report
-def test_nan_velocity_raises_simulation_error_naming_step_particle_level(dim):
+@pytest.mark.parametrize("adaptive", [True, False], ids=["adaptive", "uniform"])
+def test_nan_velocity_raises_simulation_error_naming_step_particle_level(dim, adaptive):
+    """Adaptive and uniform runs find a bad particle in different loops (a uniform run
+    takes the accelerations in its force pass): both must report it."""
     from mrsph.solver import SimulationError
 
     scene = tank_scene(dim)
     # two levels, no refinement criterion: the block is seeded at level 1 (the slabs that
     # whole coarse cells leave at its far sides at level 0) and a level-1 particle is
     # poisoned, so that a message which always said "level 0" would be caught
-    scene["adaptivity"] = {"enabled": True, "levels": 2}
+    bad_level = 1 if adaptive else 0
+    if adaptive:
+        scene["adaptivity"] = {"enabled": True, "levels": 2}
     sim = make_sim(scene)
     for _ in range(3):
         sim.step()
     x = alive_slots(sim, "x")
     level = alive_slots(sim, "level")
-    assert np.count_nonzero(level == 1) > 7, f"expected level-1 particles, got {np.bincount(level)} per level"
+    assert np.count_nonzero(level == bad_level) > 7, (
+        f"expected level-{bad_level} particles, got {np.bincount(level)} per level")
     # the poisoned particle is moved to an empty spot high above the pool, further than
     # h from every other particle and every wall, so that it is the only bad one
-    victim = int(np.flatnonzero(level == 1)[7])
+    victim = int(np.flatnonzero(level == bad_level)[7])
     spot = np.asarray(sim.scene.domain.max, float) * 0.5
     spot[1] = 0.75 * float(sim.scene.domain.max[1])
     h1 = 2.0 * sim.h0
@@ -403,7 +409,7 @@ def test_nan_velocity_raises_simulation_error_naming_step_particle_level(dim):
     xs = alive_slots(sim, "x")
     assert np.allclose(xs[slot], spot, atol=1e-5), \
         f"message names particle {slot} at {xs[slot]}, the NaN was put at {spot}: {msg}"
-    assert "level 1" in msg, f"message does not name the particle's level (1): {msg}"
+    assert f"level {bad_level}" in msg, f"message does not name the particle's level ({bad_level}): {msg}"
     assert re.search(r"\b1 particle", msg), f"only one particle was poisoned: {msg}"
 
 
