@@ -518,7 +518,7 @@ class Simulation:
                 if ti.static(BRANCH_FREE[self.dim] and not check):
                     d = h2 - r2
                     d = ti.max(d, 0.0)
-                    rho += p[j].m * (d * d * d)
+                    rho += self._sum_mass(j) * (d * d * d)
                     if ti.static(record):
                         # written every time, kept only when counted; a list that
                         # overflowed into the spare slot is not read (forces use the grid)
@@ -529,14 +529,34 @@ class Simulation:
                     if ti.static(check):
                         ok = self._image_in_solid(p[j].x, p0, nrm)
                     if ok:
-                        rho += p[j].m * poly6(r2, h2, 1.0)
+                        rho += self._sum_mass(j) * poly6(r2, h2, 1.0)
                     if ti.static(record):
                         if j != i:
                             self.neighbours[i, ti.min(count, last)] = j
                             count += 1
         if ti.static(record):
             self.neighbour_count[i] = count
-        return rho * c6
+        return rho * c6 * self._sum_scale()
+
+    @ti.func
+    def _sum_mass(self, j):
+        """m_j as a density or force sum weighs particle j. Without adaptivity every
+        particle has the nominal mass m0 (one level, no split or merge): the sums count 1
+        and are scaled by m0 (m0² for the pair forces) once (``_sum_scale``), one load
+        fewer per candidate or pair (from the flowing dam break, two threads, 10th
+        percentile of 100-300 steps timed one by one, median of 4 alternated runs: 3D
+        30k particles 12.66 -> 12.23 ms a step, 2D 50k 5.28 -> 5.17 ms)."""
+        m = 1.0
+        if ti.static(self.adaptive):
+            m = self.pool.p[j].m
+        return m
+
+    @ti.func
+    def _sum_scale(self):
+        s = 1.0
+        if ti.static(not self.adaptive):
+            s = self.lev_m[0]
+        return s
 
     @ti.func
     def _listed_density(self, xr, i, h2, c6):
@@ -548,13 +568,13 @@ class Simulation:
         around xr: a quarter of the particles of the 3D dam break have an image."""
         p = ti.static(self.pool.p)
         r2 = (xr - p[i].x).norm_sqr()
-        rho = p[i].m * poly6(r2, h2, 1.0) if r2 < h2 else 0.0
+        rho = self._sum_mass(i) * poly6(r2, h2, 1.0) if r2 < h2 else 0.0
         for q in range(self.neighbour_count[i]):
             j = self.neighbours[i, q]
             r2 = (xr - p[j].x).norm_sqr()
             if r2 < h2:
-                rho += p[j].m * poly6(r2, h2, 1.0)
-        return rho * c6
+                rho += self._sum_mass(j) * poly6(r2, h2, 1.0)
+        return rho * c6 * self._sum_scale()
 
     @ti.kernel
     def _density(self, n: ti.i32):
@@ -879,7 +899,7 @@ class Simulation:
         both the kernel gradient's 1/|r| and the artificial term.
         """
         p = ti.static(self.pool.p)
-        mm = p[i].m * p[j].m
+        mm = self._sum_mass(i) * self._sum_mass(j)
         rho_bar = 0.5 * (p[i].rho + p[j].rho)
         soft = rn * rn + AV_EPS * h * h
         inv = 1.0 / (rn * rho_bar * soft)        # = 1 / (|r| ρ̄ (r² + ε h²))
@@ -993,6 +1013,7 @@ class Simulation:
         p = ti.static(self.pool.p)
         mu = self.mu[None]
         g = self.gravity[None]
+        mm = self._sum_scale() * self._sum_scale()   # m_i m_j, when every pair term left it out
         if ti.static(self.fused_accelerations):
             self._clear_reductions()
         for i in range(n):
@@ -1026,7 +1047,7 @@ class Simulation:
                 if ok:
                     Lo = ti.Matrix.identity(float, self.dim) - 2.0 * nrm.outer_product(nrm)
                     f += self._ghost_force(i, xo, Lo, l, h, cs, cv, mu, skip2, 0.5 * (xi + xo), nrm, True, False)
-            p[i].a = f
+            p[i].a = f * mm
             if ti.static(self.fused_accelerations):
                 if is_real(p[i].kind):
                     cfl, force, bad = self._accelerate(i, g, c_sound, stirred)
