@@ -59,7 +59,6 @@ def grid_neighbours(pool, grids, n):
     h = ti.field(float, shape=LEVELS)
     for l in range(LEVELS):
         h[l] = H0 * 2**l
-    dim = pool.dim
 
     @ti.kernel
     def search(pool: ti.template(), grids: ti.template()):
