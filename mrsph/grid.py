@@ -9,7 +9,9 @@ sort is linear in the number of particles and cells, keeps particles that are cl
 space close in memory, and compacts the holes left by merges (DEAD sorts last).
 
 The rank of a particle inside its cell is taken by a serial pass, so the order (and
-hence every floating-point sum) is the same from run to run.
+hence every floating-point sum over neighbours) is the same from run to run. (What is not:
+the reactions an adaptive run hands on to the owners of virtual particles are atomic adds,
+summed in whatever order the threads reach them; on one thread, runs are bit-identical.)
 """
 
 import math

@@ -33,7 +33,7 @@ from .eos import hydrostatic_heights, pressure, sound_speed
 from .grid import LevelGrids
 from .interaction import MOUSE_SLOT, Disturbance, Disturbances, path_sample
 from .kernels import constants, lattice_density_sum, lattice_gradient_factor, poly6
-from .particles import (DEAD, REGULAR, ROLE_PARENT, VIRTUAL_CHILD, VIRTUAL_PARENT,
+from .particles import (ATTRIBUTES, DEAD, REGULAR, ROLE_PARENT, VIRTUAL_CHILD, VIRTUAL_PARENT,
                         ParticlePool, is_real, is_virtual)
 from .snapshot import Snapshot
 
@@ -1353,6 +1353,36 @@ class Simulation:
             domain_min=np.asarray(s["domain"]["min"], float), domain_max=np.asarray(s["domain"]["max"], float),
             obstacles=[dict(o) for o in s["obstacles"]],
             stats=self.stats(parts) if stats else {})
+
+    def save_state(self) -> dict:
+        """The simulation's state in memory (numpy copies): every particle attribute, the
+        links, the clocks and the emitters' progress. :meth:`restore_state` puts it back
+        into a Simulation of the same scene, here or in another Taichi program; the scene's
+        parameters, live-tuned ones included, and the mouse's disturbance are not part of
+        it. ``bench`` uses it to time an adaptive run and its uniform twin turn about
+        from the same warm state."""
+        p = self.pool.p
+        return {"attributes": {a.name: getattr(p, a.name).to_numpy() for a in ATTRIBUTES},
+                "children": self.pool.children.to_numpy(), "n": self.pool.count(),
+                "refused": int(self.pool.refused[None]),
+                "clock": (self.time, self.frame, self.steps, self.dt),
+                "emitters": list(self._emit_acc), "capacity": self.capacity, "dim": self.dim}
+
+    def restore_state(self, state: dict) -> None:
+        """Put back a :meth:`save_state` of a Simulation of the same scene."""
+        if (state["dim"], state["capacity"]) != (self.dim, self.capacity):
+            raise ValueError(f"restore_state: a {state['dim']}D state of capacity {state['capacity']} "
+                             f"does not fit this {self.dim}D pool of capacity {self.capacity}")
+        for name, values in state["attributes"].items():
+            getattr(self.pool.p, name).from_numpy(values)
+        self.pool.children.from_numpy(state["children"])
+        self.pool.n[None] = state["n"]
+        self.pool.refused[None] = state["refused"]
+        self.time, self.frame, self.steps, self.dt = state["clock"]
+        self._emit_acc = list(state["emitters"])
+        if self.reaction is not None:
+            self.reaction.fill(0.0)
+        self._stirrers(self.time)
 
     # ================================================================== interaction
     def set_disturbance(self, d: Disturbance | None) -> None:
