@@ -16,7 +16,8 @@ Three kinds of case:
 - **pair**: an adaptive scene run twice at the same finest spacing, once adaptive and
   once uniform (``adaptivity.enabled = false`` puts every particle at
   ``particles.spacing``, the finest level's spacing), each timed on the same simulated
-  intervals after the same warm-up. The pair line gives the speed-up (uniform wall time /
+  intervals after the same warm-up, turn about from their saved warm states (so that the
+  machine's slow spells fall on both). The pair line gives the speed-up (uniform wall time /
   adaptive wall time), the particle ratio (uniform real particles / adaptive real
   particles), the step ratio (adaptive steps / uniform steps: the time step follows the
   finest level, but the flows differ) and the share of the adaptive run's step time taken
@@ -201,12 +202,49 @@ def pair_summary(adaptive: dict, uniform: dict) -> dict:
     }
 
 
+def _restored_sim(scene, arch, threads, state):
+    """A Simulation in a fresh Taichi program, its kernels compiled (one step, undone),
+    at ``state``."""
+    sim, _ = _fresh_sim(scene, arch, threads)
+    sim.restore_state(state)
+    return sim
+
+
 def run_pair(name, scene_name, overrides, warm, interval, repeats, arch, threads="auto"):
-    """The adaptive and the uniform run of one scene: ([adaptive row, uniform row], summary)."""
+    """The adaptive and the uniform run of one scene: ([adaptive row, uniform row], summary).
+
+    Each run is warmed up once and its state saved; then the two are timed turn about,
+    adaptive, uniform, adaptive, ..., each repeat from its warm state. So every repeat
+    times the same simulated interval, and a slow or fast spell of the machine (this
+    2-core VM has them, minutes long) falls on both runs of the pair alike instead of on
+    whichever ran then. The profiled interval comes last, also from the warm state."""
+    from .config import load_scene
+
+    variants = (("adaptive", ()), ("uniform", (UNIFORM_OVERRIDE,)))
+    setup = {}
+    for variant, extra in variants:
+        scene = load_scene(scene_name, list(overrides) + list(extra))
+        sim, compile_s = _fresh_sim(scene, arch, threads)
+        sim.advance(max(warm - sim.time, 0.0))
+        setup[variant] = (tuple(overrides) + extra, scene, compile_s, sim.save_state())
+    timed = {variant: ([], [], []) for variant, _ in variants}
+    for _ in range(repeats):
+        for variant, _ in variants:
+            _, scene, _, state = setup[variant]
+            sim = _restored_sim(scene, arch, threads, state)
+            walls, steps_l, reals = timed[variant]
+            t = time.perf_counter()
+            steps_l.append(sim.advance(interval))
+            walls.append(time.perf_counter() - t)
+            reals.append(sim.stats()["n_real"])
     rows = []
-    for variant, extra in (("adaptive", ()), ("uniform", (UNIFORM_OVERRIDE,))):
-        row = run_case(f"{name} {variant}", scene_name, tuple(overrides) + extra, warm, interval,
-                       repeats, arch, threads, kind="pair")
+    for variant, _ in variants:
+        case_overrides, scene, compile_s, state = setup[variant]
+        sim = _restored_sim(scene, arch, threads, state)
+        _start_profile(sim)
+        sim.advance(interval)
+        row = _row(f"{name} {variant}", scene_name, case_overrides, scene, sim, "pair", warm, interval,
+                   *timed[variant], compile_s, sim.timers, repeats)
         row["pair"] = name
         rows.append(row)
     return rows, pair_summary(*rows)
