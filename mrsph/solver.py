@@ -1154,8 +1154,9 @@ class Simulation:
                   parts: ti.template()) -> ti.types.vector(5, ti.f64):
         """The phases after the forces, those in ``parts`` (END_* bits):
 
-        - timestep: a = F/m + g + disturbances, the CFL and force limits, NaN/Inf, and dt
-          from ``limits`` = (cfl, force_factor, cap, dt_min, max_dt);
+        - timestep: a = F/m + g + disturbances, the CFL and force limits, NaN/Inf (in a
+          uniform run the force pass has taken these), and dt from ``limits`` = (cfl,
+          force_factor, cap, dt_min, max_dt);
         - integrate: symplectic Euler, u += dt a, then x += dt u;
         - boundaries: walls and obstacles (in integrate's loop when both are asked);
         - advect: virtual particles follow their owners (see ``_advect_one``).
