@@ -239,15 +239,21 @@ class Multires:
 
     @ti.func
     def _unlink_splitters(self, n, c):
-        """A level-c transient child that must split first leaves its group (§5.3)."""
+        """A level-c transient child that must split first leaves its group (§5.3).
+
+        Siblings run in parallel and the first to claim the group releases it, which
+        clears the others' child bit and then their ``parent``: a sibling may read its
+        kind before the one and its parent after the other, so a parent of -1 means the
+        group is already being released."""
         p = ti.static(self.pool.p)
         for i in range(n):
             k = p[i].kind
             if is_real(k) and p[i].level == c and (k & ROLE_CHILD) != 0:
                 if p[i].lam < c - self.hysteresis or (p[i].flags & MUST_SPLIT) != 0:
                     vp = p[i].parent
-                    if (ti.atomic_or(p[vp].flags, RELEASED) & RELEASED) == 0:
-                        self._release_group(vp)
+                    if vp >= 0:
+                        if (ti.atomic_or(p[vp].flags, RELEASED) & RELEASED) == 0:
+                            self._release_group(vp)
 
     @ti.func
     def _split(self, n, c):
