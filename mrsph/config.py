@@ -136,6 +136,8 @@ SCHEMA = Table(required=True, keys={
                    "dt <= lambda h / (c_s + max |u|)"),
         "force_factor": Key("float", 0.25, "(0, 1]", doc="lambda_f of the force bound "
                             "dt <= lambda_f sqrt(h / max |a|)"),
+        "viscous_factor": Key("float", 0.03, "(0, 1]", doc="lambda_v of the viscous bound "
+                              "dt <= lambda_v h0^2 rho0 / mu (h0 the finest support)"),
         "dt_max": Key("float", 0.002, "> 0", "s", "largest time step"),
         "dt_min": Key("float", 1e-7, "> 0", "s", "a step needing less is reported as "
                       "unstable; < dt_max"),

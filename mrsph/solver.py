@@ -200,6 +200,9 @@ class Simulation:
         self._c_sound = sound_speed(float(self.k[None]), self.eos)
         self.av_coef[None] = self.av_alpha * self._c_sound
         self.mu[None] = float(fl["viscosity"])
+        # physics.max_speed: a real particle faster than this is reported as a blow-up
+        self.speed_limit = ti.field(float, shape=())
+        self.speed_limit[None] = float(ph["max_speed"])
         self.gravity[None] = list(map(float, ph["gravity"]))
         self.spring_rate[None] = float(a["spring_rate"])
 
@@ -1121,13 +1124,26 @@ class Simulation:
         virtual particles' advection: one kernel launch, integration and boundaries in one
         loop, or when profiling one call a phase, each timed as its own. Returns dt.
 
-        dt = min(dt_max, CFL bound, force bound, disturbance bound), then cut to
-        ``max_dt`` (the end of a frame) after the check against ``physics.dt_min``."""
+        dt = min(dt_max, CFL bound, force bound, viscous bound, disturbance bound), then
+        cut to ``max_dt`` (the end of a frame) after the check against ``physics.dt_min``.
+
+        The viscous bound: Eq. 19 relaxes a particle's velocity towards its neighbours' at
+        a rate μ/ρ Σ_j V_j ∇²W ≈ 15 μ/(ρ h²) (3D; 13.3 in 2D), and the shortest mode, a
+        particle against its neighbours, twice as fast; explicit Euler on that mode needs
+        dt < h²ρ/(15 μ) ≈ 0.067 h²ρ/μ, so ``viscous_factor`` 0.03 keeps half of it in
+        hand (as Morris et al. 1997's 0.125 h²/ν with their h, half our support). At the
+        scenes' viscosities it is far above the CFL bound; it binds when the viscosity
+        is raised live, which would otherwise blow up."""
         ph = self.scene.data["physics"]
         cap = float(ph["dt_max"])
         strength = self.disturbances.max_strength()
         if strength > 0:
             cap = min(cap, 0.5 / strength)   # the disturbance relaxation stays stable
+        mu = float(self.scene.data["fluid"]["viscosity"])
+        viscous_dt = math.inf
+        if mu > 0:
+            viscous_dt = float(ph["viscous_factor"]) * self.h0 ** 2 * self.rest_density / mu
+            cap = min(cap, viscous_dt)
         limits = [float(ph["cfl"]), float(ph["force_factor"]), cap, float(ph["dt_min"]),
                   math.inf if max_dt is None else float(max_dt)]
         args = (n, self._c_sound, stirred, limits)
@@ -1143,6 +1159,11 @@ class Simulation:
         if bad > 0:
             self._report_bad(int(first_bad), int(bad))
         if stable_dt < float(ph["dt_min"]):
+            if viscous_dt < float(ph["dt_min"]):
+                raise SimulationError(
+                    f"step {self.steps} (t = {self.time:.6g} s): the viscous time-step bound "
+                    f"{viscous_dt:.3g} s is below physics.dt_min = {ph['dt_min']:g} s: "
+                    f"fluid.viscosity = {mu:g} Pa s is too high for this resolution")
             raise SimulationError(
                 f"step {self.steps} (t = {self.time:.6g} s): time step {stable_dt:.3g} s is below "
                 f"physics.dt_min = {ph['dt_min']:g} s (max |a|·/h = {force_lim:.3g}); the fluid "
@@ -1208,7 +1229,8 @@ class Simulation:
         """a_i = F_i/m_i + g + disturbances for real particle i, F_i with the reactions
         handed on to it (variational coupling; zeroed here for the next force pass, which
         hands them only to real particles). Returns i's CFL rate (c + |u|)/h, its force
-        rate |a|/h, and whether its velocity or acceleration is NaN/Inf."""
+        rate |a|/h, and whether it is bad: NaN/Inf velocity or acceleration, or a speed
+        above ``physics.max_speed``."""
         p = ti.static(self.pool.p)
         f = p[i].a
         if ti.static(self.variational):
@@ -1221,7 +1243,8 @@ class Simulation:
         h = self.lev_h[p[i].level]
         speed = p[i].v.norm()
         an = acc.norm()
-        bad = not (ti.abs(speed) < 1e30 and ti.abs(an) < 1e30) or speed != speed or an != an
+        # NaN fails both comparisons; Inf and speeds past physics.max_speed fail the first
+        bad = not (speed <= self.speed_limit[None] and an < 1e30)
         return (c_sound + speed) / h, an / h, bad
 
     @ti.func
@@ -1252,11 +1275,19 @@ class Simulation:
             ti.atomic_min(self.red_i[1], first_bad)
 
     def _report_bad(self, i: int, count: int):
-        x = self.pool.p.x[i].to_numpy() if hasattr(self.pool.p.x[i], "to_numpy") else self.pool.p.x[i]
+        def vec(field):
+            val = field[i]
+            return np.asarray(val.to_numpy() if hasattr(val, "to_numpy") else val, float)
+        x, v, a = vec(self.pool.p.x), vec(self.pool.p.v), vec(self.pool.p.a)
+        limit = float(self.scene.data["physics"]["max_speed"])
+        what = "NaN/Inf velocity or acceleration"
+        if np.isfinite(v).all() and np.isfinite(a).all():
+            what = f"speed {np.linalg.norm(v):.4g} m/s above physics.max_speed = {limit:g} m/s"
         raise SimulationError(
-            f"step {self.steps} (t = {self.time:.6g} s): {count} particle(s) with NaN/Inf "
-            f"velocity or acceleration; first: particle {i}, level {int(self.pool.p.level[i])}, "
-            f"kind {int(self.pool.p.kind[i])}, x = {np.round(np.asarray(x, float), 4).tolist()}")
+            f"step {self.steps} (t = {self.time:.6g} s): {count} particle(s) with NaN/Inf velocity "
+            f"or acceleration or faster than physics.max_speed; first: particle {i}, "
+            f"level {int(self.pool.p.level[i])}, "
+            f"kind {int(self.pool.p.kind[i])}, x = {np.round(x, 4).tolist()}: {what}")
 
     @ti.func
     def _advect_one(self, j, dt):

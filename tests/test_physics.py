@@ -363,10 +363,12 @@ def test_dam_break_front_matches_experiment(dam_run):
 
 
 # ================================================================== blow-up report
+@pytest.mark.parametrize("poison", ["nan", "speed"])
 @pytest.mark.parametrize("adaptive", [True, False], ids=["adaptive", "uniform"])
-def test_nan_velocity_raises_simulation_error_naming_step_particle_level(dim, adaptive):
+def test_nan_velocity_raises_simulation_error_naming_step_particle_level(dim, adaptive, poison):
     """Adaptive and uniform runs find a bad particle in different loops (a uniform run
-    takes the accelerations in its force pass): both must report it."""
+    takes the accelerations in its force pass): both must report it, a NaN velocity as
+    well as a finite one past ``physics.max_speed``."""
     from mrsph.solver import SimulationError
 
     scene = tank_scene(dim)
@@ -393,7 +395,8 @@ def test_nan_velocity_raises_simulation_error_naming_step_particle_level(dim, ad
     assert clear > h1, f"test set-up: the spot {spot} is only {clear:.3f} m from fluid or wall (h1 = {h1})"
     x[victim] = spot
     v = alive_slots(sim, "v")
-    v[victim, 0] = np.nan
+    limit = float(sim.scene.data["physics"]["max_speed"])
+    v[victim, 0] = np.nan if poison == "nan" else 1.5 * limit
     set_alive_slots(sim, "x", x)
     set_alive_slots(sim, "v", v)
     step = sim.steps
@@ -411,6 +414,9 @@ def test_nan_velocity_raises_simulation_error_naming_step_particle_level(dim, ad
         f"message names particle {slot} at {xs[slot]}, the NaN was put at {spot}: {msg}"
     assert f"level {bad_level}" in msg, f"message does not name the particle's level ({bad_level}): {msg}"
     assert re.search(r"\b1 particle", msg), f"only one particle was poisoned: {msg}"
+    why = "NaN/Inf velocity or acceleration$" if poison == "nan" else \
+        rf"speed {1.5 * limit:.4g} m/s above physics.max_speed = {limit:g} m/s$"
+    assert re.search(why, msg), f"message does not say why the particle is bad ({why}): {msg}"
 
 
 # ================================================================== time step
@@ -442,6 +448,32 @@ def test_time_step_obeys_cfl_and_force_bounds(dim, bound):
             f"dt_max {ph['dt_max']}) by more than round-off")
         binding = "cfl" if cfl <= force else "force"
         assert binding == bound, f"{dim}D: the {binding} bound binds (CFL {cfl:.4e}, force {force:.4e})"
+
+
+def test_viscous_bound_keeps_a_fluid_made_very_viscous_live_stable(dim):
+    """physics.viscous_factor: explicit viscosity is unstable past dt ~ 0.067 h^2 rho/mu
+    (Simulation._finish_step). The viscosity is raised live, as the window's slider does,
+    until the viscous bound is a fifth of the CFL step: dt must follow it, and the
+    column, honey-thick now, must creep. At the CFL step instead (the bound taken out)
+    the same run rings at 5-9 m/s within 0.02 s."""
+    sim = make_sim(dam_scene(dim))
+    ph = sim.scene.data["physics"]
+    h = float(sim.h0)
+    cfl_dt = float(ph["cfl"]) * h / math.sqrt(float(sim.scene.fluid.stiffness))
+    factor = float(ph["viscous_factor"])
+    mu = factor * h * h * sim.rest_density / (0.2 * cfl_dt)
+    sim.set_param("fluid.viscosity", mu)
+    bound = factor * h * h * sim.rest_density / mu
+    while sim.time < 0.02:
+        dt = sim.step()
+        assert bound * (1 - 1e-6) <= dt <= bound * (1 + 1e-6), (
+            f"{dim}D: dt = {dt:.4e} s at t = {sim.time:.4f} s, the viscous bound is {bound:.4e} s "
+            f"(mu = {mu:.0f} Pa s, CFL step {cfl_dt:.4e} s)")
+    speed = float(np.linalg.norm(alive_slots(sim, "v"), axis=1).max())
+    g = float(np.linalg.norm(sim.scene.data["physics"]["gravity"]))
+    assert speed <= 2.0 * g * sim.time, (
+        f"{dim}D: a fluid of {mu:.0f} Pa s reached {speed:.3f} m/s in {sim.time:.3f} s "
+        f"(2 g t = {2.0 * g * sim.time:.3f} m/s): the viscous term is unstable")
 
 
 def test_frame_within_a_wall_budget_stops_early_and_whole_frames_end_exactly(dim):
