@@ -30,7 +30,6 @@ Three kinds of case:
 """
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import os
@@ -116,8 +115,15 @@ def _fresh_sim(scene, arch, threads):
     runtime.reset()   # frees the previous case's fields; each case starts like a new run
     t0 = time.perf_counter()
     sim = Simulation(scene, arch=arch, threads=runtime.auto_threads(scene, threads))
+    notice = runtime.notice()
+    if notice and notice not in _NOTICES_SHOWN:      # e.g. --arch gpu on a CPU-only machine
+        _NOTICES_SHOWN.add(notice)
+        print(f"mrsph: {notice}", file=sys.stderr, flush=True)
     sim.step()        # compiles every kernel of the step (adapt runs on step 0)
     return sim, time.perf_counter() - t0
+
+
+_NOTICES_SHOWN: set[str] = set()
 
 
 def _row(case_name, scene_name, overrides, scene, sim, kind, warm, interval, walls, steps_l,
@@ -367,9 +373,9 @@ def run_cases(cases, repeats, arch, threads="auto", log=None) -> tuple[list, lis
 
 
 def main(argv=None) -> int:
-    from .cli import _Formatter, _positive_float, _positive_int, threads_arg
-    ap = argparse.ArgumentParser(prog="main.py bench", description=__doc__.splitlines()[0],
-                                 formatter_class=_Formatter)
+    from .cli import _Formatter, _Parser, _positive_float, _positive_int, threads_arg
+    ap = _Parser(prog="python main.py bench", description=__doc__.splitlines()[0],
+                 formatter_class=_Formatter)
     ap.add_argument("--full", action="store_true",
                     help="the long set: adds 50k 2D and 100k 3D dam breaks and finer pairs")
     ap.add_argument("--repeats", type=_positive_int, default=3, help="timed runs per case (median)")
@@ -390,7 +396,7 @@ def main(argv=None) -> int:
             print(f"{c.name:40s} {c.kind:5s} {c.scene} {' '.join(c.overrides)}")
         return 0
     if not cases:
-        print(f"main.py bench: no case matches {args.case} (see --list"
+        print(f"python main.py bench: no case matches {args.case} (see --list"
               f"{'' if args.full else ' and --full'})", file=sys.stderr)
         return 2
     scale = args.interval_scale

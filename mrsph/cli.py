@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import math
+import os
 import sys
 import time
 import warnings
@@ -59,6 +60,21 @@ def _positive_int(text: str) -> int:
     return value
 
 
+#: --width/--height: the range of the scene keys render.width/height
+PIXELS = (64, 8192)
+
+
+def _pixels(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = None
+    if value is None or not PIXELS[0] <= value <= PIXELS[1]:
+        raise argparse.ArgumentTypeError(f"expected an integer number of pixels in "
+                                         f"[{PIXELS[0]}, {PIXELS[1]}] (got {text!r})")
+    return value
+
+
 def _positive_float(text: str) -> float:
     try:
         value = float(text)
@@ -81,9 +97,16 @@ def frame_budget_arg(text: str) -> float | None:
     return value / 1000.0 if value > 0 else None
 
 
+class _Parser(argparse.ArgumentParser):
+    """Reports a bad argument in one line (argparse prints the whole usage block first)."""
+
+    def error(self, message):
+        self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .output import FORMATS
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="python main.py",
         description="mrsph: adaptive-resolution SPH fluids in Taichi.\n"
                     "Opens an interactive window on SCENE (or, with no display, records a\n"
@@ -95,7 +118,7 @@ def build_parser() -> argparse.ArgumentParser:
                "  python main.py dam_break_2d\n"
                "  python main.py dam_break_2d --headless --frames 60 --dump out/dump\n"
                "  python main.py pool_3d --out out/pool.mp4 --frames 150\n"
-               "  python main.py slit_2d --set fluid.viscosity=2.0 --set adaptivity.enabled=true\n"
+               "  python main.py dam_break_obstacle_2d --set fluid.viscosity=2.0 --set adaptivity.enabled=false\n"
                "\nexit status: 0 done, 1 the simulation failed, 2 usage or scene error, "
                "130 interrupted",
         formatter_class=_Formatter)
@@ -116,10 +139,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", default=None, metavar="FILE",
                         help="record a video instead: .mp4, .gif, or a directory of PNGs "
                              "(default: no recording)")
-    parser.add_argument("--width", type=_positive_int, default=None, metavar="PX",
+    parser.add_argument("--width", type=_pixels, default=None, metavar="PX",
                         help=f"image width (default: the scene's render.width; the window "
                              f"{WINDOW_SIZE[0]})")
-    parser.add_argument("--height", type=_positive_int, default=None, metavar="PX",
+    parser.add_argument("--height", type=_pixels, default=None, metavar="PX",
                         help=f"image height (default: the scene's render.height; the window "
                              f"{WINDOW_SIZE[1]})")
     parser.add_argument("--fps", type=_positive_float, default=None,
@@ -201,10 +224,43 @@ def _cmd_bench(argv) -> int:
 
 def _out_kind_problem(out: str) -> str | None:
     path = Path(out)
-    if path.suffix.lower() in (".mp4", ".gif") or path.suffix == "" or path.is_dir():
-        return None
+    if path.suffix.lower() in (".mp4", ".gif"):
+        return _file_problem("--out", path)
+    if path.suffix == "" or path.is_dir():
+        return _dir_problem("--out", path)
     return (f"error: --out {out}: cannot tell what to write (expected a path ending in .mp4 "
             f"or .gif, or a directory for PNG frames)")
+
+
+def _dir_problem(flag: str, path: Path) -> str | None:
+    """Why files cannot be written into directory ``path`` (made if missing), or None."""
+    if path.exists() and not path.is_dir():
+        return f"error: {flag} {path}: exists and is not a directory"
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        return f"error: {flag} {path}: cannot make the directory ({e.strerror or e})"
+    if not os.access(path, os.W_OK | os.X_OK):
+        return f"error: {flag} {path}: the directory is not writable"
+    return None
+
+
+def _file_problem(flag: str, path: Path) -> str | None:
+    """Why file ``path`` cannot be written (its directory made if missing), or None."""
+    if path.is_dir():
+        return f"error: {flag} {path}: is a directory (expected a file name)"
+    problem = _dir_problem(flag, path.parent) if str(path.parent) not in ("", ".") else None
+    if problem:
+        return problem
+    existed = path.exists()
+    try:
+        with open(path, "ab"):
+            pass
+        if not existed:
+            path.unlink()
+    except OSError as e:
+        return f"error: {flag} {path}: cannot write the file ({e.strerror or e})"
+    return None
 
 
 class _Dumper:
@@ -342,8 +398,8 @@ def _run_window_or_video(scene, args) -> int:
 def _run(args) -> int:
     from .config import load_scene
     scene = load_scene(args.scene, args.overrides)
-    if args.out:
-        problem = _out_kind_problem(args.out)
+    for problem in (args.out and _out_kind_problem(args.out),
+                    args.dump and _dir_problem("--dump", Path(args.dump))):
         if problem:
             _err(problem)
             return EXIT_USAGE
@@ -379,7 +435,12 @@ def main(argv=None) -> int:
                 _err(line)
             return EXIT_USAGE
         except KeyboardInterrupt:
+            _err("mrsph: interrupted")
             return EXIT_INTERRUPTED
+        except OSError as e:
+            # writing the output failed mid-run (disk full, the video encoder died, ...)
+            _err(f"error: {e}")
+            return EXIT_FAILED
         except Exception as e:
             # only a SimulationError is expected here; the solver is imported by then
             solver = sys.modules.get("mrsph.solver")

@@ -369,9 +369,13 @@ class _Checker:
     def add(self, key: str, what: str, got: str = "", expected: str = "", note: str = ""):
         detail = note or "; ".join(s for s in (got and "got " + got,
                                                expected and "expected " + expected) if s)
-        # a problem in a value given with --set is reported under that label
+        # a problem in a value given with --set is reported under that label; one that a
+        # --set may have caused elsewhere (a spacing that leaves a block empty) says so
+        label = self.label
+        if self.overridden:
+            label += f" with --set {', '.join(self.overridden)}"
         where = next((f"--set {o}" for o in self.overridden
-                      if key == o or key.startswith(o + ".")), f"{self.label}: {key}")
+                      if key == o or key.startswith(o + ".")), f"{label}: {key}")
         self.problems.append(f"{where}: {what}" + (f" ({detail})" if detail else ""))
 
     def table(self, spec: Table, raw, key: str, dim):
@@ -471,7 +475,17 @@ def _check_places(c: _Checker, d: dict) -> None:
     if fluid is not None and not fluid["blocks"] and not emitters:
         c.add("fluid.blocks", "no fluid", "no [[fluid.blocks]] and no [[emitters]]",
               "at least one [[fluid.blocks]] or one [[emitters]]")
+    part = d.get("particles") or {}
+    spacing = part.get("spacing")
     for i, b in blocks:
+        if _ok(spacing) and spacing > 0:
+            thin = [k for k, (lo, hi) in enumerate(zip(b["min"], b["max"]))
+                    if hi - lo < spacing * (1.0 - LATTICE_EPS)]
+            if thin:
+                c.add(f"fluid.blocks.{i}", "holds no particle",
+                      f"min {_fmt(b['min'])}, max {_fmt(b['max'])}",
+                      f"at least particles.spacing = {_fmt(spacing)} m across on every axis "
+                      f"(not on axis {thin[0]})")
         for j, ob in enumerate(d["obstacles"]):
             what = ob and _overlap(b, ob)
             if what:

@@ -87,6 +87,8 @@ SCENE_ERRORS = {
                               [], ["fluid.blocks.0: overlaps obstacles.0"]),
     "capacity too small": ("particles.capacity = 10", [],
                            ["particles.capacity: too small for the fluid blocks (got 10; expected >= 5000"]),
+    "block thinner than the spacing": ('[[fluid.blocks]]\nmin = [0.5, 0.0]\nmax = [0.503, 0.3]\n', [],
+                                       ["fluid.blocks.1: holds no particle", "not on axis 0"]),
     "bad --set syntax": ("", ["--set", "fluid.viscosity"],
                          ["--set fluid.viscosity: not KEY=VALUE"]),
     "unknown --set key": ("", ["--set", "fluid.viscosty=2"],
@@ -141,6 +143,38 @@ def test_bad_option_values(tmp_path):
     assert_usage_error(run(path, "--frame-budget", "-5"), "--frame-budget", "milliseconds >= 0")
     assert_usage_error(run(path, "--frame-budget", "inf"), "--frame-budget", "finite")
     assert_usage_error(run(path, "--frames", 2, "--out", tmp_path / "x.avi"), "--out", ".mp4")
+    assert_usage_error(run(path, "--frames", 2, "--out", tmp_path / "x.gif", "--width", 100000),
+                       "--width", "[64, 8192]")
+    # argparse's own errors in one line too, not after its usage block
+    for args in (("--bogus",), ("--frames", "abc"), ("--arch", "tpu")):
+        proc = run(path, *args)
+        assert_usage_error(proc, "error: ")
+        assert len(proc.stderr.strip().splitlines()) == 1, f"{args}: {proc.stderr}"
+
+
+def test_unwritable_outputs_are_refused_before_anything_runs(tmp_path):
+    """--out and --dump are checked before the simulation is built: one line naming
+    the option and the path, exit status 2."""
+    path = scene_file(tmp_path)
+    a_file = tmp_path / "a_file"
+    a_file.write_text("not a directory", encoding="utf-8")
+    cases = [(("--headless", "--frames", 1, "--dump", a_file), "--dump", "not a directory"),
+             (("--frames", 1, "--out", a_file / "x.gif"), "--out", "not a directory"),
+             (("--frames", 1, "--out", a_file / "frames"), "--out", "cannot make the directory"),
+             ]
+    for args, flag, why in cases:
+        proc = run(path, *args, cwd=tmp_path)
+        assert_usage_error(proc, f"error: {flag} ", why)
+        assert len(proc.stderr.strip().splitlines()) == 1, f"{args}: {proc.stderr}"
+        assert "Starting on arch" not in proc.stdout + proc.stderr, f"{args}: Taichi was started"
+
+
+def test_a_set_that_breaks_another_key_is_named(tmp_path):
+    """A --set whose value is fine but leaves another key wrong (a spacing wider than a
+    fluid block) is named next to the scene file."""
+    proc = run(scene_file(tmp_path), "--headless", "--frames", 1, "--set", "particles.spacing=0.3",
+               cwd=tmp_path)
+    assert_usage_error(proc, "tiny.toml with --set particles.spacing: fluid.blocks.0: holds no particle")
 
 
 def test_frame_budget_is_read_in_milliseconds_and_zero_means_whole_frames():

@@ -247,4 +247,7 @@ def record(sim, out, frames: int, width: int | None = None, height: int | None =
         bar.close()
         source.close()
         sink.close()
+    if kind != "png" and not (out.is_file() and out.stat().st_size > 0):
+        # the encoder may fail on its own and say so only on its stderr
+        raise OSError(f"{out}: the {kind} writer wrote nothing")
     return out

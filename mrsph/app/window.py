@@ -78,7 +78,7 @@ r         reset                tab next scene (1-9: scene i)
 c         colour mode          v   show virtual particles
 h         this help            p   screenshot
 left drag push the fluid       right drag / shift+left: pull
-q / e     mouse radius - / +   u   hide / show this panel
+q / e     mouse radius - / +   u   hide / show the HUD
 Esc       quit
 3D: right drag or arrows orbit, middle drag pan,
     z / x zoom in / out, f frame the domain"""
