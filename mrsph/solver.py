@@ -929,7 +929,15 @@ class Simulation:
         each virtual position is a function of its owners' (``_advect_one``): a real
         particle's pressure pushes its same-level neighbours, real or virtual, and the
         virtual ones hand the reaction to their owners. A fine–coarse pair thus meets
-        twice, once with each particle's own pressure, and no pair is counted twice.
+        twice, once with each particle's own pressure, and its pressure acts once.
+        Its viscous and artificial-viscosity terms are whole pair terms in both meetings,
+        so the shear across a level interface is coupled twice over. Halving them for
+        virtual partners, as the pressure is halved, was measured (tests/
+        test_adaptive_flow.py, session of 2026-11-22): the refined pool's mean speed
+        0.0086 sqrt(gH) in 2D (0.0032-0.0063 as here) and 0.0062 in 3D (0.0061-0.0077),
+        the dam-break fronts +5.0 % in 2D (+3.7 %) and +4.3 % in 3D (+3.6 % on average):
+        with less damping at the interface the fine fluid runs further ahead, so the
+        interface keeps the extra damping.
         Measured in a resting pool with a refined box (2D, 2 levels, no adaptivity after
         the start): mean speed 0.0069 sqrt(gH), against 0.017 with the symmetric form,
         whose virtual pressures come from virtual densities that reach 1.3 ρ0 where

@@ -280,6 +280,15 @@ def test_adaptive_dam_break_holds_fewer_particles(dam_runs, request):
                             f"uniform one on average; expected >= {want}x")
 
 
+def test_adaptive_dam_break_front_is_not_far_off(dam_runs):
+    """A guard that is never marked as a known failure: the issue's 5 % is (in 3D), and
+    an expected failure passes whatever it measures. The fronts have been within 6 %."""
+    dim, a, u = dam_runs["dim"], dam_runs["adaptive"], dam_runs["uniform"]
+    err = a["front"] / u["front"] - 1.0
+    assert abs(err) <= 0.10, (f"{dim}D: front of the adaptive run at {a['front']:.3f} m, uniform "
+                              f"{u['front']:.3f} m at {DAM_T} s ({100 * err:+.1f} %, expected within 10 %)")
+
+
 def test_adaptive_dam_break_front_matches_uniform(dam_runs, request):
     dim, a, u = dam_runs["dim"], dam_runs["adaptive"], dam_runs["uniform"]
     err = a["front"] / u["front"] - 1.0
