@@ -594,3 +594,52 @@ def test_a_restored_state_steps_exactly_as_the_original(dim):
     with pytest.raises(ValueError, match="does not fit"):
         other = Simulation(load_scene(moving_region_scene(5 - dim)), arch="cpu", threads=1)
         other.restore_state(state)
+
+
+# ================================================================== capacity
+def test_a_full_pool_refuses_splits_warns_once_and_loses_nothing(dim):
+    """Issue 3 §7: a split that does not fit in the pool is refused, counted in the stats
+    (``refused``) and reported once as a RuntimeWarning; the run goes on with its links
+    intact, and no particle is dropped: with full groups only, the real mass stays
+    bit-identical. The pool gets the smallest capacity the scene check accepts (the
+    uniform lattice at the finest spacing), and a refinement box slides over the slab
+    until the whole of it wants the finest level: the coarse seed splits towards that
+    lattice, and its virtual particles overrun the pool on the way."""
+    import warnings
+
+    scene = moving_region_scene(dim)
+    scene["adaptivity"]["merge_min_children"] = 2**dim
+    lo, hi = scene["fluid"]["blocks"][0]["min"], scene["fluid"]["blocks"][0]["max"]
+    half = [0.5 * (b - a) + 0.05 for a, b in zip(lo, hi)]
+    centre = [0.5 * (a + b) for a, b in zip(lo, hi)]
+    start = [0.99] + centre[1:]          # the box's far edge over the slab's last quarter
+    slide = 20 * sound_step(scene)
+    scene["criteria"] = [{"type": "region", "shape": "box", "level": 0,
+                          "min": [c - h for c, h in zip(start, half)],
+                          "max": [c + h for c, h in zip(start, half)],
+                          "path": [[0.0] + start, [slide] + centre, [1e3] + centre]}]
+    block = scene["fluid"]["blocks"][0]
+    extent = np.asarray(block["max"], float) - np.asarray(block["min"], float)
+    scene["particles"]["capacity"] = int(np.prod(np.floor(extent / S0[dim] + 1e-9)))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        sim = make_sim(scene)
+        m_start = real_mass(raw_pool(sim))
+        refused = splits = 0
+        for step in range(1, 61):
+            sim.step()
+            ev = sim.stats()
+            refused += ev["refused"]
+            splits += ev["splits"]
+            assert ev["total_mass"] == m_start, (
+                f"{dim}D, step {step}: total real mass {ev['total_mass']!r} != {m_start!r} "
+                f"with {refused} splits refused so far")
+            bad = link_violations(sim, raw_pool(sim))
+            assert not bad, f"{dim}D, step {step}, {refused} refused so far: " + "; ".join(bad)
+    full = [w for w in caught if issubclass(w.category, RuntimeWarning) and "pool full" in str(w.message)]
+    print(f"\n{dim}D capacity {sim.capacity}: {splits} splits, {refused} refused in 60 steps; "
+          f"{len(full)} warning(s)")
+    assert refused > 0, f"{dim}D: capacity {sim.capacity} refused nothing ({splits} splits): the test is void"
+    assert len(full) == 1 and sim.warnings == [str(full[0].message)], (
+        f"{dim}D: expected one 'pool full' warning, got {len(full)} "
+        f"({len(sim.warnings)} in sim.warnings); first: {full[0].message if full else None}")
