@@ -46,7 +46,10 @@ coarsest down (§5.4), rebuilding the grids between pairs, and for the coarse le
    within reach that it could take in (§6: "a group need not be full"), none of them
    carrying virtual children of its own, becomes a real regular level-c particle with the group's
    total mass, mass-weighted velocity and centre of mass; the children are removed.
-   Virtual parents exist only in the transition layer, so merges happen only there.
+   Virtual parents form in the transition layer (next to a real coarse particle) and
+   also wherever a fine particle's position wants level c (``_couple_fine``), so that a
+   region fine all through can coarsen once nothing wants it fine; so merges happen
+   there too, not only in the transition layer of §6.
 
 Choices left open by the thesis (scene keys, defaults in docs/scenes.md): spring rate of
 the virtual particles' Hooke springs, the sampling pattern above, the hysteresis η, the
