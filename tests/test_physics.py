@@ -264,7 +264,12 @@ def test_tank_pressure_is_hydrostatic(tank_run, request):
 # dam-break codes). Ritter's shallow-water solution, Z = 1 + 2T for this column, is an
 # upper bound: no real front outruns the frictionless, hydrostatic one.
 MARTIN_MOYCE = ((1.43, 1.67), (1.97, 2.33), (2.50, 3.00), (2.96, 3.67))
-MM_TOLERANCE = 0.5    # in Z, i.e. half a column width: generous for a 10-particle column
+# Allowed Z_sim - Z_experiment, in column widths a. The 10-particle column at mu = 1 Pa s
+# runs behind the experiment (measured: -0.10, -0.23, -0.29, -0.38 in 2D and -0.10,
+# -0.21, -0.27, -0.37 in 3D at the four times), so the band is wide behind and narrow
+# ahead: a front faster than the experiment is too little dissipation or too much drive
+# (gravity x1.3 gives +0.10, +0.10, +0.18, +0.21 and fails; a symmetric 0.5 let it pass).
+MM_BEHIND, MM_AHEAD = 0.5, 0.15
 
 DAM_A = 0.2           # column width, m; its height is 2a
 DAM_L = 1.0           # tank length, m (Z = 5 at the far wall)
@@ -358,8 +363,9 @@ def test_dam_break_front_matches_experiment(dam_run):
     for t_exp, z_exp, z_sim, z_lead, z_ritter in rows:
         assert z_lead <= z_ritter + 0.5 * r["spacing"] / DAM_A, \
             f"{d}D: front faster than Ritter's ideal dam break: {table}"
-        assert abs(z_sim - z_exp) <= MM_TOLERANCE, \
-            f"{d}D: surge front off Martin & Moyce by more than {MM_TOLERANCE} a: {table}"
+        assert -MM_BEHIND <= z_sim - z_exp <= MM_AHEAD, (
+            f"{d}D: surge front at T = {t_exp:.2f} is {z_sim - z_exp:+.2f} a off Martin & Moyce "
+            f"(allowed -{MM_BEHIND} .. +{MM_AHEAD} a): {table}")
 
 
 # ================================================================== blow-up report
