@@ -24,8 +24,9 @@ from typing import Any
 SCENES_DIR = Path(__file__).resolve().parent.parent / "scenes"
 
 REQUIRED = object()  # default of a key that the scene must give
-# The level-0 neighbour grid has one cell per h0 in every direction; past ~50e6 cells its
-# per-cell arrays alone take hundreds of MB, so such a domain is almost surely a unit slip.
+# Counted in cells of h0 (the level-0 grid splits those 2x in 2D, 4x in 3D along its rows,
+# solver.CELLS_PER_SUPPORT); past ~50e6 such cells its per-cell arrays alone take hundreds
+# of MB, so such a domain is almost surely a unit slip.
 MAX_GRID_CELLS = 50e6
 # Automatic capacity = int(CAPACITY_MARGIN * lattice + emitted) + CAPACITY_SLACK: splits
 # turn one particle into 2^d and virtual particles need slots too, hence the margin.

@@ -1,8 +1,9 @@
 """Dense uniform neighbour grids, one per level, and the counting sort that fills them.
 
-Level l has cells of h_l / k, its support radius h_l = 2^l h0 split k ways
-(``cells_per_support``), so a particle's neighbours lie in the (2k+1)^d cells around its
-own. The grids of all levels are laid end to end in one cell
+Level l has cells of h_l / k_a along axis a, its support radius h_l = 2^l h0 split k_a
+ways (``cells_per_support``, one number or one per axis), so a particle's neighbours lie
+in the block of (2k_a+1) cells per axis around its own. The grids of all levels are laid
+end to end in one cell
 array: a particle's key is ``offset[l] + linear cell index``, and a single counting sort
 (count, serial prefix sum, scatter) reorders the whole pool in cell order each step. The
 sort is linear in the number of particles and cells, keeps particles that are close in
@@ -27,31 +28,35 @@ PAD_SUPPORTS = 2  # padding around the domain, in supports, so that block look-u
 @ti.data_oriented
 class LevelGrids:
     def __init__(self, dim: int, levels: int, domain_min, domain_max, h0: float, capacity: int,
-                 cells_per_support: int = 1):
+                 cells_per_support: int | tuple = 1):
         self.dim = dim
         self.levels = levels
-        k = self.reach = int(cells_per_support)     # cells per support radius
-        self.row_axes = ((-k, k + 1),) * (dim - 1)   # offsets of the rows of a (2k+1)^d block
-        self.pad = PAD_SUPPORTS * k                 # padding, in cells
+        ks = (cells_per_support,) * dim if isinstance(cells_per_support, int) else cells_per_support
+        if len(ks) != dim:
+            raise ValueError(f"cells_per_support: expected one number or {dim}, got {cells_per_support!r}")
+        self.ks = ks = tuple(int(k) for k in ks)   # cells per support radius, per axis
+        self.reach = ks[-1]                        # ... along the rows (the last axis)
+        self.row_axes = tuple((-k, k + 1) for k in ks[:-1])   # offsets of a block's rows
         lo = np.asarray(domain_min, dtype=np.float64)
         hi = np.asarray(domain_max, dtype=np.float64)
         self.h = [h0 * 2**l for l in range(levels)]
-        self.cell_size = [h / k for h in self.h]
+        self.cell_size = [np.array([h / k for k in ks]) for h in self.h]
         res, offsets, total = [], [], 0
         for l in range(levels):
-            r = [int(math.ceil((hi[a] - lo[a]) / self.cell_size[l])) + 2 * self.pad for a in range(dim)]
+            r = [int(math.ceil((hi[a] - lo[a]) / self.cell_size[l][a])) + 2 * PAD_SUPPORTS * ks[a]
+                 for a in range(dim)]
             res.append(r)
             offsets.append(total)
             total += int(np.prod(r))
         self.total_cells = total
         self.res_host = res
         self.origin = ti.Vector.field(dim, float, shape=levels)
-        self.inv_cell = ti.field(float, shape=levels)
+        self.inv_cell = ti.Vector.field(dim, float, shape=levels)
         self.res = ti.Vector.field(dim, ti.i32, shape=levels)
         self.offset = ti.field(ti.i32, shape=levels)
         for l in range(levels):
-            self.origin[l] = (lo - self.pad * self.cell_size[l]).tolist()
-            self.inv_cell[l] = 1.0 / self.cell_size[l]
+            self.origin[l] = (lo - PAD_SUPPORTS * np.array(ks) * self.cell_size[l]).tolist()
+            self.inv_cell[l] = (1.0 / self.cell_size[l]).tolist()
             self.res[l] = res[l]
             self.offset[l] = offsets[l]
         # count[c] particles in cell c; the last bucket holds DEAD slots.
@@ -76,26 +81,32 @@ class LevelGrids:
 
     @ti.func
     def around(self, x, l):
-        """x's cell, kept k cells inside the grid so that the block around it exists."""
-        k = ti.static(self.reach)
+        """x's cell, kept k_a cells inside the grid so that the block around it exists."""
+        k = ti.Vector(self.ks)
         c = ti.cast(ti.floor((x - self.origin[l]) * self.inv_cell[l]), ti.i32)
         return ti.max(ti.min(c, self.res[l] - 1 - k), k)
 
     @ti.func
     def row(self, base, o, l):
-        """Pool slots [lo, hi) of the 2k+1 cells base + (o, -k … +k).
+        """Pool slots [lo, hi) of the 2k+1 cells base + (o, -k … +k), k the cells per
+        support along the last axis.
 
         The last axis varies fastest in the cell index, so those cells are consecutive
         and, the pool being in cell order, so are their particles: a neighbour loop is
-        (2k+1)^(d-1) contiguous ranges:
+        one contiguous range per row, (2k_a+1) rows along each other axis a:
         ``for o in ti.grouped(ti.ndrange(*grid.row_axes)): lo, hi = grid.row(base, o, l)``."""
+        return self.row_span(base, o, l, ti.static(2 * self.reach + 1))
+
+    @ti.func
+    def row_span(self, base, o, l, span):
+        """``row`` over ``span`` cells from base − k along the last axis (``row`` is
+        span = 2k+1): the rows of several particles in one column of cells at once."""
         c = base
         for k in ti.static(range(self.dim - 1)):
             c[k] += o[k]
         c[self.dim - 1] -= ti.static(self.reach)
         first = self.cell_id(c, l)
-        return self.start[first], self.start[first + ti.static(2 * self.reach + 1)]
-
+        return self.start[first], self.start[first + span]
 
     @ti.func
     def in_grid(self, c, l):

@@ -2,8 +2,9 @@
 
 A pool with particles of two levels is sorted by ``LevelGrids.sort``; a small Taichi
 kernel then enumerates, for every particle, the candidates of the grid block around its
-own cell on its level (the rows ``around``/``row`` give the solver: 3^d cells of h_l, or
-5^d of h_l/2) and keeps those closer than h_l. The lists must be exactly the
+own cell on its level (the rows ``around``/``row`` give the solver: 3^d cells of h_l,
+5^d of h_l/2, or the solver's own cells, h_l across and h_l/k along the rows) and keeps
+those closer than h_l. The lists must be exactly the
 brute-force neighbour sets (same level, |x_i - x_j| < h_l), computed with a k-d tree.
 """
 
@@ -136,7 +137,14 @@ def jittered_lattice(rng, dim, spacing):
     return pts + rng.uniform(-0.2, 0.2, size=pts.shape) * spacing
 
 
-CELLS = pytest.mark.parametrize("cells", [1, 2], ids=["h-cells", "half-h-cells"])
+CELLS = pytest.mark.parametrize("cells", [1, 2, "solver"], ids=["h-cells", "half-h-cells", "solver-cells"])
+
+
+def per_axis(cells, dim):
+    """Cells per support along each axis: an int for every axis, or the solver's choice."""
+    from mrsph.solver import CELLS_PER_SUPPORT
+
+    return tuple(CELLS_PER_SUPPORT[dim]) if cells == "solver" else (cells,) * dim
 
 
 @CELLS
@@ -152,7 +160,7 @@ def test_grid_neighbours_equal_brute_force(dim, layout, cells):
     # put the particles at the domain edges and corners too (clamped cells, padding)
     xs[:dim, :] = DOMAIN_MIN
     xs[dim: 2 * dim, :] = DOMAIN_MAX
-    pool, grids = build(dim, xs, levels, cells_per_support=cells)
+    pool, grids = build(dim, xs, levels, cells_per_support=per_axis(cells, dim))
     n = grids.sort(pool)
     assert n == len(xs), f"sort returned {n} particles; expected {len(xs)} (none is DEAD)"
     expected, borderline = brute_force(xs, levels)
@@ -168,7 +176,7 @@ def test_a_sort_after_the_particles_moved_finds_their_new_neighbours(dim, cells)
     rng = np.random.default_rng(31 + dim)
     xs = random_positions(rng, dim, 1200 if dim == 2 else 2000)
     levels = (rng.uniform(size=len(xs)) < 0.35).astype(np.int32)
-    pool, grids = build(dim, xs, levels, cells_per_support=cells)
+    pool, grids = build(dim, xs, levels, cells_per_support=per_axis(cells, dim))
     n = grids.sort(pool)
     moved = random_positions(rng, dim, len(xs))
     ids = pool.p.slot.to_numpy()[:n]
@@ -185,7 +193,7 @@ def test_sort_orders_by_cell_and_carries_every_attribute(dim, cells):
     rng = np.random.default_rng(7 + dim)
     xs = random_positions(rng, dim, 400)
     levels = (rng.uniform(size=len(xs)) < 0.5).astype(np.int32)
-    pool, grids = build(dim, xs, levels, cells_per_support=cells)
+    pool, grids = build(dim, xs, levels, cells_per_support=per_axis(cells, dim))
     n = grids.sort(pool)
     ids = pool.p.slot.to_numpy()[:n]
     assert sorted(ids.tolist()) == list(range(len(xs))), "the sort is not a permutation"
@@ -204,9 +212,10 @@ def test_sort_orders_by_cell_and_carries_every_attribute(dim, cells):
         offsets.append(offset)
         offset += int(np.prod(grids.res_host[l]))
     for xi, l in zip(x.astype(np.float64), levels[ids]):
-        size = H0 * 2**l / cells
+        k = np.array(per_axis(cells, dim))
+        size = H0 * 2**l / k
         res = np.array(grids.res_host[l])
-        c = np.clip(np.floor((xi - (DOMAIN_MIN - PAD_SUPPORTS * cells * size)) / size).astype(int), 0, res - 1)
+        c = np.clip(np.floor((xi - (DOMAIN_MIN - PAD_SUPPORTS * k * size)) / size).astype(int), 0, res - 1)
         keys.append(offsets[l] + int(np.ravel_multi_index(tuple(c), tuple(res))))
     keys = np.array(keys)
     assert np.all(np.diff(keys) >= 0), \
@@ -277,3 +286,75 @@ def test_sort_compacts_dead_slots_and_remaps_links(dim):
     for s in np.flatnonzero(par_after >= 0):
         par = par_after[s]
         assert s in ch_after[par, : nch_after[par]], f"slot {s} not listed by its parent {par}"
+
+
+# ------------------------------------------------------------------ the density pass
+DENSITY_RUNS = {  # scene, overrides, simulated seconds before the check (the fluid moves)
+    (2, False): ("dam_break_2d", ["particles.spacing=0.01"], 0.15),
+    (3, False): ("dam_break_3d", ["particles.spacing=0.02"], 0.15),
+    (2, True): ("region_2d", ["particles.spacing=0.01"], 0.1),
+    (3, True): ("region_3d", ["particles.spacing=0.02"], 0.1),
+}
+
+
+@pytest.mark.parametrize("adaptive", [False, True], ids=["uniform", "adaptive"])
+def test_density_pass_equals_brute_force_sums_and_lists(dim, adaptive):
+    """The solver's density pass (``_density``: runs of consecutive particles in a column
+    of cells summed in one scan of the grid, the others one by one) against a k-d tree,
+    on a moving fluid. Every particle it sums that is more than a support from the walls
+    (no wall image) must get ρ_i = Σ_j m_j W_poly6(x_i − x_j, h_l) over the particles of
+    its level, and its neighbour list must be the brute-force set."""
+    import taichi as ti
+
+    from mrsph.config import load_scene
+    from mrsph.kernels import constants
+    from mrsph.particles import VIRTUAL_CHILD
+    from mrsph.solver import Simulation
+
+    name, sets, warm = DENSITY_RUNS[(dim, adaptive)]
+    sim = Simulation(load_scene(name, sets), threads=2)
+    sim.advance(warm)
+    n = sim.grids.sort(sim.pool)
+    if sim.limit_virtual:            # the step's order: the fine lists, the limiter, density
+        sim._list_fine_neighbours(n)
+        sim._limit_virtual_mass(n)
+    sim._density(n)
+    ti.sync()
+    p = sim.pool.p
+    x = p.x.to_numpy()[:n].astype(np.float64)
+    m = p.m.to_numpy()[:n].astype(np.float64)
+    level = p.level.to_numpy()[:n]
+    kind = p.kind.to_numpy()[:n]
+    rho = p.rho.to_numpy()[:n].astype(np.float64)
+    count = sim.neighbour_count.to_numpy()[:n]
+    lists = sim.neighbours.to_numpy()[:n]
+    summed = kind < VIRTUAL_CHILD if sim.variational else np.ones(n, bool)
+    if adaptive:
+        assert len(set(level[summed].tolist())) >= 2, "the adaptive run should hold two levels or more"
+        assert (~summed).any(), "the adaptive run should hold virtual particles"
+    lo, hi = np.array(sim.scene.data["domain"]["min"]), np.array(sim.scene.data["domain"]["max"])
+    h = sim.h0 * 2.0 ** level
+    inside = np.all((x - lo > h[:, None]) & (hi - x > h[:, None]), axis=1)
+    worst, checked, bad_lists = 0.0, 0, []
+    for l in np.unique(level):
+        hl = sim.h0 * 2.0**l
+        c6 = constants(hl, dim)["poly6"]
+        same = np.flatnonzero(level == l)
+        tree = cKDTree(x[same])
+        for i in np.flatnonzero((level == l) & summed & inside):
+            near = same[tree.query_ball_point(x[i], hl)]
+            r2 = np.sum((x[near] - x[i]) ** 2, axis=1)
+            want = c6 * np.sum(m[near] * np.clip(hl * hl - r2, 0.0, None) ** 3)
+            worst = max(worst, abs(rho[i] / want - 1.0))
+            checked += 1
+            # pairs within 1e-5 h of the cut-off may fall either way in single precision
+            sure = near[(near != i) & (np.abs(np.sqrt(r2) / hl - 1.0) > 1e-5)]
+            if count[i] <= sim.max_neighbours:
+                got = set(lists[i, : count[i]].tolist())
+                if not set(sure.tolist()) <= got or len(got - set(near.tolist())):
+                    bad_lists.append(i)
+    assert checked > 0.3 * summed.sum(), f"only {checked} of {summed.sum()} particles away from the walls"
+    assert worst < 2e-5, (f"{dim}D {name}: density pass off a brute-force sum by {worst:.2e} "
+                          f"(relative, worst of {checked} particles; expected single-precision rounding)")
+    assert not bad_lists, (f"{dim}D {name}: {len(bad_lists)} of {checked} neighbour lists differ from "
+                           f"the brute-force sets, first at slot {bad_lists[0]}")
