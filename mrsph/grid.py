@@ -23,6 +23,10 @@ import taichi as ti
 from .particles import DEAD, ParticlePool
 
 PAD_SUPPORTS = 2  # padding around the domain, in supports, so that block look-ups never leave the grid
+# Cells per block of the prefix sum's skip (see ``_sort``). Most cells of a fine level's
+# grid are empty in an adaptive run (its particles are only where the criteria want
+# them), and the serial sum over every cell was the largest serial cost of its step.
+SCAN_BLOCK = 64
 
 
 @ti.data_oriented
@@ -61,6 +65,9 @@ class LevelGrids:
             self.offset[l] = offsets[l]
         # count[c] particles in cell c; the last bucket holds DEAD slots.
         self.count = ti.field(ti.i32, shape=total + 1)
+        # particles per block of SCAN_BLOCK consecutive cells, so that the prefix sum
+        # fills the starts of an empty block without reading its counts
+        self.block_count = ti.field(ti.i32, shape=(total + SCAN_BLOCK) // SCAN_BLOCK)
         self.start = ti.field(ti.i32, shape=total + 2)
         self.key = ti.field(ti.i32, shape=capacity)
         self.rank = ti.field(ti.i32, shape=capacity)
@@ -126,9 +133,10 @@ class LevelGrids:
         """One kernel, five passes (one launch: at a few thousand particles the launches,
         not the passes, were the cost): keys, ranks (serial, so that the order and every
         floating-point sum after it are the same from run to run), the prefix sum
-        (serial; about 0.3 % of a step; it also zeroes the counts for the next sort, which
-        saves a parallel pass over every cell), the scatter to the spare pool and the
-        copy back with the links remapped."""
+        (serial; it also zeroes the counts for the next sort, which saves a parallel pass
+        over every cell, and only fills the starts of a block of ``SCAN_BLOCK`` cells
+        that holds no particle), the scatter to the spare pool and the copy back with
+        the links remapped."""
         n = pool.n[None]
         for i in range(n):
             k = self.total_cells
@@ -141,13 +149,22 @@ class LevelGrids:
             k = self.key[i]
             self.rank[i] = self.count[k]
             self.count[k] += 1
+            self.block_count[k // SCAN_BLOCK] += 1
         ti.loop_config(serialize=True)
         for _ in range(1):
             total = 0
-            for c in range(self.total_cells + 1):
-                self.start[c] = total
-                total += self.count[c]
-                self.count[c] = 0   # ready for the next sort (fields start zeroed)
+            for b in range((self.total_cells + SCAN_BLOCK) // SCAN_BLOCK):
+                c0 = b * SCAN_BLOCK
+                c1 = ti.min(c0 + SCAN_BLOCK, self.total_cells + 1)
+                if self.block_count[b] == 0:
+                    for c in range(c0, c1):    # an empty block: its counts are all zero
+                        self.start[c] = total
+                else:
+                    for c in range(c0, c1):
+                        self.start[c] = total
+                        total += self.count[c]
+                        self.count[c] = 0   # ready for the next sort (fields start zeroed)
+                    self.block_count[b] = 0
             self.start[self.total_cells + 1] = total
         for i in range(n):
             j = self.start[self.key[i]] + self.rank[i]
