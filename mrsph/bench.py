@@ -84,6 +84,10 @@ def _cases(full: bool) -> list[Case]:
              ("particles.spacing=0.002",), 0.24, 0.01, "pair"),
         Case("dam_break_obstacle_3d s=10mm", "dam_break_obstacle_3d",
              ("particles.spacing=0.01",), 0.2, 0.01, "pair"),
+        Case("dam_break_obstacle_2d s=2mm L=3", "dam_break_obstacle_2d",
+             ("particles.spacing=0.002", "adaptivity.levels=3"), 0.24, 0.01, "pair"),
+        Case("dam_break_obstacle_3d s=6mm L=3", "dam_break_obstacle_3d",
+             ("particles.spacing=0.006", "adaptivity.levels=3"), 0.2, 0.01, "pair"),
     ]
 
 
