@@ -231,6 +231,10 @@ class Simulation:
         # whether the step may move the particles (no NaN, dt not below dt_min)
         self.step_dt = ti.field(ti.f64, shape=())
         self.step_go = ti.field(ti.i32, shape=())
+        # what the host reads when a step does not go: (dt before the cut to the frame's
+        # end, force limit, bad count, first bad); a field, not the kernel's result,
+        # which costs more to pass back (see ``_end_step``)
+        self.step_report = ti.field(ti.f64, shape=4)
         # without adaptivity the force pass also takes the accelerations (see _forces)
         self.fused_accelerations = not self.adaptive
         self._end_parts = END_TIMESTEP | END_INTEGRATE | END_BOUNDARIES | (END_ADVECT if self.adaptive else 0)
@@ -1287,21 +1291,22 @@ class Simulation:
         if mu > 0:
             viscous_dt = float(ph["viscous_factor"]) * self.h0 ** 2 * self.rest_density / mu
             cap = min(cap, viscous_dt)
-        limits = [float(ph["cfl"]), float(ph["force_factor"]), cap, float(ph["dt_min"]),
-                  math.inf if max_dt is None else float(max_dt)]
-        args = (n, self._c_sound, stirred, limits)
+        args = (n, self._c_sound, stirred, float(ph["cfl"]), float(ph["force_factor"]), cap,
+                float(ph["dt_min"]), math.inf if max_dt is None else float(max_dt))
         if self.profile:
-            out = self._phase("timestep", self._end_step, *args, END_TIMESTEP)
+            dt = self._phase("timestep", self._end_step, *args, END_TIMESTEP)
             for name, part in (("integrate", END_INTEGRATE), ("boundaries", END_BOUNDARIES),
                                ("virtual_advect", END_ADVECT)):
                 if part & self._end_parts:
                     self._phase(name, self._end_step, *args, part)
         else:
-            out = self._end_step(*args, self._end_parts)
-        stable_dt, dt, force_lim, bad, first_bad = out
+            dt = self._end_step(*args, self._end_parts)
+        if dt >= 0.0:
+            return dt
+        stable_dt, force_lim, bad, first_bad = self.step_report.to_numpy().tolist()
         if bad > 0:
             self._report_bad(int(first_bad), int(bad))
-        if stable_dt < float(ph["dt_min"]):
+        if not stable_dt >= float(ph["dt_min"]):     # as the kernel decided (NaN included)
             if viscous_dt < float(ph["dt_min"]):
                 raise SimulationError(
                     f"step {self.steps} (t = {self.time:.6g} s): the viscous time-step bound "
@@ -1311,38 +1316,46 @@ class Simulation:
                 f"step {self.steps} (t = {self.time:.6g} s): time step {stable_dt:.3g} s is below "
                 f"physics.dt_min = {ph['dt_min']:g} s (max |a|·/h = {force_lim:.3g}); the fluid "
                 f"is blowing up: lower the disturbance strength or raise fluid.stiffness")
-        return dt
+        raise AssertionError("a step that did not go left no reason in step_report")
 
     @ti.kernel
-    def _end_step(self, n: ti.i32, c_sound: float, stirred: ti.i32, limits: ti.types.vector(5, ti.f64),
-                  parts: ti.template()) -> ti.types.vector(5, ti.f64):
+    def _end_step(self, n: ti.i32, c_sound: float, stirred: ti.i32, cfl: ti.f64, force_factor: ti.f64,
+                  cap: ti.f64, dt_min: ti.f64, max_dt: ti.f64, parts: ti.template()) -> ti.f64:
         """The phases after the forces, those in ``parts`` (END_* bits):
 
         - timestep: a = F/m + g + disturbances, the CFL and force limits, NaN/Inf (in a
-          uniform run the force pass has taken these), and dt from ``limits`` = (cfl,
-          force_factor, cap, dt_min, max_dt);
+          uniform run the force pass has taken these), and dt = min(cap, cfl / CFL
+          rate, force_factor / sqrt(force rate)), then cut to ``max_dt``;
         - integrate: symplectic Euler, u += dt a, then x += dt u;
         - boundaries: walls and obstacles (in integrate's loop when both are asked);
         - advect: virtual particles follow their owners (see ``_advect_one``).
 
-        Nothing moves when a particle is bad or dt is below dt_min: the host reports it
-        with the particles as the step found them. Returns (dt before the cut to max_dt,
-        dt, force limit, bad count, first bad); zeros without timestep."""
+        Nothing moves when a particle is bad or dt is below ``dt_min``: the host reports it
+        with the particles as the step found them. Returns the dt taken, or -1 when the
+        step does not go (the reasons are in ``step_report``); 0 without timestep. Scalars
+        in and one out: on the CPU, a vector argument and a vector result cost ~50 µs a
+        launch between them, more than integrating a few thousand particles."""
         p = ti.static(self.pool.p)
-        out = ti.Vector.zero(ti.f64, 5)
+        out = ti.cast(0.0, ti.f64)
         if ti.static(parts & END_TIMESTEP):
             if ti.static(not self.fused_accelerations):
                 self._accelerations(n, c_sound, stirred)
             cfl_lim = ti.cast(self.red_f[0], ti.f64)
             force_lim = ti.cast(self.red_f[1], ti.f64)
-            dt = limits[2]
+            dt = cap
             if cfl_lim > 0.0:
-                dt = ti.min(dt, limits[0] / cfl_lim)
+                dt = ti.min(dt, cfl / cfl_lim)
             if force_lim > 0.0:
-                dt = ti.min(dt, limits[1] / ti.sqrt(force_lim))
-            self.step_go[None] = ti.cast(self.red_i[0] == 0 and dt >= limits[3], ti.i32)
-            self.step_dt[None] = ti.min(dt, limits[4])
-            out = ti.Vector([dt, self.step_dt[None], force_lim, self.red_i[0], self.red_i[1]], ti.f64)
+                dt = ti.min(dt, force_factor / ti.sqrt(force_lim))
+            self.step_go[None] = ti.cast(self.red_i[0] == 0 and dt >= dt_min, ti.i32)
+            self.step_dt[None] = ti.min(dt, max_dt)
+            out = self.step_dt[None]
+            if not self.step_go[None]:
+                out = -1.0
+                self.step_report[0] = dt
+                self.step_report[1] = force_lim
+                self.step_report[2] = ti.cast(self.red_i[0], ti.f64)
+                self.step_report[3] = ti.cast(self.red_i[1], ti.f64)
         if ti.static(parts & (END_INTEGRATE | END_BOUNDARIES)):
             for i in range(n):
                 if self.step_go[None] and is_real(p[i].kind):
