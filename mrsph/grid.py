@@ -70,6 +70,13 @@ class LevelGrids:
         self.block_count = ti.field(ti.i32, shape=(total + SCAN_BLOCK) // SCAN_BLOCK)
         self.start = ti.field(ti.i32, shape=total + 2)
         self.key = ti.field(ti.i32, shape=capacity)
+        # the key of the particle in each slot, and n, as the last sort left them: a sort
+        # that finds the same keys in the same slots has nothing to do (see ``_sort``)
+        self.sorted_key = ti.field(ti.i32, shape=capacity)
+        self.sorted_key.fill(-1)
+        self.sorted_n = ti.field(ti.i32, shape=())
+        self.sorted_n[None] = -1
+        self.moved = ti.field(ti.i32, shape=())
         self.rank = ti.field(ti.i32, shape=capacity)
         self.new_index = ti.field(ti.i32, shape=capacity)
 
@@ -136,14 +143,26 @@ class LevelGrids:
         (serial; it also zeroes the counts for the next sort, which saves a parallel pass
         over every cell, and only fills the starts of a block of ``SCAN_BLOCK`` cells
         that holds no particle), the scatter to the spare pool and the copy back with
-        the links remapped."""
+        the links remapped.
+
+        When every slot holds a particle with the key its slot had after the last sort
+        (and n is the same), the pool is in cell order and the cell starts are right:
+        the passes after the keys do nothing. That is the case for the sorts between and
+        after the level pairs of an adaptivity pass (``Multires.adapt``) when a pair
+        changed nothing; a step that moves particles almost always moves one out of its
+        cell, and sorts in full."""
         n = pool.n[None]
+        self.moved[None] = ti.cast(n != self.sorted_n[None], ti.i32)
         for i in range(n):
             k = self.total_cells
             if pool.p.kind[i] != DEAD:
                 l = pool.p.level[i]
                 k = self.cell_id(self.cell(pool.p.x[i], l), l)
             self.key[i] = k
+            if k != self.sorted_key[i]:
+                self.moved[None] = 1
+        if not self.moved[None]:
+            n = 0           # the loops below do nothing
         ti.loop_config(serialize=True)
         for i in range(n):
             k = self.key[i]
@@ -151,7 +170,7 @@ class LevelGrids:
             self.count[k] += 1
             self.block_count[k // SCAN_BLOCK] += 1
         ti.loop_config(serialize=True)
-        for _ in range(1):
+        for _ in range(self.moved[None]):
             total = 0
             for b in range((self.total_cells + SCAN_BLOCK) // SCAN_BLOCK):
                 c0 = b * SCAN_BLOCK
@@ -169,6 +188,7 @@ class LevelGrids:
         for i in range(n):
             j = self.start[self.key[i]] + self.rank[i]
             self.new_index[i] = j
+            self.sorted_key[j] = self.key[i]
             for live, spare in ti.static(pool.carried):
                 spare[j] = live[i]
             for k in range(pool.p.nchild[i]):
@@ -188,5 +208,6 @@ class LevelGrids:
                 pool.p.kind[j] = DEAD
                 pool.p.parent[j] = -1
                 pool.p.nchild[j] = 0
-        pool.n[None] = alive
+        pool.n[None] = alive          # unmoved: the last sort's count, which is n
+        self.sorted_n[None] = alive
         return alive

@@ -188,6 +188,58 @@ def test_a_sort_after_the_particles_moved_finds_their_new_neighbours(dim, cells)
     compare(grid_neighbours(pool, grids, n), expected, borderline,
             f"{dim}D, second sort, {cells} cell(s) per h")
 
+
+@CELLS
+def test_a_sort_with_nothing_moved_skips_and_any_change_resorts(dim, cells):
+    """A sort that finds every particle in the cell its slot had (the sorts between the
+    level pairs of a quiet adaptivity pass) leaves the pool and the grid as they are;
+    one particle moved to another cell, one killed, or one appended, and it sorts in
+    full again."""
+    rng = np.random.default_rng(53 + dim)
+    xs = random_positions(rng, dim, 1200 if dim == 2 else 2000)
+    levels = (rng.uniform(size=len(xs)) < 0.35).astype(np.int32)
+    pool, grids = build(dim, xs, levels, cells_per_support=per_axis(cells, dim))
+    n = grids.sort(pool)
+    before = pool.p.slot.to_numpy().copy()
+    starts = grids.start.to_numpy().copy()
+    assert grids.sort(pool) == n and grids.moved[None] == 0, \
+        f"{dim}D: a second sort with nothing moved did the full sort (moved = {grids.moved[None]})"
+    assert np.array_equal(pool.p.slot.to_numpy(), before) and np.array_equal(grids.start.to_numpy(), starts), \
+        f"{dim}D: a sort with nothing moved changed the pool or the cell starts"
+
+    # one particle to the place of another far away (another cell)
+    x = pool.p.x.to_numpy()
+    x[0] = x[n - 1] + 1e-3
+    pool.p.x.from_numpy(x)
+    n = grids.sort(pool)
+    assert grids.moved[None] == 1, f"{dim}D: a particle moved to another cell, and the sort skipped"
+    ids = pool.p.slot.to_numpy()[:n]
+    by_id = np.empty((len(xs), dim))
+    by_id[ids] = pool.p.x.to_numpy()[:n]
+    expected, borderline = brute_force(by_id, levels)
+    compare(grid_neighbours(pool, grids, n), expected, borderline,
+            f"{dim}D, one particle moved after a skipped sort, {cells} cell(s) per h")
+
+    # one particle killed in place: n shrinks, no DEAD slot stays inside [0, n)
+    kind = pool.p.kind.to_numpy()
+    kind[n // 2] = DEAD
+    pool.p.kind.from_numpy(kind)
+    m = grids.sort(pool)
+    assert m == n - 1 and not np.any(pool.p.kind.to_numpy()[:m] == DEAD), \
+        f"{dim}D: after killing one of {n} particles the sort left n = {m}"
+
+    # one particle appended past n, in the cell of slot 0: n grows and the grid lists it
+    x, kind, slot = pool.p.x.to_numpy(), pool.p.kind.to_numpy(), pool.p.slot.to_numpy()
+    x[m], kind[m], slot[m] = x[0], REGULAR, 10_000
+    pool.p.x.from_numpy(x)
+    pool.p.kind.from_numpy(kind)
+    pool.p.slot.from_numpy(slot)
+    pool.n[None] = m + 1
+    k = grids.sort(pool)
+    assert k == m + 1 and 10_000 in pool.p.slot.to_numpy()[:k].tolist(), \
+        f"{dim}D: a particle appended past n was not sorted in (n = {k}, expected {m + 1})"
+
+
 @CELLS
 def test_sort_orders_by_cell_and_carries_every_attribute(dim, cells):
     rng = np.random.default_rng(7 + dim)
