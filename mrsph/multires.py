@@ -59,6 +59,7 @@ relaxation of split children (``split_relax_iterations``, ``split_min_distance``
 
 import itertools
 
+import numpy as np
 import taichi as ti
 
 from .particles import (DEAD, REGULAR, ROLE_CHILD, ROLE_PARENT, VIRTUAL_CHILD, VIRTUAL_PARENT,
@@ -106,7 +107,10 @@ class Multires:
         self.offsets = ti.Vector.field(self.dim, float, shape=self.nmax)
         for k, o in enumerate(sampling_offsets(self.dim)):
             self.offsets[k] = o
-        self.counters = ti.field(ti.i32, shape=len(COUNTERS))
+        # running totals, never cleared: the host takes the difference when it collects
+        # them, once an ``advance`` (a read and a clear after every pass cost ~50 µs)
+        self.counters = ti.field(ti.i64, shape=len(COUNTERS))
+        self._taken = np.zeros(len(COUNTERS), np.int64)
         self.partner = ti.field(ti.i32, shape=self.pool.capacity)
         self.fresh = ti.field(ti.i32, shape=self.pool.capacity)   # children split this pass
         self.n_fresh = ti.field(ti.i32, shape=())
@@ -140,9 +144,10 @@ class Multires:
         self.pool.clamp_n()
 
     def take_counters(self) -> dict:
+        """The events (``COUNTERS``) since the last call."""
         vals = self.counters.to_numpy()
-        self.counters.fill(0)
-        return {k: int(v) for k, v in zip(COUNTERS, vals)}
+        new, self._taken = vals - self._taken, vals
+        return {k: int(v) for k, v in zip(COUNTERS, new)}
 
     # ------------------------------------------------------------------ helpers
     def _fields(self, names):
