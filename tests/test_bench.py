@@ -92,7 +92,7 @@ def test_case_names_match_their_particle_counts():
         if case.kind == "pair":
             assert scene.data["adaptivity"]["enabled"], case.name
             assert load_scene(case.scene, list(case.overrides) + [UNIFORM_OVERRIDE]).estimate_particles() == n
-            assert 2_000 <= n <= 100_000, (case.name, n)
+            assert 2_000 <= n <= 200_000, (case.name, n)     # the 3D 5 mm twin: 166k
     kinds = {c.kind for c in _cases(full=False)}
     assert kinds == {"run", "pair", "demo"}
     quick_pairs = {load_scene(c.scene).data["dim"] for c in _cases(full=False) if c.kind == "pair"}
