@@ -100,7 +100,8 @@ SCHEMA = Table(required=True, keys={
         "support": Key("float", 2.0, "[1.5, 4]", doc="support radius over spacing: "
                        "h0 = support * spacing"),
         "capacity": Key("int", 0, ">= 0", doc="particle slots; 0 = automatic: "
-                        "int(1.5 * lattice count + emitted) + 1024"),
+                        "int(1.5 * lattice count + emitted) + 1024; the pool rounds it up to "
+                        "an odd multiple of 16 (so that its arrays do not alias in the cache)"),
         "precision": Key("choice", "f32", choices=("f32", "f64"), doc="float precision")}),
     "fluid": Table(required=True, keys={
         "rest_density": Key("float", 1000.0, "> 0", "kg/m^3", "rest density rho0"),

@@ -75,6 +75,23 @@ def merge_mass_mean() -> list[str]:
     return [a.name for a in ATTRIBUTES if a.on_merge == "mass_mean" and a.name != "x"]
 
 
+def storage_slots(capacity: int) -> int:
+    """Slots to allocate for a pool of at least ``capacity``: the smallest odd multiple of
+    16 that is not less.
+
+    Every per-particle attribute is its own array of ``slots`` numbers (SoA), and the
+    sort, density and force loops read and write a dozen or more of them at the same
+    index. With a byte length that is a multiple of 4 KiB (the automatic capacity often
+    is: 249 856 slots in the 3D three-level pair at 5 mm) those arrays start 4 KiB apart,
+    so the same index of every one falls in the same set of the L1 cache, which holds
+    eight lines a set, and in the same 4 KiB alias for the store buffer. An odd multiple
+    of 16 slots (of 64 bytes in f32) spreads them over every set. Measured on the warm
+    5 mm pair, one thread: copying the 15 carried attributes of 9 072 particles took
+    0.69 ms at 249 856 slots and 0.19 ms at 249 872."""
+    blocks = -(-int(capacity) // 16)
+    return 16 * (blocks | 1)
+
+
 @ti.func
 def is_real(kind):
     return 0 <= kind <= TRANSIENT_BOTH
@@ -91,22 +108,22 @@ class ParticlePool:
 
     def __init__(self, dim: int, capacity: int):
         self.dim = dim
-        self.capacity = capacity
+        self.capacity = storage_slots(capacity)   # at least what was asked (see there)
         self.max_children = 2 ** dim
         vec = ti.types.vector(dim, float)
         members = {}
         for a in ATTRIBUTES:
             members[a.name] = vec if a.shape == "vector" else (ti.i32 if a.shape == "int" else float)
         self.record = ti.types.struct(**members)
-        self.p = self.record.field(shape=capacity, layout=ti.Layout.SOA)
-        self.tmp = self.record.field(shape=capacity, layout=ti.Layout.SOA)
+        self.p = self.record.field(shape=self.capacity, layout=ti.Layout.SOA)
+        self.tmp = self.record.field(shape=self.capacity, layout=ti.Layout.SOA)
         # (live, spare) member fields of what a sort moves: all but the per-step scratch
         # that is rewritten before it is read
         self.carried = tuple((getattr(self.p, a.name), getattr(self.tmp, a.name))
                              for a in ATTRIBUTES if a.carried)
         # children[i, :nchild[i]] are i's children; entries past nchild are never read
-        self.children = ti.field(ti.i32, shape=(capacity, self.max_children))
-        self.tmp_children = ti.field(ti.i32, shape=(capacity, self.max_children))
+        self.children = ti.field(ti.i32, shape=(self.capacity, self.max_children))
+        self.tmp_children = ti.field(ti.i32, shape=(self.capacity, self.max_children))
         self.n = ti.field(ti.i32, shape=())          # slots in use, holes included
         self.refused = ti.field(ti.i32, shape=())    # claims refused for lack of capacity
         self.clear()

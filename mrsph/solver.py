@@ -164,13 +164,15 @@ class Simulation:
         self.h0 = float(part["support"]) * self.s0
         self.rest_density = float(fl["rest_density"])
         self.m0 = self.rest_density / lattice_density_sum(self.s0, self.h0, d)
-        self.capacity = int(part["capacity"])
         self.eos = fl["eos"]
         self.tait = self.eos == "tait"
         self.clamp = bool(fl["clamp_negative_pressure"])
         self.gamma = float(fl["gamma"])
 
-        self.pool = ParticlePool(d, self.capacity)
+        self.pool = ParticlePool(d, int(part["capacity"]))
+        # a few slots more than asked, so that the per-particle arrays do not alias
+        # (particles.storage_slots); every per-particle field has this length
+        self.capacity = self.pool.capacity
         self.grids = LevelGrids(d, L, s["domain"]["min"], s["domain"]["max"], self.h0, self.capacity,
                                 CELLS_PER_SUPPORT[d])
         self.boundary = Boundary(d, s["domain"]["min"], s["domain"]["max"], s["obstacles"],
@@ -295,7 +297,7 @@ class Simulation:
         self.grids.sort(self.pool)
         if self.pool.refused[None] > 0:
             raise SimulationError(
-                f"{self.scene.path}: particles.capacity = {self.capacity} is too small for the "
+                f"{self.scene.path}: particles.capacity = {self.scene.data['particles']['capacity']} is too small for the "
                 f"initial fluid ({self.pool.refused[None]} claims refused); raise it or set 0 for automatic")
         self._snapshot_mass = None
 
