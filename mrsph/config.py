@@ -160,11 +160,6 @@ SCHEMA = Table(required=True, keys={
         "enabled": Key("bool", False, doc="split and merge particles between levels"),
         "levels": Key("int", 1, "[1, 6]", doc="number of levels L; >= 2 when enabled"),
         "interval": Key("int", 4, ">= 1", doc="steps between adaptivity passes"),
-        "split_interval": Key("int", 1, ">= 1", doc="steps between split checks: between "
-                              "two adaptivity passes, a light pass splits the particles "
-                              "whose wanted level became finer (criteria only; the rest of "
-                              "the pass, and the splits that the level balance forces, wait "
-                              "for the full pass); >= interval = splits only in the full pass"),
         "hysteresis": Key("float", 0.25, "[0, 0.5)", doc="gap between split and merge "
                           "thresholds, in level units"),
         "band": Key("float", 0.0, ">= 0", "m", "width of the distance band per level; "

@@ -123,40 +123,6 @@ class Multires:
         for c in range(self.levels - 1, 0, -1):
             self._pair_pass(self.g.sort(self.pool), c)
 
-    def split_only(self) -> None:
-        """The light pass between full passes (every ``split_interval`` steps): split the
-        real particles whose wanted level became finer, coarsest level first, and spread
-        their children (``_split``, ``_relax_fresh``); nothing else.
-
-        Why: with splits only every ``interval`` steps, a coarse particle entering a
-        refined zone splits up to interval − 1 steps late, and the children of a front
-        enter the fine level in batches. In the 3D dam break of tests/test_adaptive_flow.py
-        the front at 1 s ran ahead of the uniform run's by +3.8 % on average over 15
-        viscosities (x0.965 to x1.035; +1.8 to +5.4 %); with this pass every step, -0.5 %
-        (-2.1 to +0.9 %, 7 viscosities), and the 2D front stays where it was (+2.1 %
-        before, +2.4 % after). Running the whole pass every step moved the 3D front the
-        same way but sent the 2D one to +14 %; releases every step, or relaxing the
-        children of one pass against each other, changed nothing.
-
-        The pass reads the neighbour grids of the last sort (the fluid has moved one step
-        since), as only ``_relax_fresh`` uses them; the splits that the level balance
-        forces (``MUST_SPLIT``, found by ``_flags``' neighbour search) wait for the full
-        pass. Children are claimed past the sorted range, as in a full pass."""
-        sim = self.sim
-        sim.criteria.update(sim.time)
-        self._split_pass(self.pool.n[None])
-
-    @ti.kernel
-    def _split_pass(self, n: ti.i32):
-        self._wanted(n)
-        for i in range(n):
-            self.pool.p[i].flags = 0    # scratch bits are not carried by the sort
-        for c in ti.static(range(self.levels - 1, 0, -1)):
-            self.n_fresh[None] = 0
-            self._split(n, c)
-            self._relax_fresh(c)
-        self.pool.clamp_n()
-
     @ti.kernel
     def _pair_pass(self, n: ti.i32, c: ti.i32):
         """The level pair (c − 1, c), §5–6, in order; one kernel, since at a few thousand

@@ -146,8 +146,6 @@ class Simulation:
         self.dim = int(s["dim"])
         self.adaptive = bool(s["adaptivity"]["enabled"])
         self.levels = int(s["adaptivity"]["levels"]) if self.adaptive else 1
-        self.adapt_interval = int(s["adaptivity"]["interval"])
-        self.split_interval = int(s["adaptivity"]["split_interval"])
         self.profile = profile
         self.timers = {k: 0.0 for k in PHASES}
         self._build()
@@ -425,11 +423,8 @@ class Simulation:
     def step(self, max_dt: float | None = None) -> float:
         """Advance by one time step (METHOD.md §1); returns the dt taken."""
         self._phase("emit", self._emit)
-        if self.adaptive:
-            if self.steps % self.adapt_interval == 0:
-                self._phase("adapt", self._adapt)
-            elif self.steps % self.split_interval == 0:
-                self._phase("adapt", self._split_only)
+        if self.adaptive and self.steps % int(self.scene.data["adaptivity"]["interval"]) == 0:
+            self._phase("adapt", self._adapt)
         n = self._phase("grid", self.grids.sort, self.pool)
         # the virtual particles' masses and state are coupling work, timed as such; the
         # limiter reads the neighbour lists of the fine particles, listed ahead of density
@@ -511,10 +506,6 @@ class Simulation:
 
     def _adapt(self):
         self.multires.adapt()
-        self._events_due = True
-
-    def _split_only(self):
-        self.multires.split_only()
         self._events_due = True
 
     def _collect_events(self):
