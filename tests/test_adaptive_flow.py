@@ -25,10 +25,10 @@ DIMS = (2, 3)
 
 pytestmark = pytest.mark.usefixtures("fresh_program")
 
-_FRONT3 = ("the adaptive front runs ahead by 3.6 % on average with a chaotic spread of "
-           "1.5 %: +2.2, +1.6, +4.0, +4.1, +2.5, +5.9, +4.6 % at viscosity x0.97 ... x1.03 "
-           "(uniform fronts 1.570-1.585 m, adaptive 1.610-1.664 m), so one run in seven "
-           "misses the 5 %. The first splits before the block inject "
+_FRONT3 = ("the adaptive front runs ahead by 3.7 % on average with a chaotic spread: "
+           "+1.8 to +5.4 % over 15 viscosities, x0.965 ... x1.035 (2 above 5 %), and +1.7 "
+           "to +3.8 % at CFL 0.18, 0.19, 0.21, 0.22 (the viscosities share their early "
+           "history, the CFL numbers do not). The first splits before the block inject "
            "energy and the fine fluid jumps the block at 3-4 m/s where the uniform run piles "
            "up and creeps over at 0.8 m/s; clearest with 2 levels at s = 1 cm (front "
            "+14..+23 %): kinetic + potential +0.6 J in 0.05 s while the uniform run loses "
@@ -206,10 +206,22 @@ def refined_dam(dim: int) -> dict:
             "criteria": [{"type": "obstacles", "distance": 0.1, "level": 0}]}
 
 
+# A body holding at least this share of the fluid's mass counts for the front.
+BODY_SHARE = 0.05
+
+
 def body_front(p: dict, h0: float) -> float:
-    """The largest x of the fluid's main body: the connected set of real particles (each
-    linked to those within 1.5 supports) that holds the most mass, so that spray does not
-    count as front."""
+    """The largest x of the fluid's bodies: the connected sets of real particles (each
+    linked to those within 1.5 supports) that hold at least ``BODY_SHARE`` of the mass,
+    so that spray and droplets do not count as front.
+
+    Not only the body that holds the most mass: in the 3D adaptive dam break the flow
+    tears at the block, and the heaviest body flips between the coarse pool behind it
+    and the surge past it. At the test viscosity, every 0.1 s from 0.5 s, the heaviest
+    body's front read 0.98, 1.37, 0.97, 1.37, 0.90, 1.62 m; the bodies over 5 % read
+    1.19, 1.37, 1.35, 1.37, 1.47, 1.62 m; the uniform run 1.20, 1.27, 1.34, 1.42, 1.49,
+    1.57 m. A variant (the whole adaptivity pass every step, viscosity x0.99) read -39 %
+    at 1 s by the heaviest body and +0.4 % by the bodies over 5 %."""
     x = p["x"].astype(np.float64)
     reach = 1.5 * h0 * 2.0 ** p["level"]
     pairs = cKDTree(x).query_pairs(r=float(reach.max()), output_type="ndarray")
@@ -218,8 +230,9 @@ def body_front(p: dict, h0: float) -> float:
     graph = sparse.coo_matrix((np.ones(int(keep.sum())), (pairs[keep, 0], pairs[keep, 1])),
                               shape=(len(x), len(x)))
     _, label = connected_components(graph, directed=False)
-    body = np.bincount(label, weights=p["m"].astype(np.float64)).argmax()
-    return float(x[label == body, 0].max())
+    mass = np.bincount(label, weights=p["m"].astype(np.float64))
+    body = mass >= BODY_SHARE * mass.sum()
+    return float(x[body[label], 0].max())
 
 
 def run_dam(scene: dict) -> dict:
