@@ -27,8 +27,8 @@ pytestmark = pytest.mark.usefixtures("fresh_program")
 
 _FRONT3 = ("the adaptive front runs ahead by 3.7 % on average with a chaotic spread: "
            "+1.8 to +5.4 % over 15 viscosities, x0.965 ... x1.035 (2 above 5 %), and +1.7 "
-           "to +3.8 % at CFL 0.18, 0.19, 0.21, 0.22 (the viscosities share their early "
-           "history, the CFL numbers do not). The first splits before the block inject "
+           "to +5.5 % over 10 CFL numbers, 0.17 ... 0.23 (1 above 5 %; the viscosities share "
+           "their early history, the CFL numbers do not). The first splits before the block inject "
            "energy and the fine fluid jumps the block at 3-4 m/s where the uniform run piles "
            "up and creeps over at 0.8 m/s; clearest with 2 levels at s = 1 cm (front "
            "+14..+23 %): kinetic + potential +0.6 J in 0.05 s while the uniform run loses "
