@@ -235,6 +235,19 @@ def body_front(p: dict, h0: float) -> float:
     return float(x[body[label], 0].max())
 
 
+def test_body_front_counts_every_body_of_5_percent_and_no_spray():
+    """A heavy pool behind (60 % of the mass), a lighter surge ahead of it (39 %) and a
+    droplet beyond both (1 %): the front is the surge's, not the pool's (the heaviest
+    body) nor the droplet's."""
+    pool = np.stack([np.linspace(0.0, 0.5, 60), np.zeros(60)], axis=1)
+    surge = np.stack([np.linspace(1.0, 1.38, 39), np.zeros(39)], axis=1)
+    droplet = np.array([[2.0, 0.0]])
+    p = {"x": np.concatenate([pool, surge, droplet]), "m": np.ones(100),
+         "level": np.zeros(100, np.int32)}
+    front = body_front(p, h0=0.02)     # links reach 0.03 m; spacing 0.0085 and 0.01 m
+    assert front == pytest.approx(1.38), f"front {front:.3f} m; expected the surge's, 1.38 m"
+
+
 def run_dam(scene: dict) -> dict:
     sim = make_sim(scene)
     out = {"splits": 0, "merges": 0, "transient": False, "virtual": False, "counts": []}
