@@ -28,6 +28,12 @@ REQUIRED = object()  # default of a key that the scene must give
 # solver.CELLS_PER_SUPPORT); past ~50e6 such cells its per-cell arrays alone take hundreds
 # of MB, so such a domain is almost surely a unit slip.
 MAX_GRID_CELLS = 50e6
+# Sizes of the Taichi fields that hold a scene's shapes, criteria and stirrers (allocated
+# once, so that a scene's count does not recompile kernels); a scene asking for more is
+# refused here rather than cut short where the fields are filled.
+MAX_OBSTACLES = 32     # of each shape (boundary.py)
+MAX_CRITERIA = 16      # criteria.py
+MAX_STIRRERS = 7       # interaction.py: one disturbance slot is the mouse's
 # Automatic capacity = int(CAPACITY_MARGIN * lattice + emitted) + CAPACITY_SLACK: splits
 # turn one particle into 2^d and virtual particles need slots too, hence the margin.
 CAPACITY_MARGIN = 1.5
@@ -74,6 +80,7 @@ class Table:
 class Array:
     item: Table
     doc: str = ""
+    max_items: int = 0        # most entries; 0 = no limit
 
 
 ZEROS = dict(default=lambda dim: (0.0,) * dim, default_doc="zeros")
@@ -146,7 +153,8 @@ SCHEMA = Table(required=True, keys={
         "max_speed": Key("float", 250.0, "> 0", "m/s", "a faster particle is reported as a "
                          "blow-up (the app's strongest stirring, tools/soak.py, reaches ~55 m/s)")}),
     "obstacles": Array(Table({"shape": SHAPE}, switch="shape", variants=SHAPES),
-                       doc="Static solid shapes. The keys of the other shape are unknown."),
+                       doc=f"Static solid shapes, at most {MAX_OBSTACLES} of each shape. The keys "
+                       "of the other shape are unknown."),
     "emitters": Array(Table({
         "center": Key("vec", unit="m", doc="centre of the emitting disc (segment in 2D)"),
         "radius": Key("float", range="> 0", unit="m", doc="half-width of the disc"),
@@ -226,7 +234,9 @@ SCHEMA = Table(required=True, keys={
             "obstacles": Table({"distance": Key("float", 0.0, ">= 0", "m", "the level is "
                                                 "wanted within this distance of an obstacle")}),
             "disturbance": Table({}, doc="Refines where the mouse or a stirrer acts.")}),
-        doc="Refinement criteria: where finer levels are wanted. The finest wins."),
+        doc="Refinement criteria: where finer levels are wanted. The finest wins. At "
+        f"most {MAX_CRITERIA}.",
+        max_items=MAX_CRITERIA),
     "stirrers": Array(Table({
         "radius": Key("float", range="> 0", unit="m", doc="radius of action"),
         "strength": Key("float", range=">= 0", unit="1/s", doc="rate at which fluid in the "
@@ -235,7 +245,8 @@ SCHEMA = Table(required=True, keys={
                     "from the stirrer, pull draws it in"),
         "path": Key("path", min_items=2, doc="waypoints [t, x, y(, z)] with increasing t"),
         "loop": Key("bool", True, doc="repeat the path")}),
-        doc="Scripted disturbances for headless runs."),
+        doc=f"Scripted disturbances for headless runs; at most {MAX_STIRRERS} (the mouse's "
+        "is one more).", max_items=MAX_STIRRERS),
     "run": Table({
         "fps": Key("float", 30.0, "> 0", "1/s", "frames rendered or dumped per simulated second"),
         "frames": Key("int", 0, ">= 0", doc="frames of a headless run; 0 = none given"),
@@ -411,6 +422,8 @@ class _Checker:
                 if not isinstance(items, (list, tuple)):
                     self.add(k, "wrong type", _fmt(items, True), f"an array of tables [[{k}]]")
                     items = []
+                if sub.max_items and len(items) > sub.max_items:
+                    self.add(k, "too many entries", str(len(items)), f"at most {sub.max_items}")
                 out[name] = [self.table(sub.item, item, f"{k}.{i}", dim)
                              for i, item in enumerate(items)]
             elif name in raw:
@@ -429,7 +442,8 @@ class _Checker:
             variant = spec.variants.get(out.get(spec.switch))
             if variant is None:
                 return None  # the switch itself is reported; other keys cannot be judged
-            return allowed | self.fill(variant, raw, key, dim, out)
+            inner = self.fill(variant, raw, key, dim, out)   # None: its own switch is bad
+            return None if inner is None else allowed | inner
         return allowed
 
 
@@ -477,6 +491,10 @@ def _check_places(c: _Checker, d: dict) -> None:
     if fluid is not None and not fluid["blocks"] and not emitters:
         c.add("fluid.blocks", "no fluid", "no [[fluid.blocks]] and no [[emitters]]",
               "at least one [[fluid.blocks]] or one [[emitters]]")
+    for shape in SHAPES:
+        count = sum(1 for ob in d["obstacles"] if ob and ob["shape"] == shape)
+        if count > MAX_OBSTACLES:
+            c.add("obstacles", f"too many of shape {shape}", str(count), f"at most {MAX_OBSTACLES}")
     part = d.get("particles") or {}
     spacing = part.get("spacing")
     for i, b in blocks:

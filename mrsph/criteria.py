@@ -22,17 +22,16 @@ Named criteria (``[[criteria]] type = ...``):
 import numpy as np
 import taichi as ti
 
+from .config import MAX_CRITERIA
 from .interaction import path_sample
 
 TYPES = {"region": 0, "obstacles": 1, "disturbance": 2}
-MAX_CRITERIA = 16
 
 
 @ti.data_oriented
 class Criteria:
     def __init__(self, dim: int, specs: list, band: float, background: float):
-        if len(specs) > MAX_CRITERIA:
-            raise ValueError(f"criteria: at most {MAX_CRITERIA} (got {len(specs)})")
+        assert len(specs) <= MAX_CRITERIA, "too many criteria (the scene check refuses them)"
         self.dim = dim
         self.specs = specs
         self.count = len(specs)

@@ -18,7 +18,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import taichi as ti
 
-MAX_DISTURBANCES = 8   # slot 0 is the mouse's, the others the scene's stirrers
+from .config import MAX_STIRRERS
+
+MAX_DISTURBANCES = 1 + MAX_STIRRERS   # slot 0 is the mouse's, the others the scene's stirrers
 MOUSE_SLOT = 0
 MODES = ("push", "pull")
 

@@ -532,7 +532,7 @@ class Simulation:
             warnings.warn(msg, RuntimeWarning, stacklevel=3)
 
     def _stirrers(self, t):
-        for i, st in enumerate(self.scene.data["stirrers"][: 7]):
+        for i, st in enumerate(self.scene.data["stirrers"]):     # at most MAX_STIRRERS (config)
             pos, vel = path_sample(st["path"], t, st["loop"])
             self.disturbances.set(1 + i, Disturbance(tuple(pos), st["radius"], st["strength"],
                                                      st["mode"], tuple(vel)))

@@ -367,6 +367,18 @@ def test_criteria_keys_depend_on_type():
         '(got "regoin"; expected one of "region", "obstacles", "disturbance")']
 
 
+@pytest.mark.parametrize("shape, what", [
+    (None, 'missing required key (expected one of "box", "sphere")'),
+    ("cube", 'unknown choice (got "cube"; expected one of "box", "sphere")'),
+    (1, 'wrong type (got 1 (integer); expected one of "box", "sphere")')])
+def test_region_criterion_shape_missing_or_unknown(shape, what):
+    """A switch inside a switch (criterion type, then region shape): a bad inner one is
+    reported like the outer one (it used to end in a TypeError traceback)."""
+    scene = minimal(2)
+    scene["criteria"] = [{"type": "region"} | ({} if shape is None else {"shape": shape})]
+    assert problems(scene) == [f"<dict>: criteria.0.shape: {what}"]
+
+
 @pytest.mark.parametrize("path, what", [
     ([[0, 0.1, 0.1], [0, 0.2, 0.2]], "waypoint times not strictly increasing"),
     ([[1, 0.1, 0.1], [0, 0.2, 0.2]], "waypoint times not strictly increasing"),
@@ -507,6 +519,36 @@ def test_domain_too_large_for_grid(dim):
     line = only_problem(scene)
     assert line.startswith("<dict>: domain: too large for the neighbour grid (got ")
     assert "cells of size h0 = 0.002 m; expected <= 5e+07 cells" in line
+
+
+def test_more_entries_than_the_fields_hold():
+    """Criteria, stirrers and obstacles of one shape live in fixed-size Taichi fields: a
+    scene with more is refused with the limit (it used to stop with a traceback, or run
+    with the stirrers past the 7th silently left out)."""
+    scene = minimal(2)
+    scene["criteria"] = [{"type": "disturbance"}] * 17
+    scene["stirrers"] = [{"radius": 0.1, "strength": 1.0, "path": [[0, 0.2, 0.8], [1, 0.8, 0.8]]}] * 8
+    scene["obstacles"] = ([{"shape": "sphere", "center": [0.8, 0.8], "radius": 0.01}] * 33
+                          + [{"shape": "box", "min": [0.7, 0.7], "max": [0.72, 0.72]}] * 32)
+    assert problems(scene) == [
+        "<dict>: criteria: too many entries (got 17; expected at most 16)",
+        "<dict>: stirrers: too many entries (got 8; expected at most 7)",
+        "<dict>: obstacles: too many of shape sphere (got 33; expected at most 32)"]
+
+
+def test_as_many_entries_as_the_fields_hold_run():
+    """The limits above are the fields' sizes, not one less: 16 criteria, 7 stirrers and 32
+    spheres and 32 boxes load, and every stirrer acts (its disturbance slot is active)."""
+    from mrsph.solver import Simulation
+    scene = minimal(2)
+    scene["adaptivity"] = {"enabled": True, "levels": 2}
+    scene["criteria"] = [{"type": "disturbance"}] * 16
+    scene["stirrers"] = [{"radius": 0.1, "strength": 1.0, "path": [[0, 0.2, 0.8], [1, 0.8, 0.8]]}] * 7
+    scene["obstacles"] = ([{"shape": "sphere", "center": [0.8, 0.8], "radius": 0.01}] * 32
+                          + [{"shape": "box", "min": [0.7, 0.7], "max": [0.72, 0.72]}] * 32)
+    sim = Simulation(load_scene(scene), arch="cpu")
+    active = sim.disturbances.active.to_numpy()
+    assert active[1:].sum() == 7, f"active disturbance slots {active}; expected the 7 stirrers'"
 
 
 def test_dt_min_below_dt_max():
