@@ -7,22 +7,22 @@ drawn by the shared :class:`~mrsph.app.render.Renderer`, plus a HUD of GGUI widg
 The physics never sees the window: the window only calls the Simulation API
 (``advance_frame``, ``snapshot``, ``set_param``, ``set_disturbance``, ``reset``).
 
-Controls (Taichi 1.7.4's GGUI reports only letters, arrows, space, Tab, Escape and
-the mouse buttons: no digits, no punctuation, no wheel, so every action has a letter
-or a HUD button; digits and +/-/[/] are handled too, for Taichi builds that report them)
+Controls (Taichi 1.7.4's GGUI reports only letters, arrows, space, Tab, Escape, Shift
+and the mouse buttons: no digits, no punctuation, no wheel, so every action has a letter
+or a HUD button)
 
 =====================  =================================================
 space / n / r          pause-run / step one frame / reset
-tab, 1-9, HUD buttons  next scene / scene i
+tab / help buttons     next scene / any scene
 c / v / h / u          colour mode / show virtual particles / help / HUD panel
 left drag              push the fluid along the drag
 right drag (2D),       pull the fluid toward the cursor
 shift + left drag
-q / e  ([ / ])         smaller / larger mouse radius
+q / e                  smaller / larger mouse radius
 3D: right drag,        orbit the camera
 arrows
 3D: middle drag        pan
-3D: z / x  (+ / -)     zoom in / out;  f: frame the domain again
+3D: z / x              zoom in / out;  f: frame the domain again
 p                      screenshot (PNG)
 Esc                    quit
 =====================  =================================================
@@ -74,7 +74,7 @@ PROBE_TIMEOUT_S = 60.0
 
 _HELP = """\
 space     pause / run          n   step one frame
-r         reset                tab next scene (1-9: scene i)
+r         reset                tab next scene (or a button below)
 c         colour mode          v   show virtual particles
 h         this help            p   screenshot
 left drag push the fluid       right drag / shift+left: pull
@@ -394,13 +394,9 @@ class _App:
                 self.color_mode = palette.next_mode(self.color_mode)
             elif k == ti.ui.TAB:
                 self._next_scene()
-            elif isinstance(k, str) and len(k) == 1 and k in "123456789":
-                i = int(k) - 1
-                if i < len(self.scene_names):
-                    self.switch_scene(self.scene_names[i])
-            elif k in ("q", "["):
+            elif k == "q":
                 self.mouse.scroll(-RADIUS_KEY_NOTCHES)
-            elif k in ("e", "]"):
+            elif k == "e":
                 self.mouse.scroll(RADIUS_KEY_NOTCHES)
             elif k == "f":
                 self.renderer.reset_view()
@@ -524,13 +520,13 @@ class _App:
         x0, y0, x1, y1 = self._hud_rect_px()
         st = snap.stats or {}
         if self.show_help:
-            rows = len(_HELP.splitlines()) + 2 + min(len(self.scene_names), 9)
+            rows = len(_HELP.splitlines()) + 2 + len(self.scene_names)
             with gui.sub_window("Help", 0.2, 0.15, min(440 / w, 0.9), min((40 + 23 * rows) / h, 0.9)):
                 for line in _HELP.splitlines():
                     gui.text(line)
                 gui.text("scenes:")
-                for i, name in enumerate(self.scene_names[:9]):
-                    if name != self.scene_name and gui.button(f"{i + 1}: {name}"):
+                for name in self.scene_names:
+                    if name != self.scene_name and gui.button(name):
                         self.switch_scene(name)
         if not self.show_hud:
             return
