@@ -1342,9 +1342,25 @@ class Simulation:
                     f"fluid.viscosity = {mu:g} Pa s is too high for this resolution")
             raise SimulationError(
                 f"step {self.steps} (t = {self.time:.6g} s): time step {stable_dt:.3g} s is below "
-                f"physics.dt_min = {ph['dt_min']:g} s (max |a|·/h = {force_lim:.3g}); the fluid "
-                f"is blowing up: lower the disturbance strength or raise fluid.stiffness")
+                f"physics.dt_min = {ph['dt_min']:g} s: {self._dt_cause(stable_dt, force_lim)}")
         raise AssertionError("a step that did not go left no reason in step_report")
+
+    def _dt_cause(self, dt: float, force_lim: float) -> str:
+        """Which bound of ``_time_step`` made ``dt`` (the host's reading of the reduced rates:
+        the force rate |a|/h is reported, the CFL rate follows from dt)."""
+        ph = self.scene.data["physics"]
+        force_dt = float(ph["force_factor"]) / math.sqrt(force_lim) if force_lim > 0 else math.inf
+        sound_dt = float(ph["cfl"]) * self.h0 / self._c_sound
+        if dt >= 0.999 * sound_dt:
+            return (f"the sound speed sqrt(fluid.stiffness) = {self._c_sound:.3g} m/s over the "
+                    f"finest support h0 = {self.h0:.3g} m sets it (physics.cfl h0 / c); lower "
+                    "fluid.stiffness or physics.dt_min")
+        if dt >= 0.999 * force_dt:
+            return (f"the force bound sets it (largest |a|/h = {force_lim:.3g} 1/s^2): the fluid "
+                    "is blowing up; lower the disturbance strength or physics.cfl")
+        speed = float(ph["cfl"]) * self.h0 / dt - self._c_sound
+        return (f"the CFL bound sets it (a particle at about {speed:.3g} m/s): the fluid is "
+                "blowing up; lower the disturbance strength or physics.cfl")
 
     @ti.kernel
     def _end_step(self, n: ti.i32, c_sound: float, stirred: ti.i32, cfl: ti.f64, force_factor: ti.f64,

@@ -287,11 +287,13 @@ def test_headless_dump_ply_and_vtk(tmp_path, fmt):
 
 
 def test_simulation_error_exits_1(tmp_path):
-    """A time step below dt_min on the first step: one 'error:' line, exit status 1."""
+    """A time step below dt_min on the first step: one 'error:' line, exit status 1, that
+    names the bound which set it (at rest, the sound speed)."""
     path = scene_file(tmp_path)
     proc = run(path, "--headless", "--frames", 1, "--set", TINY_SPACING,
                "--set", "physics.dt_min=0.0019", "--arch", "cpu", "--quiet", cwd=tmp_path)
     assert proc.returncode == 1, proc.stderr
     assert "Traceback" not in proc.stderr
     errors = [line for line in proc.stderr.splitlines() if line.startswith("error: ")]
-    assert len(errors) == 1 and "dt_min" in errors[0]
+    assert len(errors) == 1 and "dt_min" in errors[0], proc.stderr
+    assert "the sound speed sqrt(fluid.stiffness) = 31.6 m/s" in errors[0], errors[0]

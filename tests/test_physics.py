@@ -368,6 +368,30 @@ def test_dam_break_front_matches_experiment(dam_run):
             f"(allowed -{MM_BEHIND} .. +{MM_AHEAD} a): {table}")
 
 
+def test_short_time_step_names_the_bound_that_set_it(dim):
+    """dt below physics.dt_min: the message names the bound that made it. A resting tank
+    whose dt_min is half its sound-speed step runs; one particle set moving at 150 m/s
+    (under max_speed) makes the CFL bound ~6x shorter, and the report says so and gives
+    the speed, rather than blaming the sound speed."""
+    from mrsph.solver import SimulationError
+
+    scene = tank_scene(dim)
+    probe = make_sim(scene)
+    sound_dt = 0.2 * probe.h0 / probe._c_sound
+    scene["physics"]["dt_min"] = 0.5 * sound_dt
+    sim = make_sim(scene)
+    sim.step()
+    v = alive_slots(sim, "v")
+    v[0, 0] = 150.0
+    set_alive_slots(sim, "v", v)
+    with pytest.raises(SimulationError) as info:
+        sim.step()
+    msg = str(info.value)
+    found = re.search(r"the CFL bound sets it \(a particle at about ([0-9.e+]+) m/s\)", msg)
+    assert found, f"message does not name the CFL bound and a speed: {msg}"
+    assert float(found.group(1)) == pytest.approx(150.0, rel=0.02), msg
+
+
 # ================================================================== blow-up report
 @pytest.mark.parametrize("poison", ["nan", "speed"])
 @pytest.mark.parametrize("adaptive", [True, False], ids=["adaptive", "uniform"])
