@@ -1460,7 +1460,10 @@ class Simulation:
         blocks = ti.static(REDUCTION_BLOCKS)
         for b in range(blocks):
             cfl, force, bad_count, first_bad = 0.0, 0.0, 0, 2147483647
-            for i in range(b * n // blocks, (b + 1) * n // blocks):
+            # block b's share of the pool, in 64 bits: b * n passes 2^31 from 8.4M particles
+            lo = ti.cast(ti.cast(b, ti.i64) * n // blocks, ti.i32)
+            hi = ti.cast(ti.cast(b + 1, ti.i64) * n // blocks, ti.i32)
+            for i in range(lo, hi):
                 if is_real(p[i].kind):
                     cfl_i, force_i, bad = self._accelerate(i, g, c_sound, stirred)
                     if bad:
