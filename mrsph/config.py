@@ -31,6 +31,9 @@ MAX_GRID_CELLS = 50e6
 # Sizes of the Taichi fields that hold a scene's shapes, criteria and stirrers (allocated
 # once, so that a scene's count does not recompile kernels); a scene asking for more is
 # refused here rather than cut short where the fields are filled.
+# Particle slots: each holds ~0.3-0.6 kB with its neighbour list and grid entries, so
+# 1e8 is tens of GB; a larger request is a typo, refused before Taichi tries to allocate.
+MAX_CAPACITY = 100_000_000
 MAX_OBSTACLES = 32     # of each shape (boundary.py)
 MAX_CRITERIA = 16      # criteria.py
 MAX_STIRRERS = 7       # interaction.py: one disturbance slot is the mouse's
@@ -106,7 +109,7 @@ SCHEMA = Table(required=True, keys={
                        "level 0; level n has spacing 2^n s0"),
         "support": Key("float", 2.0, "[1.5, 4]", doc="support radius over spacing: "
                        "h0 = support * spacing"),
-        "capacity": Key("int", 0, ">= 0", doc="particle slots; 0 = automatic: "
+        "capacity": Key("int", 0, f"[0, {MAX_CAPACITY}]", doc="particle slots; 0 = automatic: "
                         "int(1.5 * lattice count + emitted) + 1024; the pool rounds it up to "
                         "an odd multiple of 16 (so that its arrays do not alias in the cache)"),
         "precision": Key("choice", "f32", choices=("f32", "f64"), doc="float precision")}),
@@ -452,10 +455,12 @@ def _lattice_count(blocks: list[dict], s0: float) -> int:
                          for lo, hi in zip(b["min"], b["max"])) for b in blocks)
 
 
-def _emitted(emitters: list[dict], s0: float, dim: int) -> int:
+def _emitted(emitters: list[dict], s0: float, dim: int, top_level: int) -> int:
+    """Particles the emitters add within EMIT_HORIZON_S; each emits at its level, or at
+    ``top_level`` if that is coarser than the run has (adaptivity off: level 0)."""
     total = 0
     for e in emitters:
-        s = s0 * 2 ** e["level"]
+        s = s0 * 2 ** min(e["level"], top_level)
         speed = math.sqrt(sum(c * c for c in e["velocity"]))
         duration = min(e["stop"] - e["start"], EMIT_HORIZON_S)
         total += math.ceil((2 * e["radius"] / s) ** (dim - 1) * speed / s * duration)
@@ -606,8 +611,14 @@ def _check_sizes(c: _Checker, d: dict) -> None:
               f">= {need}, the lattice points of fluid.blocks; "
               "raise particles.capacity or use 0 for automatic")
     elif part["capacity"] == 0 and all(e and None not in e.values() for e in emitters):
-        emitted = _emitted(emitters, s0, d["dim"])
+        ad = d["adaptivity"] or {}
+        top = (ad.get("levels") or 1) - 1 if ad.get("enabled") else 0
+        emitted = _emitted(emitters, s0, d["dim"], top)
         part["capacity"] = int(CAPACITY_MARGIN * need + emitted) + CAPACITY_SLACK
+        if part["capacity"] > MAX_CAPACITY:
+            c.add("particles.spacing", "too many particles for the pool",
+                  f"{part['capacity']:.3g} slots needed at spacing {s0:g} m",
+                  f"<= {MAX_CAPACITY:.0e}; raise particles.spacing or shrink the fluid")
 
 
 def _validate(raw, label: str, overridden: list[str]) -> tuple[dict | None, list[str]]:

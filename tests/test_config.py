@@ -121,10 +121,17 @@ def test_automatic_capacity_counts_emitters(dim):
     down = [0.0, -2.0] + [0.0] * (dim - 2)
     scene["emitters"] = [{"center": [0.8] * dim, "radius": 0.1, "velocity": down,
                           "start": 1.0, "stop": 3.0, "level": 1}]
-    scene["adaptivity"] = {"levels": 2}
-    s_l = 0.1
-    emitted = math.ceil((2 * 0.1 / s_l) ** (dim - 1) * 2.0 / s_l * 2.0)
-    assert load_scene(scene).particles.capacity == int(1.5 * 10 ** dim + emitted) + 1024
+    scene["adaptivity"] = {"levels": 2, "enabled": True}
+
+    def expected(s_l):
+        emitted = math.ceil((2 * 0.1 / s_l) ** (dim - 1) * 2.0 / s_l * 2.0)
+        return int(1.5 * 10 ** dim + emitted) + 1024
+
+    assert load_scene(scene).particles.capacity == expected(0.1)
+    # adaptivity off: the run has level 0 only, and the emitter adds fluid at s0
+    # (the capacity was sized for level 1's spacing, 2^d times too few particles)
+    scene["adaptivity"]["enabled"] = False
+    assert load_scene(scene).particles.capacity == expected(0.05)
 
 
 def test_emitter_counted_for_at_most_a_minute():
@@ -218,7 +225,7 @@ def test_float_is_not_an_integer():
     ("domain.friction", -0.1, "a number in [0, 1]"),
     ("particles.spacing", 0, "a number > 0"),
     ("particles.support", 1.0, "a number in [1.5, 4]"),
-    ("particles.capacity", -1, "an integer >= 0"),
+    ("particles.capacity", -1, "an integer in [0, 100000000]"),
     ("particles.precision", "f16", 'one of "f32", "f64"'),
     ("fluid.rest_density", 0, "a number > 0"),
     ("fluid.eos", "ideal", 'one of "linear", "tait"'),
@@ -226,6 +233,7 @@ def test_float_is_not_an_integer():
     ("fluid.gamma", 11, "a number in [1, 10]"),
     ("fluid.clamp_negative_pressure", 1, "true or false"),
     ("fluid.blocks.0.velocity", "fast", "a list of 2 numbers"),
+    ("particles.capacity", 2_000_000_000, "an integer in [0, 100000000]"),
     ("physics.cfl", 0, "a number in (0, 1]"),
     ("physics.cfl", 1.5, "a number in (0, 1]"),
     ("physics.force_factor", 0.0, "a number in (0, 1]"),
@@ -513,8 +521,20 @@ def test_capacity_too_small(dim):
                     "raise particles.capacity or use 0 for automatic)")
 
 
+def test_automatic_capacity_too_large(dim):
+    """Too many particles for any machine: refused before Taichi tries to allocate them
+    (2e9 slots ended in a host_memory_pool traceback)."""
+    scene = put(minimal(dim), "domain.max", [40.0] * dim)
+    scene["fluid"]["blocks"][0]["max"] = [40.0] * dim
+    scene["particles"]["spacing"] = 0.08 if dim == 3 else 0.003
+    line = only_problem(scene)
+    assert line.startswith("<dict>: particles.spacing: too many particles for the pool (got "), line
+    assert line.endswith("expected <= 1e+08; raise particles.spacing or shrink the fluid)"), line
+
+
 def test_domain_too_large_for_grid(dim):
     scene = put(minimal(dim), "domain.max", [1000.0] * dim)
+    scene["fluid"]["blocks"][0]["max"] = [0.1] * dim    # few particles: only the grid is too large
     scene["particles"]["spacing"] = 0.001
     line = only_problem(scene)
     assert line.startswith("<dict>: domain: too large for the neighbour grid (got ")
