@@ -331,7 +331,7 @@ def _run_headless(sim, frames: int, args) -> int:
     row = dumper.last_row if dumper else sim.stats()
     if not args.quiet:
         where = f"; dumped to {args.dump}" if args.dump else ""
-        print(f"{sim.scene.name}: {frames} frames, {sim.time:.4g} s simulated in {wall:.3g} s "
+        print(f"{sim.scene.name}: {frames} frame{'s' if frames != 1 else ''}, {sim.time:.4g} s simulated in {wall:.3g} s "
               f"wall ({steps} steps); {row['n_real']} real / {row['n_virtual']} virtual "
               f"particles, total mass {row['total_mass']:.6g} kg{where}")
     return EXIT_OK

@@ -100,7 +100,7 @@ def display_available() -> tuple[bool, str]:
     why). Needs DISPLAY or WAYLAND_DISPLAY; the window itself is tried in a subprocess
     (a broken Vulkan/GLFW setup can crash instead of raising); cached per process."""
     if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
-        return False, "no display: neither DISPLAY nor WAYLAND_DISPLAY is set (record headless instead)"
+        return False, "no display: neither DISPLAY nor WAYLAND_DISPLAY is set"
     key = (os.environ.get("DISPLAY"), os.environ.get("WAYLAND_DISPLAY"))
     if key in _display_cache:
         return _display_cache[key]
