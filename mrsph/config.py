@@ -115,7 +115,7 @@ SCHEMA = Table(required=True, keys={
         "precision": Key("choice", "f32", choices=("f32", "f64"), doc="float precision")}),
     "fluid": Table(required=True, keys={
         "rest_density": Key("float", 1000.0, "> 0", "kg/m^3", "rest density rho0"),
-        "viscosity": Key("float", 1.0, ">= 0", "Pa s", "dynamic viscosity mu; it is also the scheme's only dissipation, so it sits far above water's 0.001 (Müller et al. 2003 used 3.5)"),
+        "viscosity": Key("float", 1.0, ">= 0", "Pa s", "dynamic viscosity mu; with fluid.artificial_viscosity it is the scheme's dissipation, so it sits far above water's 0.001 (Müller et al. 2003 used 3.5)"),
         "eos": Key("choice", "linear", choices=("linear", "tait"), doc="equation of state: "
                    "linear p = k (rho - rho0); tait p = rho0 k / gamma ((rho/rho0)^gamma - 1); "
                    "both have sound speed sqrt(k) at rest"),
