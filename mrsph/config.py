@@ -222,7 +222,11 @@ SCHEMA = Table(required=True, keys={
                                       "velocities unchanged; 0 = children stay on the lattice"),
         "split_min_distance": Key("float", 1.0, "(0, 2]", doc="distance, in spacings of the "
                                   "children's level, that those iterations open between a "
-                                  "new child and its real neighbours")}),
+                                  "new child and its real neighbours"),
+        "split_near_regular": Key("bool", False, doc="also split a transient parent that "
+                                  "has a regular particle of the finer level within its "
+                                  "support, where the criteria do not want it merged "
+                                  "(METHOD.md 5.2's other trigger)")}),
     "criteria": Array(Table(
         {"type": Key("choice", choices=("region", "obstacles", "disturbance"),
                      doc="what wants the finer level"),

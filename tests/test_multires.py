@@ -471,6 +471,37 @@ def test_refined_fluid_merges_back_into_the_coarsest_level(dim):
         f"particles reaches {lam.max():.3g} (= background level 1) behind the box")
 
 
+@pytest.mark.parametrize("on", [False, True], ids=["criteria-only", "near-regular"])
+def test_transient_parent_next_to_a_regular_fine_particle_splits_when_asked(dim, on):
+    """METHOD.md §5.2's other trigger (``adaptivity.split_near_regular``): a transient
+    parent with a regular particle of the finer level in its support splits, unless the
+    criteria want that place merged. Here a regular level-0 particle is put beside a
+    transient parent of the refined blob's interface whose wanted level (between the split
+    and merge thresholds) does not ask for a split, and one adaptivity pass runs."""
+    scene = refined_blob_scene(dim)
+    scene["adaptivity"]["split_near_regular"] = on
+    sim = make_sim(scene)
+    pool = raw_pool(sim)
+    lam = sim.pool.p.lam.to_numpy()[:pool["n"]]
+    eta = float(scene["adaptivity"].get("hysteresis", 0.25))
+    parents = np.flatnonzero(np.isin(pool["kind"], PARENT_ROLE) & (pool["level"] == 1)
+                             & (lam >= 1 - eta) & (lam <= 1 + eta))
+    assert len(parents) > 0, f"{dim}D: no transient parent between the thresholds to test"
+    # the one furthest from the refined box, so that no other fine particle is near it
+    target = parents[np.argmax(lam[parents])]
+    xt = pool["x"][target].astype(np.float64)
+    away = np.sign(xt - 0.5)
+    sim._append((xt + 0.25 * S0[dim] * away)[None], np.zeros((1, dim)), 0)
+    sim.multires.adapt()          # (sorts the pool: slots move, so find the parent by place)
+    after = raw_pool(sim)
+    coarse = np.flatnonzero((after["level"] == 1) & np.isin(after["kind"], REAL_KINDS + (V_PARENT,)))
+    here = coarse[np.argmin(np.linalg.norm(after["x"][coarse] - xt, axis=1))]
+    assert np.linalg.norm(after["x"][here] - xt) < 1e-6, f"{dim}D: the parent at {xt} is gone"
+    split = after["kind"][here] == V_PARENT
+    assert split == on, (f"{dim}D, split_near_regular = {on}: the transient parent at {xt} "
+                         f"(wanted level {lam[target]:.3f}) {'split' if split else 'did not split'}")
+
+
 # ================================================================== 6. seeding a block
 def test_adaptive_seed_holds_the_uniform_runs_fluid(dim):
     """A block whose sides are not whole cells of the coarsest level (0.31, 0.27 and
