@@ -74,7 +74,7 @@ PROBE_TIMEOUT_S = 60.0
 
 _HELP = """\
 space     pause / run          n   step one frame
-r         reset                tab next scene (or a button below)
+r         reset                tab next scene (list below)
 c         colour mode          v   show virtual particles
 h         this help            p   screenshot
 left drag push the fluid       right drag / shift+left: pull
