@@ -5,9 +5,15 @@ import sys
 import tempfile
 
 
+# Every probe starts Taichi on the CPU, quietly, without the kernel cache.
+_START = "import taichi as ti\nti.init(arch=ti.cpu, log_level=ti.ERROR, offline_cache=False)\n"
+
+
 def run_probe(script: str, marker: str, what: str, timeout_s: float) -> tuple[bool, str]:
-    """Run ``script``; (True, "") if it printed ``marker``, else (False, why), ``what``
-    naming the attempt in the message ("the GGUI/Vulkan probe", "opening a test window")."""
+    """Run ``script`` after starting Taichi (``ti`` is imported); (True, "") if it printed
+    ``marker``, else (False, why), ``what`` naming the attempt in the message ("the
+    GGUI/Vulkan probe", "opening a test window")."""
+    script = _START + script
     try:
         # In a scratch directory: ImGui drops an imgui.ini into the working directory.
         with tempfile.TemporaryDirectory(prefix="mrsph_probe_") as scratch:

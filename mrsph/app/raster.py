@@ -89,18 +89,18 @@ class Rasterizer:
         rgb = palette.colours(snapshot, color_mode, rest_density=rest_density)
         keep = np.ones(len(rgb), dtype=bool) if show_virtual else ~palette.is_virtual(snapshot.kind)
         if snapshot.dim == 2:
-            self._render_2d(snapshot, rgb, keep)
+            self._render_flat(snapshot, rgb, keep)
         else:
             if camera is None:
                 camera = OrbitCamera.from_box(snapshot.domain_min, snapshot.domain_max, w / h)
-            self._render_3d(snapshot, rgb, keep, camera)
+            self._render_perspective(snapshot, rgb, keep, camera)
         if legend:
             self._legend(snapshot, color_mode)
         out = np.clip(self._img * 255.0 + 0.5, 0, 255).astype(np.uint8).reshape(h, w, 3)
         return np.ascontiguousarray(out[::-1])  # pixel rows are y-up; images are top-down
 
     # -- 2D ----------------------------------------------------------------------------
-    def _render_2d(self, snap, rgb, keep):
+    def _render_flat(self, snap, rgb, keep):
         view = View2D(snap.domain_min, snap.domain_max, self.width, self.height)
         for obs in snap.obstacles:
             self._fill_triangles(view.world_to_px(geometry.obstacle_triangles(obs)), palette.OBSTACLE_FILL)
@@ -116,8 +116,8 @@ class Rasterizer:
                     self._stamp_flat(px[sel], _quantise(radius_px[lvl]), rgb[sel])
         lw = max(LINE_WIDTH_FRACTION * self.height, 1.0)
         for obs in snap.obstacles:
-            self._lines_2d(view.world_to_px(geometry.obstacle_segments(obs, 2)), palette.OBSTACLE_EDGE, lw)
-        self._lines_2d(view.world_to_px(geometry.domain_segments(snap.domain_min, snap.domain_max)),
+            self._lines_flat(view.world_to_px(geometry.obstacle_segments(obs, 2)), palette.OBSTACLE_EDGE, lw)
+        self._lines_flat(view.world_to_px(geometry.domain_segments(snap.domain_min, snap.domain_max)),
                        palette.DOMAIN_COLOUR, lw)
 
     def _indices(self, px: np.ndarray, dx: np.ndarray, dy: np.ndarray):
@@ -161,7 +161,7 @@ class Rasterizer:
         t = (np.arange(counts.sum()) - start) / np.repeat(counts - 1, counts)
         return a[seg] + (b[seg] - a[seg]) * t[:, None], seg, t
 
-    def _lines_2d(self, seg_px, colour, width_px):
+    def _lines_flat(self, seg_px, colour, width_px):
         if len(seg_px) == 0:
             return
         pts, _, _ = self._sample_segments(seg_px)
@@ -170,7 +170,7 @@ class Rasterizer:
         self._img[idx[ok]] = colour
 
     # -- 3D ----------------------------------------------------------------------------
-    def _render_3d(self, snap, rgb, keep, cam: OrbitCamera):
+    def _render_perspective(self, snap, rgb, keep, cam: OrbitCamera):
         w, h = self.width, self.height
         f = cam.focal_px(h)
         self._zbuf = np.full(w * h, np.inf, dtype=np.float64)
@@ -183,11 +183,11 @@ class Rasterizer:
                 col = np.broadcast_to(np.asarray(palette.OBSTACLE_FILL, np.float32) * 1.5, (len(pts), 3))
                 frags += self._spheres(cam, pts, np.full(len(pts), r), col, f)
         lw = max(LINE_WIDTH_FRACTION * h, 1.0)
-        frags += self._lines_3d(cam, geometry.domain_segments(snap.domain_min, snap.domain_max),
+        frags += self._lines_zbuffered(cam, geometry.domain_segments(snap.domain_min, snap.domain_max),
                                 palette.DOMAIN_COLOUR, lw)
         for obs in snap.obstacles:
             if obs.get("shape") == "box":
-                frags += self._lines_3d(cam, geometry.obstacle_segments(obs, 3), palette.OBSTACLE_EDGE, lw)
+                frags += self._lines_zbuffered(cam, geometry.obstacle_segments(obs, 3), palette.OBSTACLE_EDGE, lw)
         if not frags:
             return
         idx = np.concatenate([fr[0] for fr in frags])
@@ -218,7 +218,7 @@ class Rasterizer:
             out.append((idx[ok], depth[ok], np.minimum(col, 1.0)[ok]))
         return out
 
-    def _lines_3d(self, cam, seg_world, colour, width_px):
+    def _lines_zbuffered(self, cam, seg_world, colour, width_px):
         if len(seg_world) == 0:
             return []
         pts_px, z = cam.project(seg_world, self.width, self.height)

@@ -28,8 +28,6 @@ PROBE_TIMEOUT_S = 90.0
 NO_VULKAN_ENV = "MRSPH_NO_VULKAN"
 
 _PROBE_SCRIPT = r"""
-import taichi as ti
-ti.init(arch=ti.cpu, log_level=ti.ERROR, offline_cache=False)
 w = ti.ui.Window("mrsph vulkan probe", (64, 48), show_window=False)
 w.get_canvas().set_background_color((1.0, 0.0, 0.0))
 img = w.get_image_buffer_as_numpy()

@@ -146,13 +146,13 @@ class Renderer:
         rgb = palette.colours(snapshot, color_mode, rest_density=rest_density)
         keep = np.ones(len(rgb), dtype=bool) if show_virtual else ~palette.is_virtual(snapshot.kind)
         if snapshot.dim == 2:
-            self._draw_2d(snapshot, rgb, keep)
+            self._draw_canvas(snapshot, rgb, keep)
         else:
-            self._draw_3d(snapshot, rgb, keep)
+            self._draw_scene(snapshot, rgb, keep)
         if legend:
             draw_legend(self.window.get_gui(), snapshot, color_mode, self.size, rest_density=rest_density)
 
-    def _draw_2d(self, snap, rgb, keep):
+    def _draw_canvas(self, snap, rgb, keep):
         view = self.view2d(snap)
         h = view.height
         tris = [geometry.obstacle_triangles(o) for o in snap.obstacles]
@@ -185,7 +185,7 @@ class Renderer:
         cols = np.concatenate([np.tile(np.asarray(c, np.float32), (len(p), 1)) for p, c in parts])
         return segs, cols
 
-    def _draw_3d(self, snap, rgb, keep):
+    def _draw_scene(self, snap, rgb, keep):
         cam = self.ensure_camera(snap)
         if self._scene3d is None:
             self._scene3d = self.window.get_scene()

@@ -85,8 +85,6 @@ Esc       quit
 
 _display_cache: dict = {}
 _PROBE_SCRIPT = r"""
-import taichi as ti
-ti.init(arch=ti.cpu, log_level=ti.ERROR, offline_cache=False)
 w = ti.ui.Window("mrsph display probe", (64, 48), show_window=True)
 w.get_canvas().set_background_color((0.1, 0.1, 0.1))
 w.show()
