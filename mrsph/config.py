@@ -28,12 +28,12 @@ REQUIRED = object()  # default of a key that the scene must give
 # solver.CELLS_PER_SUPPORT); past ~50e6 such cells its per-cell arrays alone take hundreds
 # of MB, so such a domain is almost surely a unit slip.
 MAX_GRID_CELLS = 50e6
-# Sizes of the Taichi fields that hold a scene's shapes, criteria and stirrers (allocated
-# once, so that a scene's count does not recompile kernels); a scene asking for more is
-# refused here rather than cut short where the fields are filled.
 # Particle slots: each holds ~0.3-0.6 kB with its neighbour list and grid entries, so
 # 1e8 is tens of GB; a larger request is a typo, refused before Taichi tries to allocate.
 MAX_CAPACITY = 100_000_000
+# Sizes of the Taichi fields that hold a scene's shapes, criteria and stirrers (allocated
+# once, so that a scene's count does not recompile kernels); a scene asking for more is
+# refused here rather than cut short where the fields are filled.
 MAX_OBSTACLES = 32     # of each shape (boundary.py)
 MAX_CRITERIA = 16      # criteria.py
 MAX_STIRRERS = 7       # interaction.py: one disturbance slot is the mouse's
@@ -460,8 +460,9 @@ def _lattice_count(blocks: list[dict], s0: float) -> int:
 
 
 def _emitted(emitters: list[dict], s0: float, dim: int, top_level: int) -> int:
-    """Particles the emitters add within EMIT_HORIZON_S; each emits at its level, or at
-    ``top_level`` if that is coarser than the run has (adaptivity off: level 0)."""
+    """Particles the emitters add within EMIT_HORIZON_S, each at its own level but no
+    coarser than ``top_level``, the run's coarsest (0 with adaptivity off), as the solver
+    emits them."""
     total = 0
     for e in emitters:
         s = s0 * 2 ** min(e["level"], top_level)

@@ -1346,20 +1346,22 @@ class Simulation:
         raise AssertionError("a step that did not go left no reason in step_report")
 
     def _dt_cause(self, dt: float, force_lim: float) -> str:
-        """Which bound of ``_time_step`` made ``dt`` (the host's reading of the reduced rates:
-        the force rate |a|/h is reported, the CFL rate follows from dt)."""
+        """Which bound of ``_finish_step`` made ``dt``, read from the reduced rates: the
+        force rate |a|/h is reported, and the CFL rate (c + |u|)/h is cfl / dt. Which level
+        h belongs to is not reported, so a speed is given as at the finest one."""
         ph = self.scene.data["physics"]
+        c = self._c_sound
         force_dt = float(ph["force_factor"]) / math.sqrt(force_lim) if force_lim > 0 else math.inf
-        sound_dt = float(ph["cfl"]) * self.h0 / self._c_sound
-        if dt >= 0.999 * sound_dt:
-            return (f"the sound speed sqrt(fluid.stiffness) = {self._c_sound:.3g} m/s over the "
-                    f"finest support h0 = {self.h0:.3g} m sets it (physics.cfl h0 / c); lower "
-                    "fluid.stiffness or physics.dt_min")
         if dt >= 0.999 * force_dt:
             return (f"the force bound sets it (largest |a|/h = {force_lim:.3g} 1/s^2): the fluid "
                     "is blowing up; lower the disturbance strength or physics.cfl")
-        speed = float(ph["cfl"]) * self.h0 / dt - self._c_sound
-        return (f"the CFL bound sets it (a particle at about {speed:.3g} m/s): the fluid is "
+        rate = float(ph["cfl"]) / dt
+        speed = rate * self.h0 - c            # |u| if the fastest particle is at level 0
+        if speed <= 0.01 * c:
+            return (f"the sound speed sqrt(fluid.stiffness) = {c:.3g} m/s sets it (physics.cfl "
+                    f"h / c, h0 = {self.h0:.3g} m); lower fluid.stiffness or physics.dt_min")
+        return (f"the CFL bound sets it ((c + |u|)/h = {rate:.3g} 1/s with c = {c:.3g} m/s: a "
+                f"particle at about {speed:.3g} m/s if at the finest level): the fluid is "
                 "blowing up; lower the disturbance strength or physics.cfl")
 
     @ti.kernel
