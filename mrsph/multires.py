@@ -86,7 +86,9 @@ GATHER_ROUNDS = 3  # pairings per pass: 1 → 2 → 4 → 8 children in the best
 # be released at the next pass and gathered again (see ``_propose``).
 GATHER_MARGIN = 0.8
 
-COUNTERS = ("splits", "merges", "refused", "released", "gathered")
+# Event counters, read by ``take_counters`` (refused splits are the pool's ``refused``).
+COUNTERS = ("splits", "merges", "released", "gathered")
+SPLITS, MERGES, RELEASED, GATHERED = range(len(COUNTERS))
 
 
 def sampling_offsets(dim: int):
@@ -177,7 +179,7 @@ class Multires:
             self.pool.children[vp, k] = -1
         p[vp].nchild = 0
         p[vp].kind = DEAD
-        ti.atomic_add(self.counters[3], 1)
+        ti.atomic_add(self.counters[RELEASED], 1)
 
     @ti.func
     def _kill_virtual_children(self, i):
@@ -311,7 +313,7 @@ class Multires:
                             self.fresh[ti.atomic_add(self.n_fresh[None], 1)] = ch
                         self._fit_children(i, s_f)
                         p[i].kind = VIRTUAL_PARENT
-                        ti.atomic_add(self.counters[0], 1)
+                        ti.atomic_add(self.counters[SPLITS], 1)
 
     @ti.func
     def _relax_fresh(self, c):
@@ -543,7 +545,7 @@ class Multires:
                 p[i].nchild = ni + nj
                 p[j].nchild = 0
                 p[j].kind = DEAD
-                ti.atomic_add(self.counters[4], 1)
+                ti.atomic_add(self.counters[GATHERED], 1)
 
     @ti.func
     def _merge(self, n, c):
@@ -587,4 +589,4 @@ class Multires:
                     p[i].nchild = 0
                     p[i].parent = -1
                     p[i].kind = REGULAR
-                    ti.atomic_add(self.counters[1], 1)
+                    ti.atomic_add(self.counters[MERGES], 1)

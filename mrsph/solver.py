@@ -33,6 +33,7 @@ from .eos import hydrostatic_heights, pressure, sound_speed
 from .grid import LevelGrids
 from .interaction import MOUSE_SLOT, Disturbance, Disturbances, path_sample
 from .kernels import constants, lattice_density_sum, lattice_gradient_factor, poly6
+from .multires import COUNTERS, Multires
 from .particles import (ATTRIBUTES, DEAD, REGULAR, ROLE_PARENT, VIRTUAL_CHILD, VIRTUAL_PARENT,
                         ParticlePool, is_real, is_virtual)
 from .snapshot import Snapshot
@@ -264,7 +265,6 @@ class Simulation:
         if self.limit_virtual:
             self.virtual_share.fill(1.0)
 
-        from .multires import Multires
         self.multires = Multires(self) if self.adaptive else None
 
     # ================================================================== state
@@ -279,7 +279,8 @@ class Simulation:
         self.frame = 0
         self.steps = 0
         self.dt = float(s["physics"]["dt_max"])
-        self._events = {"splits": 0, "merges": 0, "refused": 0, "released": 0, "gathered": 0}
+        self._events = dict.fromkeys(COUNTERS, 0)
+        self._refused_reported = 0   # pool.refused at the last stats row
         self._events_due = False
         self._emit_acc = [0.0] * len(s["emitters"])
         self._refusal_warned = False
@@ -1552,7 +1553,9 @@ class Simulation:
         return self.pool.children.to_numpy()[:n]
 
     def stats(self, parts: dict | None = None) -> dict:
-        """The stats row (the columns of stats.csv); events count since the last call."""
+        """The stats row (the columns of stats.csv). ``splits``, ``merges`` and ``refused``
+        count since the last call; ``refused`` counts claims the pool could not hold: a
+        split refused, or a particle an emitter could not place."""
         parts = parts if parts is not None else self.particles()
         real = parts["kind"] < VIRTUAL_CHILD
         m = parts["m"][real].astype(np.float64)
@@ -1575,7 +1578,9 @@ class Simulation:
         self._collect_events()
         row["splits"] = self._events["splits"]
         row["merges"] = self._events["merges"]
-        row["refused"] = int(self.pool.refused[None])
+        refused = int(self.pool.refused[None])    # a running total in the pool
+        row["refused"] = refused - self._refused_reported
+        self._refused_reported = refused
         for k in self._events:
             self._events[k] = 0
         return row
@@ -1616,6 +1621,7 @@ class Simulation:
         self.pool.children.from_numpy(state["children"])
         self.pool.n[None] = state["n"]
         self.pool.refused[None] = state["refused"]
+        self._refused_reported = state["refused"]
         self.time, self.frame, self.steps, self.dt = state["clock"]
         self._emit_acc = list(state["emitters"])
         if self.reaction is not None:

@@ -672,6 +672,9 @@ def test_a_full_pool_refuses_splits_warns_once_and_loses_nothing(dim):
     print(f"\n{dim}D capacity {sim.capacity}: {splits} splits, {refused} refused in 60 steps; "
           f"{len(full)} warning(s)")
     assert refused > 0, f"{dim}D: capacity {sim.capacity} refused nothing ({splits} splits): the test is void"
+    total = int(sim.pool.refused[None])
+    assert refused == total, (f"{dim}D: the stats rows' refused add up to {refused}, the pool "
+                              f"refused {total} claims (each row counts since the previous one)")
     assert len(full) == 1 and sim.warnings == [str(full[0].message)], (
         f"{dim}D: expected one 'pool full' warning, got {len(full)} "
         f"({len(sim.warnings)} in sim.warnings); first: {full[0].message if full else None}")

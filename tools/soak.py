@@ -221,7 +221,7 @@ def soak(steps: int = 100_000, check_every: int = 500, scene="demo_2d", override
                 res.checks += 1
                 res.splits += st["splits"]
                 res.merges += st["merges"]
-                res.refused = st["refused"]
+                res.refused += st["refused"]
                 res.n_real_min = min(res.n_real_min, st["n_real"])
                 res.n_real_max = max(res.n_real_max, st["n_real"])
                 res.n_real_end = st["n_real"]
