@@ -248,8 +248,9 @@ SCHEMA = Table(required=True, keys={
         "radius": Key("float", range="> 0", unit="m", doc="radius of action"),
         "strength": Key("float", range=">= 0", unit="1/s", doc="rate at which fluid in the "
                         "radius is driven toward the stirrer's velocity"),
-        "mode": Key("choice", "push", choices=("push", "pull"), doc="push moves fluid away "
-                    "from the stirrer, pull draws it in"),
+        "mode": Key("choice", "push", choices=("push", "pull"), doc="push drives the fluid "
+                    "in the radius toward the stirrer's own velocity (a moving stirrer drags it "
+                    "along, a still one brakes it); pull draws it toward the centre"),
         "path": Key("path", min_items=2, doc="waypoints [t, x, y(, z)] with increasing t"),
         "loop": Key("bool", True, doc="repeat the path")}),
         doc=f"Scripted disturbances for headless runs; at most {MAX_STIRRERS} (the mouse's "

@@ -13,6 +13,7 @@ solver's time step respects. The ``disturbance`` refinement criterion refines in
 radius of every active disturbance.
 """
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -36,8 +37,16 @@ class Disturbance:
     def __post_init__(self):
         if self.mode not in MODES:
             raise ValueError(f"Disturbance.mode: expected push or pull (got {self.mode!r})")
-        if self.radius <= 0:
-            raise ValueError(f"Disturbance.radius: expected > 0 (got {self.radius})")
+        if not all(math.isfinite(c) for c in self.center):
+            raise ValueError(f"Disturbance.center: expected finite numbers (got {self.center})")
+        if not (math.isfinite(self.radius) and self.radius > 0):
+            raise ValueError(f"Disturbance.radius: expected a finite number > 0 (got {self.radius})")
+        if not (math.isfinite(self.strength) and self.strength >= 0):
+            raise ValueError(f"Disturbance.strength: expected a finite number >= 0 (got {self.strength})")
+        if len(self.velocity) not in (0, len(self.center)) or \
+                not all(math.isfinite(c) for c in self.velocity):
+            raise ValueError(f"Disturbance.velocity: expected () or {len(self.center)} finite "
+                             f"numbers, as many as the centre has (got {self.velocity})")
 
 
 def path_sample(path, t: float, loop: bool):
@@ -80,7 +89,7 @@ class Disturbances:
             return
         if len(d.center) != self.dim:
             raise ValueError(f"Disturbance.center: expected {self.dim} numbers (got {d.center})")
-        vel = d.velocity if len(d.velocity) == self.dim else (0.0,) * self.dim
+        vel = d.velocity or (0.0,) * self.dim    # __post_init__: () or as long as the centre
         self.center[slot] = list(map(float, d.center))
         self.velocity[slot] = list(map(float, vel))
         self.radius[slot] = float(d.radius)

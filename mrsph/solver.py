@@ -1347,11 +1347,16 @@ class Simulation:
         raise AssertionError("a step that did not go left no reason in step_report")
 
     def _dt_cause(self, dt: float, force_lim: float) -> str:
-        """Which bound of ``_finish_step`` made ``dt``, read from the reduced rates: the
-        force rate |a|/h is reported, and the CFL rate (c + |u|)/h is cfl / dt. Which level
+        """Which bound of ``_finish_step`` made ``dt``: the disturbance cap, read from the
+        disturbances, or one of the reduced rates: the force rate |a|/h is reported, and the
+        CFL rate (c + |u|)/h is cfl / dt. Which level
         h belongs to is not reported, so a speed is given as at the finest one."""
         ph = self.scene.data["physics"]
         c = self._c_sound
+        strength = self.disturbances.max_strength()
+        if strength > 0 and dt >= 0.999 * 0.5 / strength:
+            return (f"the disturbance bound 0.5/strength sets it (strength {strength:.3g} 1/s, "
+                    "the mouse's or a stirrer's): lower that strength or physics.dt_min")
         force_dt = float(ph["force_factor"]) / math.sqrt(force_lim) if force_lim > 0 else math.inf
         if dt >= 0.999 * force_dt:
             return (f"the force bound sets it (largest |a|/h = {force_lim:.3g} 1/s^2): the fluid "

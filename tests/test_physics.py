@@ -393,6 +393,41 @@ def test_short_time_step_names_the_bound_that_set_it(dim):
     assert float(found.group(1)) == pytest.approx(150.0, rel=0.02), msg
 
 
+def test_short_time_step_set_by_a_disturbance_names_it(dim):
+    """A mouse disturbance so strong that its stability cap 0.5/strength falls below
+    physics.dt_min: the message names the disturbance and its strength (it used to blame
+    the CFL bound, with a particle speed nothing had)."""
+    from mrsph.interaction import Disturbance
+    from mrsph.solver import SimulationError
+
+    scene = tank_scene(dim)
+    sim = make_sim(scene)
+    strength = 2.0 / float(sim.scene.data["physics"]["dt_min"])     # cap 0.25 dt_min
+    centre = [0.5 * (a + b) for a, b in zip(scene["domain"]["min"], scene["domain"]["max"])]
+    sim.set_disturbance(Disturbance(tuple(centre), 0.05, strength))
+    with pytest.raises(SimulationError) as info:
+        sim.step()
+    msg = str(info.value)
+    assert "the disturbance bound 0.5/strength sets it" in msg and f"{strength:.3g} 1/s" in msg, msg
+
+
+@pytest.mark.parametrize("bad", [dict(radius=float("nan")), dict(radius=0.0),
+                                 dict(strength=-1.0), dict(strength=float("inf")),
+                                 dict(velocity=(1.0,)), dict(center=(0.5, float("nan")))],
+                         ids=["radius-nan", "radius-0", "strength-negative", "strength-inf",
+                              "velocity-length", "centre-nan"])
+def test_bad_disturbance_is_refused(bad):
+    """The window and scripts build Disturbance values; a bad one is refused where it is
+    made, with the field's name, not taken into the step (an infinite strength made a
+    zero time step; a short velocity was replaced by zero)."""
+    from mrsph.interaction import Disturbance
+
+    args = dict(center=(0.5, 0.5), radius=0.1, strength=10.0, velocity=(0.0, 0.0)) | bad
+    field = next(iter(bad))
+    with pytest.raises(ValueError, match=f"Disturbance.{field}: expected"):
+        Disturbance(**args)
+
+
 # ================================================================== blow-up report
 @pytest.mark.parametrize("poison", ["nan", "speed"])
 @pytest.mark.parametrize("adaptive", [True, False], ids=["adaptive", "uniform"])
