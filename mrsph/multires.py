@@ -14,7 +14,8 @@ particles:
 So the fine side of an interface sees a full fine neighbourhood (real fine particles and
 the coarse particles' virtual children) and the coarse side a full coarse one. The
 reaction of every real–virtual force goes back to the real particles the virtual one
-stands for (``solver.Simulation._virtual_coupling``), so momentum is conserved.
+stands for (``solver.Simulation._hand_on`` in the force pass with the default variational
+coupling, ``_virtual_coupling`` after it with the symmetric one), so momentum is conserved.
 
 One adaptivity pass (every ``adaptivity.interval`` steps) walks the level pairs from the
 coarsest down (§5.4), rebuilding the grids between pairs, and for the coarse level c

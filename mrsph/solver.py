@@ -38,14 +38,17 @@ from .particles import (ATTRIBUTES, DEAD, REGULAR, ROLE_PARENT, VIRTUAL_CHILD, V
                         ParticlePool, is_real, is_virtual)
 from .snapshot import Snapshot
 
-# Each pair of real particles on either side of a level interface must interact exactly
-# once. A fine particle i and a coarse particle P could meet twice: at the fine level
-# through P's virtual children (reaction to P) and at the coarse level through i's
-# virtual parent (reaction to i). Counting both pushes the two sides apart with an extra
-# pressure·area at every interface, which pumps energy into the flow. So the pair
-# interacts at the finer level whenever P carries virtual children (the fine particle
-# then sees a complete fine neighbourhood, as in uniform SPH), and through the virtual
-# parent only when P has none. Virtual parents always give the coarse side its density.
+# Symmetric coupling (adaptivity.coupling = "symmetric", METHOD.md §4's form): each pair
+# of real particles on either side of a level interface must interact exactly once. (The
+# default, variational coupling lets the pair meet twice, each time with one particle's
+# own pressure: see ``_partner_pressure``.) A fine particle i and a coarse particle P
+# could meet twice: at the fine level through P's virtual children (reaction to P) and at
+# the coarse level through i's virtual parent (reaction to i). Counting both pushes the
+# two sides apart with an extra pressure·area at every interface, which pumps energy into
+# the flow. So the pair interacts at the finer level whenever P carries virtual children
+# (the fine particle then sees a complete fine neighbourhood, as in uniform SPH), and
+# through the virtual parent only when P has none. Virtual parents always give the
+# coarse side its density.
 
 
 # Monaghan's artificial viscosity divides by r² + AV_EPS h² so that a pair at (nearly)
