@@ -69,8 +69,8 @@ import itertools
 import numpy as np
 import taichi as ti
 
-from .particles import (DEAD, REGULAR, ROLE_CHILD, ROLE_PARENT, VIRTUAL_CHILD, VIRTUAL_PARENT,
-                        is_real, merge_mass_mean, split_inherited)
+from .particles import (ATTRIBUTES, DEAD, REGULAR, ROLE_CHILD, ROLE_PARENT, VIRTUAL_CHILD,
+                        VIRTUAL_PARENT, is_real, merge_mass_mean, split_inherited)
 
 # scratch bits in ``flags`` during one level pair of a pass
 NEAR_FINE = 1      # real level-c particle with a real level-f particle within h_c
@@ -88,6 +88,12 @@ GATHER_ROUNDS = 3  # pairings per pass: 1 → 2 → 4 → 8 children in the best
 GATHER_MARGIN = 0.8
 
 # Event counters, read by ``take_counters`` (refused splits are the pool's ``refused``).
+# Mass is divided on a split and summed on a merge (``particles.ATTRIBUTES``); the kernels
+# below write it by hand, as the merge's means need it, so an attribute given either rule
+# must be written there too.
+if [a.name for a in ATTRIBUTES if a.on_split == "divide" or a.on_merge == "sum"] != ["m"]:
+    raise ImportError("particles.ATTRIBUTES: multires.py writes the divide/sum rules of the mass only")
+
 COUNTERS = ("splits", "merges", "released", "gathered")
 SPLITS, MERGES, RELEASED, GATHERED = range(len(COUNTERS))
 
@@ -568,12 +574,8 @@ class Multires:
                         ok = False
                 if ok:
                     mass = 0.0
-                    com = ti.Vector.zero(float, self.dim)
                     for q in range(p[i].nchild):
                         mass += p[self.pool.children[i, q]].m
-                    for q in range(p[i].nchild):
-                        ch = self.pool.children[i, q]
-                        com += p[ch].m * p[ch].x
                     for fld in ti.static(self._fields(merge_mass_mean())):
                         acc = fld[i] * 0.0
                         for q in range(p[i].nchild):
@@ -586,7 +588,6 @@ class Multires:
                         p[ch].parent = -1
                         self.pool.children[i, q] = -1
                     p[i].m = mass
-                    p[i].x = com / mass
                     p[i].nchild = 0
                     p[i].parent = -1
                     p[i].kind = REGULAR

@@ -72,7 +72,7 @@ def split_inherited() -> list[str]:
 
 
 def merge_mass_mean() -> list[str]:
-    return [a.name for a in ATTRIBUTES if a.on_merge == "mass_mean" and a.name != "x"]
+    return [a.name for a in ATTRIBUTES if a.on_merge == "mass_mean"]
 
 
 def storage_slots(capacity: int) -> int:
