@@ -285,7 +285,8 @@ def dam_runs(request):
     return out
 
 
-def test_adaptive_dam_break_splits_merges_and_couples(dam_runs):
+def test_adaptive_dam_break_splits_and_couples(dam_runs):
+    """Splits, transient and virtual particles; merges are test_adaptive_dam_break_merges."""
     dim, a = dam_runs["dim"], dam_runs["adaptive"]
     assert a["transient"] and a["virtual"], f"{dim}D: transient seen {a['transient']}, virtual seen {a['virtual']}"
     assert a["splits"] > 0, f"{dim}D: no split in the adaptive dam break"

@@ -257,27 +257,21 @@ def test_window_frame_budget_cuts_frames_into_slow_motion(xdisplay, tmp_path):
 
 
 def test_window_real_scene_stir_and_quit(xdisplay, tmp_path):
-    """The real app (``python main.py <scene>`` when main.py exists, else the app
-    module) on a 2D scene."""
-    pytest.importorskip("mrsph.solver", reason="mrsph.solver is not written yet")
-    from mrsph.config import list_scenes, load_scene
-    names = [n for n, _ in list_scenes()]
-    scene = "pool_2d" if "pool_2d" in names else next(
-        (n for n in names if load_scene(n).get("dim") == 2), None)
-    if scene is None:
-        pytest.skip("no 2D scene in scenes/")
-    entry = ([str(REPO / "main.py"), scene] if (REPO / "main.py").exists()
-             else ["-m", "mrsph.app", scene])
+    """The real app, ``python main.py pool_2d``: a drag across the resting pool stirs it
+    (KE 0.0018 -> 5.2 and 5.6 J in two runs; the pool's own sloshing after its start has read
+    0.08 J)."""
+    from mrsph.config import load_scene
+    scene = "pool_2d"
     # whole frames: on this CPU a frame cut to the default budget is ~0.01 s of simulated
-    # time, and a drag of a few frames in slow motion hardly shows against the pool's
-    # own sloshing (KE 0.083 -> 0.082 J in one run of six); the budget has its own test
-    app = App([*entry, "--width", WIDTH, "--height", HEIGHT, "--frame-budget", "0"], xdisplay, tmp_path)
+    # time, and a drag of a few frames in slow motion hardly shows; the budget has its own test
+    app = App([str(REPO / "main.py"), scene, "--width", WIDTH, "--height", HEIGHT,
+               "--frame-budget", "0"], xdisplay, tmp_path)
     try:
         ke_before, ke_stirred, rows = stir_and_check(app, int(load_scene(scene).get("adaptivity.levels")),
                                                      FIRST_FRAMES_TIMEOUT_S)
         assert all(r["n_real"] > 0 for r in rows), "no fluid particles"
-        assert ke_stirred > ke_before, \
-            f"stirring did not move the fluid: KE {ke_before:.3g} -> {ke_stirred:.3g} J"
+        assert ke_stirred > 10.0 * ke_before + 0.01, \
+            f"stirring did not move the fluid: KE {ke_before:.3g} -> {ke_stirred:.3g} J (expected > 10x + 0.01 J)"
         assert app.quit() == 0, app.output()
     finally:
         app.close()

@@ -6,7 +6,6 @@ Only three runs build a simulation (one Taichi compile, then the offline cache);
 rest stop before Taichi is imported.
 """
 import csv
-import importlib.util
 import os
 import subprocess
 import sys
@@ -215,14 +214,6 @@ def test_list_shows_every_scene_with_its_description():
     for line, (name, description) in zip(lines, scenes):
         assert line.split()[0] == name
         assert line.endswith(description) and description
-
-
-def test_bench_without_the_module():
-    if importlib.util.find_spec("mrsph.bench") is not None:
-        pytest.skip("mrsph.bench exists; its own tests cover it")
-    proc = run("bench")
-    assert proc.returncode == 2
-    assert len(proc.stderr.strip().splitlines()) == 1 and "Traceback" not in proc.stderr
 
 
 def test_runtime_warnings_print_as_one_line(capsys):

@@ -215,7 +215,10 @@ def test_links_hold_at_every_step_of_a_moving_refinement(dim):
     assert not bad, f"{dim}D, after construction: " + "; ".join(bad)
     splits = merges = 0
     kinds_seen = set()
-    two_apart = 0          # steps with regular particles two levels apart, for rule (e)
+    # steps at which regular level-0 and level-2 particles came within 2 h_2 of each other,
+    # so that rule (e) (none within h_2) was tested where it could fail
+    two_apart = 0
+    h2 = sim.h0 * 4
     for step in range(1, steps + 1):
         sim.step()
         ev = sim.stats()
@@ -223,14 +226,17 @@ def test_links_hold_at_every_step_of_a_moving_refinement(dim):
         merges += ev["merges"]
         pool = raw_pool(sim)
         kinds_seen.update(np.unique(pool["kind"]).tolist())
-        reg_levels = set(pool["level"][np.isin(pool["kind"], RULE_E_KINDS)].tolist())
-        two_apart += bool(reg_levels) and max(reg_levels) - min(reg_levels) >= 2
+        reg = np.isin(pool["kind"], RULE_E_KINDS)
+        x0, x2 = (pool["x"][reg & (pool["level"] == l)].astype(np.float64) for l in (0, 2))
+        if len(x0) and len(x2):
+            two_apart += bool(cKDTree(x0).query(x2, k=1)[0].min() < 2 * h2)
         bad = link_violations(sim, pool)
         assert not bad, (f"{dim}D, step {step} (t = {sim.time:.4g} s, {splits} splits and {merges} "
                          f"merges so far): " + "; ".join(bad))
     print(f"\n{dim}D links: {steps} steps, {splits} splits, {merges} merges, kinds seen {sorted(kinds_seen)}, "
-          f"{pool['n']} slots at the end; rule (e) had regular levels 0 and 2 to compare at {two_apart} steps")
-    assert two_apart > 0, f"{dim}D: rule (e) was never exercised (no step had regular levels 0 and 2)"
+          f"{pool['n']} slots at the end; rule (e) had regular levels 0 and 2 within 2 h_2 at {two_apart} steps")
+    assert two_apart > 0, (f"{dim}D: rule (e) was never exercised (at no step were regular levels "
+                           f"0 and 2 within 2 h_2 of each other)")
     assert splits > 0 and merges > 0, (
         f"{dim}D: the run did not exercise the scheme: {splits} splits, {merges} merges in {steps} steps")
     missing = {T_PARENT, T_CHILD, V_CHILD, V_PARENT} - kinds_seen

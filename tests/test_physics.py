@@ -233,7 +233,11 @@ def test_tank_keeps_its_fluid(tank_run):
     d, x = r["dim"], r["x"]
     assert r["n1"] == r["n0"], f"{d}D: particle count {r['n1']}, started with {r['n0']}"
     assert np.all(np.isfinite(x)), f"{d}D: non-finite positions"
-    assert np.all((x >= r["lo"] - 1e-6) & (x <= r["hi"] + 1e-6)), f"{d}D: a particle left the tank"
+    # the walls clamp any particle that reaches them onto them; the mirror images must
+    # hold the fluid off before that (the bottom layer rests half a spacing above)
+    gap = float(np.minimum(x - r["lo"], r["hi"] - x).min())
+    assert gap >= 0.25 * r["spacing"], (f"{d}D: a particle came within {gap:.2e} m of a wall "
+                                        f"(spacing {r['spacing']} m; expected >= a quarter)")
     assert r["top"] <= TANK_H + 2.0 * r["spacing"], \
         f"{d}D: a particle rose to {r['top']:.4f} m above a {TANK_H} m deep pool at rest"
     assert r["mass1"] == r["mass0"], f"{d}D: total mass {r['mass1']!r}, started with {r['mass0']!r}"
@@ -293,15 +297,14 @@ def dam_scene(dim):
 
 @pytest.fixture(scope="module", params=DIMS, ids=[f"{d}d" for d in DIMS])
 def dam_run(request):
-    """One dam break per dimension to t = 1.5 s, checked every frame for NaN and leaks;
-    returns the front history. Shared by the dam-break tests below."""
+    """One dam break per dimension to t = 1.5 s, checked every frame for NaN and for its
+    mass at the end; returns the front history. Shared by the dam-break tests below.
+    (Particles cannot leave the domain: the boundary pass clamps them into it.)"""
     from mrsph import runtime
     runtime.reset()
     dim = request.param
     sim = make_sim(dam_scene(dim))
     s = float(sim.s0)
-    lo = np.asarray(sim.scene.domain.min, float)
-    hi = np.asarray(sim.scene.domain.max, float)
     mass0 = math.fsum(real(sim)["m"].astype(np.float64).tolist())
     times, lead, p99, problems = [], [], [], []
     x = real(sim)["x"]
@@ -318,9 +321,6 @@ def dam_run(request):
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(p["v"]))):
             problems.append(f"NaN at t = {sim.time:.2f} s")
             break
-        outside = ~np.all((x >= lo - 1e-6) & (x <= hi + 1e-6), axis=1)
-        if outside.any():
-            problems.append(f"{int(outside.sum())} particle(s) outside the domain at t = {sim.time:.2f} s")
     if math.fsum(real(sim)["m"].astype(np.float64).tolist()) != mass0:
         problems.append("total mass changed")
     runtime.reset()
