@@ -257,8 +257,7 @@ SCHEMA = Table(required=True, keys={
         "is one more).", max_items=MAX_STIRRERS),
     "run": Table({
         "fps": Key("float", 30.0, "> 0", "1/s", "frames rendered or dumped per simulated second"),
-        "frames": Key("int", 0, ">= 0", doc="frames of a headless run; 0 = none given"),
-        "seed": Key("int", 0, doc="random seed")}),
+        "frames": Key("int", 0, ">= 0", doc="frames of a headless run; 0 = none given")}),
     "render": Table({
         "width": Key("int", 960, "[64, 8192]", "px", "image width"),
         "height": Key("int", 540, "[64, 8192]", "px", "image height"),

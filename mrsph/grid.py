@@ -122,14 +122,6 @@ class LevelGrids:
         first = self.cell_id(c, l)
         return self.start[first], self.start[first + span]
 
-    @ti.func
-    def in_grid(self, c, l):
-        ok = True
-        for k in ti.static(range(self.dim)):
-            if c[k] < 0 or c[k] >= self.res[l][k]:
-                ok = False
-        return ok
-
     # --- counting sort ---------------------------------------------------------------
     def sort(self, pool: ParticlePool) -> int:
         """Reorder the pool in cell order, drop DEAD slots, remap links; returns n."""

@@ -20,10 +20,6 @@ VIRTUAL_CHILD = 4     # virtual level n particle owned by a transient parent
 VIRTUAL_PARENT = 5    # virtual level n+1 particle standing for up to 2^d transient children
 DEAD = -1             # free slot, removed by the next sort
 
-KIND_NAMES = {REGULAR: "regular", TRANSIENT_PARENT: "transient parent",
-              TRANSIENT_CHILD: "transient child", TRANSIENT_BOTH: "transient parent+child",
-              VIRTUAL_CHILD: "virtual child", VIRTUAL_PARENT: "virtual parent"}
-
 # Bits of the real kinds: a real particle may hold either transient role or both.
 ROLE_PARENT = 1
 ROLE_CHILD = 2

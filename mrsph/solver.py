@@ -66,16 +66,17 @@ REACH_FACTOR = 1.5
 # overflows (it then loops over the grid instead; results are the same).
 MAX_NEIGHBOURS = {2: 40, 3: 80}
 
-# Density loop without a branch per candidate. In 2D a third of the candidates of the
-# 3x3 cells are neighbours and, once the fluid flows, which ones is unpredictable: the
-# mispredictions cost more than computing W for every candidate (dam break, 50k
-# particles, one thread: 7.6 -> 4.9 ms a pass). In 3D, with cells of a whole support,
-# one candidate in six was a neighbour and the branch won (30k: 15.1 ms with it, 16.3
-# without); with half-support cells it is one in four, and on the flowing 30k dam break
-# (t = 0.2 s, two threads) the pass takes 11.2-13.4 ms with the branch, 8.8-9.5 without.
-# On the initial lattice, where the branch is predictable, it is the other way round
-# (5.2 against 7.4 ms at t = 0.05 s): what matters is the fluid once it moves.
-BRANCH_FREE = {2: True, 3: True}
+# Density loop without a branch per candidate, in both dimensions. In 2D a third of the
+# candidates of the 3x3 cells are neighbours and, once the fluid flows, which ones is
+# unpredictable: the mispredictions cost more than computing W for every candidate (dam
+# break, 50k particles, one thread: 7.6 -> 4.9 ms a pass). In 3D, with cells of a whole
+# support, one candidate in six was a neighbour and the branch won (30k: 15.1 ms with it,
+# 16.3 without); with half-support cells it was one in four, and on the flowing 30k dam
+# break (t = 0.2 s, two threads) the pass took 11.2-13.4 ms with the branch, 8.8-9.5
+# without. (The cells are now CELLS_PER_SUPPORT's, below, fewer candidates again.) On the
+# initial lattice, where the branch is predictable, it is the other way round (5.2
+# against 7.4 ms at t = 0.05 s): what matters is the fluid once it moves.
+BRANCH_FREE = True
 
 # Cells per support radius of the neighbour grids (grid.py), per axis: whole supports
 # across the rows and 2 (2D) or 4 (3D) cells a support along them (the last axis). A
@@ -183,10 +184,10 @@ class Simulation:
                                  s["domain"]["restitution"], s["domain"]["friction"])
         self.disturbances = Disturbances(d)
         a = s["adaptivity"]
-        band = float(a["band"]) or 2.0 * self.h0 * 2 ** (L - 1)
-        background = float(a["background_level"]) if a["background_level"] >= 0 else L - 1
-        self.criteria = Criteria(d, s["criteria"] if self.adaptive else [], band,
-                                 min(background, L - 1))
+        # band and background_level as config.py resolved them (given or automatic); a
+        # uniform run (adaptivity off) has one level whatever the scene's background
+        self.criteria = Criteria(d, s["criteria"] if self.adaptive else [], float(a["band"]),
+                                 float(min(a["background_level"], L - 1)))
 
         # per-level constants (no powers in the inner loops)
         self.lev_h = ti.field(float, shape=L)
@@ -303,7 +304,6 @@ class Simulation:
             raise SimulationError(
                 f"{self.scene.path}: particles.capacity = {self.scene.data['particles']['capacity']} is too small for the "
                 f"initial fluid ({self.pool.refused[None]} claims refused); raise it or set 0 for automatic")
-        self._snapshot_mass = None
 
     def _block_lattices(self, lo, hi) -> list[tuple[int, np.ndarray]]:
         """(level, lattice points) filling the block [lo, hi] with the fluid of a uniform
@@ -565,7 +565,7 @@ class Simulation:
             lo, hi = self.grids.row(base, o, l)
             for j in range(lo, hi):
                 r2 = (xq - p[j].x).norm_sqr()
-                if ti.static(BRANCH_FREE[self.dim] and not check):
+                if ti.static(BRANCH_FREE and not check):
                     d = h2 - r2
                     d = ti.max(d, 0.0)
                     rho += self._sum_mass(j) * (d * d * d)

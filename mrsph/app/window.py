@@ -57,7 +57,7 @@ SCREENSHOT_ENV = "MRSPH_WINDOW_SCREENSHOT"
 #: enough that ImGui has laid out its windows (they appear from the second frame).
 AUTO_SCREENSHOT_FRAME = 10
 #: HUD panel on the right: width in pixels (fits the slider labels of ImGui's default
-#: 13 px font), height as a fraction of the window.
+#: 13 px font) and height in pixels (cut to the window, less the margins).
 HUD_WIDTH_PX = 330
 HUD_HEIGHT_PX = 600
 HUD_MARGIN_PX = 8
@@ -613,7 +613,7 @@ def run_window(make_sim, scene_name: str, scene_names: list[str], width: int = 1
     ``make_sim(scene_name)`` builds a Simulation (and so initialises Taichi). If it also
     accepts overrides, ``make_sim(scene_name, overrides: dict)``, the refinement
     checkbox can rebuild the scene with ``{"adaptivity.enabled": bool}``.
-    ``scene_names`` are the scenes offered by Tab, 1-9 and the HUD buttons.
+    ``scene_names`` are the scenes offered by Tab and the help panel's buttons.
     ``frame_budget``: wall seconds of simulation per drawn frame (None: whole frames).
     """
     ok, why = display_available()
