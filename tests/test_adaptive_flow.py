@@ -18,6 +18,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from mrsph.config import load_scene
+from scenekit import box, known_xfail
 
 G = 9.81
 RHO0 = 1000.0
@@ -45,18 +46,6 @@ _FRONT3 = ("the adaptive front runs ahead by 3.7 % on average with a chaotic spr
            "the artificial viscosity scaled as h0 on every level as well: -0.6, -1.2 %, but "
            "2D +9.9, +5.6 % and a 3D saving of 4.5x (README, status). Measured relative error")
 KNOWN_FAILURES = {("dam_front", 3): _FRONT3}
-
-
-def known_xfail(request, dim, key, measured):
-    reason = KNOWN_FAILURES.get((key, dim))
-    if reason:
-        request.applymarker(pytest.mark.xfail(strict=False, reason=f"{reason} (this run: {measured:.4g})"))
-
-
-def box(dim, lo2, hi2, z):
-    if dim == 2:
-        return [float(v) for v in lo2], [float(v) for v in hi2]
-    return [float(v) for v in lo2] + [float(z[0])], [float(v) for v in hi2] + [float(z[1])]
 
 
 def make_sim(scene: dict):
@@ -154,7 +143,7 @@ def pool_runs(request):
 def test_refined_pool_stays_at_rest(pool_runs, request):
     dim, a = pool_runs["dim"], pool_runs["adaptive"]
     ratio = a["speed"] / math.sqrt(G * POOL_H)
-    known_xfail(request, dim, "rest_speed", ratio)
+    known_xfail(request, KNOWN_FAILURES, dim, "rest_speed", ratio)
     assert ratio <= 0.01, (f"{dim}D: mean speed {a['speed']:.4f} m/s = {ratio:.4f} sqrt(gH) after "
                            f"{SETTLE_S} s with a refined box; expected <= 0.01 sqrt(gH)")
 
@@ -162,7 +151,7 @@ def test_refined_pool_stays_at_rest(pool_runs, request):
 def test_density_next_to_the_interface_matches_uniform(pool_runs, request):
     dim, a, u = pool_runs["dim"], pool_runs["adaptive"], pool_runs["uniform"]
     err = a["peak"] / u["peak"] - 1.0
-    known_xfail(request, dim, "rest_peak", err)
+    known_xfail(request, KNOWN_FAILURES, dim, "rest_peak", err)
     assert abs(err) <= 0.03, (f"{dim}D: largest density next to the level interface {a['peak']:.4f} rho0 "
                               f"(time average of each snapshot's largest), uniform run {u['peak']:.4f} "
                               f"rho0 ({100 * err:+.2f} %, expected within 3 %; worst snapshot "
@@ -294,7 +283,7 @@ def test_adaptive_dam_break_splits_and_couples(dam_runs):
 
 def test_adaptive_dam_break_merges(dam_runs, request):
     dim, a = dam_runs["dim"], dam_runs["adaptive"]
-    known_xfail(request, dim, "dam_merges", a["merges_late"])
+    known_xfail(request, KNOWN_FAILURES, dim, "dam_merges", a["merges_late"])
     assert a["merges_late"] > 0, (f"{dim}D: {a['splits']} splits by {DAM_T} s but no merge by {MERGE_T} s "
                                   f"in the adaptive dam break")
 
@@ -302,7 +291,7 @@ def test_adaptive_dam_break_merges(dam_runs, request):
 def test_adaptive_dam_break_holds_fewer_particles(dam_runs, request):
     dim, saving = dam_runs["dim"], dam_runs["saving"]
     want = 3.0 if dim == 2 else 5.0
-    known_xfail(request, dim, "dam_saving", saving)
+    known_xfail(request, KNOWN_FAILURES, dim, "dam_saving", saving)
     assert saving >= want, (f"{dim}D: the adaptive run holds {saving:.2f}x fewer real particles than the "
                             f"uniform one on average; expected >= {want}x")
 
@@ -319,6 +308,6 @@ def test_adaptive_dam_break_front_is_not_far_off(dam_runs):
 def test_adaptive_dam_break_front_matches_uniform(dam_runs, request):
     dim, a, u = dam_runs["dim"], dam_runs["adaptive"], dam_runs["uniform"]
     err = a["front"] / u["front"] - 1.0
-    known_xfail(request, dim, "dam_front", err)
+    known_xfail(request, KNOWN_FAILURES, dim, "dam_front", err)
     assert abs(err) <= 0.05, (f"{dim}D: front of the adaptive run at {a['front']:.3f} m, uniform "
                               f"{u['front']:.3f} m at {DAM_T} s ({100 * err:+.1f} %, expected within 5 %)")

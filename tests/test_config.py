@@ -254,7 +254,6 @@ def test_float_is_not_an_integer():
     ("adaptivity.background_level", -2, "an integer >= -1"),
     ("run.fps", 0, "a number > 0"),
     ("run.frames", -1, "an integer >= 0"),
-    ("run.seed", "x", "an integer"),
     ("render.width", 10, "an integer in [64, 8192]"),
     ("render.height", 9000, "an integer in [64, 8192]"),
     ("render.background", [0.1, 0.2, 1.5], "a list of 3 numbers in [0, 1]"),

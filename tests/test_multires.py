@@ -19,11 +19,12 @@ import pytest
 from scipy.spatial import cKDTree
 
 from mrsph.config import load_scene
+from mrsph.particles import (DEAD, REGULAR, TRANSIENT_BOTH as T_BOTH, TRANSIENT_CHILD as T_CHILD,
+                             TRANSIENT_PARENT as T_PARENT, VIRTUAL_CHILD as V_CHILD,
+                             VIRTUAL_PARENT as V_PARENT)
 
 pytestmark = pytest.mark.usefixtures("fresh_program")
 
-# kind codes (mrsph/particles.py)
-DEAD, REGULAR, T_PARENT, T_CHILD, T_BOTH, V_CHILD, V_PARENT = -1, 0, 1, 2, 3, 4, 5
 REAL_KINDS = (REGULAR, T_PARENT, T_CHILD, T_BOTH)
 PARENT_ROLE = (T_PARENT, T_BOTH)      # real kinds carrying virtual children
 CHILD_ROLE = (T_CHILD, T_BOTH)        # real kinds linked to a virtual parent

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from mrsph.config import load_scene
+from scenekit import box, known_xfail
 
 G = 9.81
 RHO0 = 1000.0
@@ -26,20 +27,6 @@ pytestmark = pytest.mark.usefixtures("fresh_program")
 # None at present: the resting tank, listed until fluid.hydrostatic_start and
 # fluid.artificial_viscosity, now settles and reads hydrostatic pressure in 2D and 3D.
 KNOWN_FAILURES: dict[tuple[str, int], str] = {}
-
-
-def known_xfail(request, dim, key, measured):
-    """Mark the running test xfail if it is a known library failure, with this run's number."""
-    reason = KNOWN_FAILURES.get((key, dim))
-    if reason:
-        request.applymarker(pytest.mark.xfail(strict=False, reason=f"{reason} (this run: {measured:.4g})"))
-
-
-def box(dim, lo2, hi2, z=(0.0, 0.1)):
-    """Corners of a box from its (x, y) corners; in 3D z spans ``z``."""
-    if dim == 2:
-        return [float(v) for v in lo2], [float(v) for v in hi2]
-    return [float(v) for v in lo2] + [float(z[0])], [float(v) for v in hi2] + [float(z[1])]
 
 
 def stiffness_for(height: float) -> float:
@@ -246,7 +233,7 @@ def test_tank_keeps_its_fluid(tank_run):
 def test_tank_settles_to_rest(tank_run, request):
     r = tank_run
     ratio = r["speed"] / r["v_ref"]
-    known_xfail(request, r["dim"], "tank_speed", ratio)
+    known_xfail(request, KNOWN_FAILURES, r["dim"], "tank_speed", ratio)
     assert r["speed"] <= 0.01 * r["v_ref"], (
         f"{r['dim']}D: mean speed {r['speed']:.4f} m/s after {SETTLE_S} s (averaged over the next "
         f"{MEASURE_S} s); expected <= 1 % of sqrt(g H) = {0.01 * r['v_ref']:.4f} m/s "
@@ -255,7 +242,7 @@ def test_tank_settles_to_rest(tank_run, request):
 
 def test_tank_pressure_is_hydrostatic(tank_run, request):
     r = tank_run
-    known_xfail(request, r["dim"], "tank_pressure", r["error"])
+    known_xfail(request, KNOWN_FAILURES, r["dim"], "tank_pressure", r["error"])
     assert abs(r["error"]) <= 0.05, (
         f"{r['dim']}D: mean pressure {r['pressure']:.1f} Pa in the band 0.3 H..0.7 H below the "
         f"surface; rho0 g depth = {r['reference']:.1f} Pa ({100 * r['error']:+.2f} %, expected "
