@@ -366,13 +366,19 @@ def _run_window_or_video(scene, args) -> int:
         if first not in names:
             names = [first] + names
 
+        # one thread count for the window's life, as --threads resolves it for the first
+        # scene: another count re-initialises Taichi, which frees the window's fields
+        # under it (a scene switch from a small scene to a large one crashed the window)
+        from . import runtime
+        fixed = argparse.Namespace(**{**vars(args), "threads": runtime.auto_threads(scene, args.threads)})
+
         def make_sim(name, overrides=None):
             # --set applies to every scene the window opens; the window's own overrides
             # (the refinement checkbox) come on top
             s = load_scene(name, args.overrides)
             if overrides:
                 s = s.with_overrides(overrides)
-            return _make_sim(s, args)
+            return _make_sim(s, fixed)
 
         run_window(make_sim, first, names, args.width or WINDOW_SIZE[0], args.height or WINDOW_SIZE[1],
                    frame_budget=args.frame_budget)

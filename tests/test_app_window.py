@@ -275,3 +275,28 @@ def test_window_real_scene_stir_and_quit(xdisplay, tmp_path):
         assert app.quit() == 0, app.output()
     finally:
         app.close()
+
+
+def test_window_switches_to_a_scene_that_auto_runs_on_more_threads(xdisplay, tmp_path):
+    """Tab from pool_2d (small: ``--threads auto`` gives it one thread) to pool_3d (large:
+    all cores). The window keeps the first scene's thread count: re-initialising Taichi
+    for another one freed the window's fields under it, and the process died with a
+    segmentation fault."""
+    from mrsph import runtime
+    from mrsph.config import load_scene
+    assert (runtime.auto_threads(load_scene("pool_2d")), runtime.auto_threads(load_scene("pool_3d"))) \
+        == (1, None), "the two scenes no longer differ in their automatic thread count"
+    app = App([str(REPO / "main.py"), "pool_2d", "--width", WIDTH, "--height", HEIGHT],
+              xdisplay, tmp_path)
+    try:
+        app.wait_window(FIRST_FRAMES_TIMEOUT_S)
+        app.wait_frames(3, FIRST_FRAMES_TIMEOUT_S)
+        app.xdo("key", "Tab")
+        deadline = time.time() + FIRST_FRAMES_TIMEOUT_S
+        while sum(r["scene"] == "pool_3d" for r in app.stats()) < 3:
+            app.alive()
+            assert time.time() < deadline, f"no 3 frames of pool_3d after Tab:\n{app.output()}"
+            time.sleep(0.5)
+        assert app.quit() == 0, app.output()
+    finally:
+        app.close()
