@@ -300,3 +300,25 @@ def test_window_switches_to_a_scene_that_auto_runs_on_more_threads(xdisplay, tmp
         assert app.quit() == 0, app.output()
     finally:
         app.close()
+
+
+def test_window_blow_up_pauses_and_prints_one_line(xdisplay, tmp_path):
+    """A blow-up in the window (here a speed limit the falling column passes at once)
+    pauses the simulation and prints the reason as one line, as a headless run does; the
+    window stays open and quits normally."""
+    app = App([str(REPO / "main.py"), "dam_break_2d", "--set", "physics.max_speed=0.5",
+               "--width", WIDTH, "--height", HEIGHT], xdisplay, tmp_path)
+    try:
+        app.wait_window(FIRST_FRAMES_TIMEOUT_S)
+        deadline = time.time() + FIRST_FRAMES_TIMEOUT_S
+        while "simulation stopped" not in app.output():
+            app.alive()
+            assert time.time() < deadline, f"no blow-up reported:\n{app.output()}"
+            time.sleep(0.5)
+        lines = [l for l in app.output().splitlines() if "simulation stopped" in l]
+        assert len(lines) == 1 and "physics.max_speed" in lines[0], app.output()
+        app.next_frame()
+        assert app.stats()[-1]["paused"], "the window did not pause after the blow-up"
+        assert app.quit() == 0, app.output()
+    finally:
+        app.close()

@@ -41,6 +41,8 @@ import inspect
 import json
 import math
 import os
+import sys
+import textwrap
 import time
 from pathlib import Path
 
@@ -59,6 +61,7 @@ AUTO_SCREENSHOT_FRAME = 10
 #: HUD panel on the right: width in pixels (fits the slider labels of ImGui's default
 #: 13 px font) and height in pixels (cut to the window, less the margins).
 HUD_WIDTH_PX = 330
+HUD_TEXT_CHARS = 40     # characters a line of the panel holds (ImGui's 7 px wide glyphs)
 HUD_HEIGHT_PX = 600
 HUD_MARGIN_PX = 8
 #: Camera speeds: arrows orbit at this many rad/s; z/x zoom by e^(rate dt); a drag over
@@ -335,7 +338,10 @@ class _App:
                     self.sim.advance_frame(None if self.step_once else self.frame_budget)
                 except Exception as e:  # blow-up: stop and say so, keep the window
                     self.paused = True
-                    self.message = f"simulation stopped: {str(e).splitlines()[0][:160]} (r: reset)"
+                    line = (str(e).splitlines() or [type(e).__name__])[0]
+                    print(f"mrsph: {self.scene_name}: simulation stopped: {line}", file=sys.stderr,
+                          flush=True)
+                    self.message = f"simulation stopped: {line[:240]} (r: reset)"
                 advanced = float(self.sim.time) - t0
                 if advanced > 0.0:
                     self.frame_sim = advanced
@@ -578,8 +584,8 @@ class _App:
             self.show_virtual = gui.checkbox("show virtual (v)", self.show_virtual)
             if gui.button(f"colour: {self.color_mode} (c)"):
                 self.color_mode = palette.next_mode(self.color_mode)
-            if self.message:
-                gui.text(self.message, color=(1.0, 0.75, 0.3))
+            for line in textwrap.wrap(self.message, HUD_TEXT_CHARS):
+                gui.text(line, color=(1.0, 0.75, 0.3))
 
     # -- hooks -------------------------------------------------------------------------
     def _write_stats(self, snap, d) -> None:
