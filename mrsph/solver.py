@@ -55,6 +55,10 @@ from .snapshot import Snapshot
 # the same position gets a bounded force; 0.01 is Monaghan's value (1992).
 AV_EPS = 0.01
 
+# An acceleration this large (m/s², finite in f32 and f64) is a blow-up: a step refuses it
+# as it refuses NaN.
+ACCEL_OVERFLOW = 1e30
+
 # A transient parent's virtual children lie within sqrt(d)/2 fine spacings of it and reach
 # one fine support beyond; measured with a uniform-pressure probe (no gravity, a refined
 # box inside a block), factors >= 1.2 leave transient children balanced to 0.1 % of
@@ -1455,7 +1459,7 @@ class Simulation:
         speed = p[i].v.norm()
         an = acc.norm()
         # NaN fails both comparisons; Inf and speeds past physics.max_speed fail the first
-        bad = not (speed <= self.speed_limit[None] and an < 1e30)
+        bad = not (speed <= self.speed_limit[None] and an < ACCEL_OVERFLOW)
         return (c_sound + speed) / h, an / h, bad
 
     @ti.func
@@ -1494,12 +1498,16 @@ class Simulation:
             return np.asarray(val.to_numpy() if hasattr(val, "to_numpy") else val, float)
         x, v, a = vec(self.pool.p.x), vec(self.pool.p.v), vec(self.pool.p.a)
         limit = float(self.scene.data["physics"]["max_speed"])
-        what = "NaN/Inf velocity or acceleration"
-        if np.isfinite(v).all() and np.isfinite(a).all():
+        if not (np.isfinite(v).all() and np.isfinite(a).all()):
+            what = "NaN/Inf velocity or acceleration"
+        elif np.linalg.norm(a) >= ACCEL_OVERFLOW:
+            what = f"acceleration {np.linalg.norm(a):.4g} m/s^2, at least {ACCEL_OVERFLOW:g}"
+        else:
             what = f"speed {np.linalg.norm(v):.4g} m/s above physics.max_speed = {limit:g} m/s"
         raise SimulationError(
             f"step {self.steps} (t = {self.time:.6g} s): {count} particle(s) with NaN/Inf velocity "
-            f"or acceleration or faster than physics.max_speed; first: particle {i}, "
+            f"or acceleration, an acceleration of {ACCEL_OVERFLOW:g} m/s^2 or more, or a speed "
+            f"above physics.max_speed; first: particle {i}, "
             f"level {int(self.pool.p.level[i])}, "
             f"kind {int(self.pool.p.kind[i])}, x = {np.round(x, 4).tolist()}: {what}")
 

@@ -472,6 +472,21 @@ def test_nan_velocity_raises_simulation_error_naming_step_particle_level(dim, ad
     assert re.search(why, msg), f"message does not say why the particle is bad ({why}): {msg}"
 
 
+def test_overflowing_acceleration_is_named(dim):
+    """Gravity of 1e31 m/s² (finite): every particle's acceleration is past the overflow
+    bound, and the report says so (it used to give the particle's speed, 0 m/s, as the
+    reason it was bad)."""
+    from mrsph.solver import SimulationError
+
+    scene = tank_scene(dim)
+    scene["physics"]["gravity"] = [0.0, -1e31] + [0.0] * (dim - 2)
+    sim = make_sim(scene)
+    with pytest.raises(SimulationError) as info:
+        sim.step()
+    msg = str(info.value)
+    assert re.search(r": acceleration 1(\.0+)?e\+31 m/s\^2, at least 1e\+30$", msg), msg
+
+
 # ================================================================== time step
 @pytest.mark.parametrize("bound", ["cfl", "force"])
 def test_time_step_obeys_cfl_and_force_bounds(dim, bound):
