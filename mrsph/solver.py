@@ -287,6 +287,7 @@ class Simulation:
         self.frame = 0
         self.steps = 0
         self.dt = float(s["physics"]["dt_max"])
+        self.chosen_dt = self.dt    # the last step as its bounds chose it (not cut to a frame)
         self._events = dict.fromkeys(COUNTERS, 0)
         self._refused_reported = 0   # pool.refused at the last stats row
         self._events_due = False
@@ -453,6 +454,8 @@ class Simulation:
         self.time += dt
         self.steps += 1
         self.dt = dt
+        if max_dt is None or dt < max_dt:       # else cut short to end on the frame
+            self.chosen_dt = dt
         self._stirrers(self.time)
         return dt
 
@@ -1577,7 +1580,7 @@ class Simulation:
         m = parts["m"][real].astype(np.float64)
         v = parts["v"][real].astype(np.float64)
         mom = (m[:, None] * v).sum(axis=0) if len(m) else np.zeros(self.dim)
-        row = {"frame": self.frame, "time": self.time, "dt": self.dt,
+        row = {"frame": self.frame, "time": self.time, "dt": self.chosen_dt,
                "n_real": int(real.sum()), "n_virtual": int((~real).sum()),
                "total_mass": math.fsum(m.tolist())}
         for k, ax in enumerate("xyz"[: self.dim]):
@@ -1639,6 +1642,7 @@ class Simulation:
         self.pool.refused[None] = state["refused"]
         self._refused_reported = state["refused"]
         self.time, self.frame, self.steps, self.dt = state["clock"]
+        self.chosen_dt = self.dt
         self._emit_acc = list(state["emitters"])
         if self.reaction is not None:
             self.reaction.fill(0.0)

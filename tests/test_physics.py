@@ -487,6 +487,22 @@ def test_overflowing_acceleration_is_named(dim):
     assert re.search(r": acceleration 1(\.0+)?e\+31 m/s\^2, at least 1e\+30$", msg), msg
 
 
+def test_stats_dt_is_the_chosen_step_not_the_frame_remainder(dim):
+    """The stats row's dt after a frame is the time step the bounds chose, which the
+    next step (uncut) reproduces within a few per cent, not the sliver that ended the
+    frame exactly."""
+    scene = tank_scene(dim)
+    sim = make_sim(scene)
+    rows = []
+    for _ in range(3):
+        sim.advance_frame()
+        rows.append(sim.stats()["dt"])
+        step = sim.step()
+        assert rows[-1] == pytest.approx(step, rel=0.05), (
+            f"{dim}D: stats dt {rows[-1]:.4g} s after frame {sim.frame}, the next step "
+            f"{step:.4g} s")
+
+
 # ================================================================== time step
 @pytest.mark.parametrize("bound", ["cfl", "force"])
 def test_time_step_obeys_cfl_and_force_bounds(dim, bound):
