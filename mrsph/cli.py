@@ -267,8 +267,9 @@ class _Dumper:
     """Frame files and stats.csv rows for --dump, one per rendered frame."""
 
     def __init__(self, directory, fmt, dim, levels):
-        from .output import StatsWriter
+        from .output import DUMP_SUFFIXES, StatsWriter, clear_frames
         self.directory, self.fmt, self.dim = Path(directory), fmt, dim
+        clear_frames(self.directory, DUMP_SUFFIXES)    # of any format: all are ours
         self.stats = StatsWriter(self.directory / "stats.csv", dim, levels)
         self.last_row: dict | None = None
 

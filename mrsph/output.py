@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import csv
 import math
+import re
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +32,25 @@ FRAME_ARRAYS = ("x", "v", "m", "rho", "level", "kind")
 #: File name of frame i: frame_00000.npz; five digits keep frames sorted by name.
 FRAME_NAME = "frame_{:05d}.{}"
 _SUFFIX = {"npz": "npz", "ply": "ply", "vtk": "vtu"}
+DUMP_SUFFIXES = tuple(_SUFFIX.values())
 _PLY_TYPES = {np.dtype("<f4"): "float", np.dtype("<f8"): "double", np.dtype("<i4"): "int"}
+
+
+def clear_frames(directory, suffixes) -> int:
+    """Remove the frame files (``frame_NNNNN.<suffix>``) that an earlier run left in
+    ``directory``, so that a shorter run does not leave the tail of a longer one to be
+    read as part of its series; warns (RuntimeWarning) with the count. Other files stay."""
+    d = Path(directory)
+    if not d.is_dir():
+        return 0
+    pattern = re.compile(r"frame_\d{5}\.(?:%s)" % "|".join(map(re.escape, suffixes)))
+    old = [f for f in d.iterdir() if pattern.fullmatch(f.name) and f.is_file()]
+    for f in old:
+        f.unlink()
+    if old:
+        warnings.warn(f"{d}: removed {len(old)} frame file(s) of an earlier run", RuntimeWarning,
+                      stacklevel=2)
+    return len(old)
 
 
 def frame_path(directory, frame_index: int, fmt: str = "npz") -> Path:

@@ -67,6 +67,16 @@ def test_png_sequence(tmp_path):
     assert iio.imread(out / names[0]).shape == (H, W, 3)
 
 
+def test_png_sequence_replaces_a_longer_one(tmp_path):
+    """Two frames recorded where four were: the folder holds two, and a warning says
+    how many were removed."""
+    rec.record(FakeSimulation(dim=2), tmp_path / "frames", 4, W, H, backend="raster", progress=False)
+    with pytest.warns(RuntimeWarning, match="removed 4 frame file"):
+        out = rec.record(FakeSimulation(dim=2), tmp_path / "frames", 2, W, H, backend="raster",
+                         progress=False)
+    assert sorted(p.name for p in out.iterdir()) == [f"frame_{i:05d}.png" for i in range(2)]
+
+
 def test_mp4_odd_size_becomes_even(tmp_path, capsys):
     out = rec.record(FakeSimulation(dim=2), tmp_path / "odd.mp4", 2, 321, 181, backend="raster",
                      progress=False)

@@ -256,6 +256,24 @@ def test_headless_dump_npz(tmp_path):
     assert float(body[-1]["time"]) == pytest.approx(FRAMES / 30.0)
 
 
+def test_a_shorter_dump_leaves_no_frames_of_the_longer_one(tmp_path):
+    """Dumping 1 frame where 3 were dumped (and a user's file sits beside them): the
+    folder holds this run's 2 frames and the user's file, and the removal is reported
+    in one line. Stale frames used to stay, read by ParaView as part of the series."""
+    path = scene_file(tmp_path)
+    out = tmp_path / "dump"
+    first = run(path, "--headless", "--frames", 3, "--set", TINY_SPACING, "--dump", out,
+                "--dump-format", "vtk", cwd=tmp_path)
+    assert first.returncode == 0, first.stderr
+    (out / "notes.txt").write_text("mine")
+    proc = run(path, "--headless", "--frames", 1, "--set", TINY_SPACING, "--dump", out, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["frame_00000.npz", "frame_00001.npz",
+                                                    "notes.txt", "stats.csv"]
+    said = [line for line in proc.stderr.splitlines() if "removed" in line]
+    assert said == [f"warning: {out}: removed 4 frame file(s) of an earlier run"], proc.stderr
+
+
 @pytest.mark.parametrize("fmt", ["ply", "vtk"])
 def test_headless_dump_ply_and_vtk(tmp_path, fmt):
     path = scene_file(tmp_path)
