@@ -28,9 +28,15 @@ REQUIRED = object()  # default of a key that the scene must give
 # solver.CELLS_PER_SUPPORT); past ~50e6 such cells its per-cell arrays alone take hundreds
 # of MB, so such a domain is almost surely a unit slip.
 MAX_GRID_CELLS = 50e6
-# Particle slots: each holds ~0.3-0.6 kB with its neighbour list and grid entries, so
-# 1e8 is tens of GB; a larger request is a typo, refused before Taichi tries to allocate.
-MAX_CAPACITY = 100_000_000
+# Neighbour list length per dimension (solver.py): about 3x the neighbour count of the
+# rest lattice (12 in 2D, 26 in 3D within h = 2 s), so that only a strongly compressed
+# particle overflows (it then loops over the grid instead; results are the same).
+MAX_NEIGHBOURS = {2: 40, 3: 80}
+# Particle slots, per dimension: the neighbour lists hold MAX_NEIGHBOURS + 1 entries a
+# slot and Taichi indexes a field with 32 bits, so slots x 41 (2D) or x 81 (3D) must stay
+# below 2^31: 52 M and 26 M slots, tens of GB at 0.3-0.6 kB a slot. Refused before
+# Taichi tries to allocate (9e7 slots in 2D ended in an int32 overflow, then the OOM killer).
+MAX_CAPACITY = {d: (2**31 - 1) // (MAX_NEIGHBOURS[d] + 1) // 10**6 * 10**6 for d in (2, 3)}
 # Sizes of the Taichi fields that hold a scene's shapes, criteria and stirrers (allocated
 # once, so that a scene's count does not recompile kernels); a scene asking for more is
 # refused here rather than cut short where the fields are filled.
@@ -109,7 +115,9 @@ SCHEMA = Table(required=True, keys={
                        "level 0; level n has spacing 2^n s0"),
         "support": Key("float", 2.0, "[1.5, 4]", doc="support radius over spacing: "
                        "h0 = support * spacing"),
-        "capacity": Key("int", 0, f"[0, {MAX_CAPACITY}]", doc="particle slots; 0 = automatic: "
+        "capacity": Key("int", 0, ">= 0", doc=f"particle slots, at most "
+                        f"{MAX_CAPACITY[2] // 10**6} million (2D) or {MAX_CAPACITY[3] // 10**6} "
+                        "million (3D); 0 = automatic: "
                         "int(1.5 * lattice count + emitted) + 1024; the pool rounds it up to "
                         "an odd multiple of 16 (so that its arrays do not alias in the cache)"),
         "precision": Key("choice", "f32", choices=("f32", "f64"), doc="float precision")}),
@@ -602,6 +610,11 @@ def _check_sizes(c: _Checker, d: dict) -> None:
     if not (part and _ok(part["spacing"], part["support"])):
         return
     s0, h0 = part["spacing"], part["spacing"] * part["support"]
+    limit = MAX_CAPACITY[d["dim"]]
+    if part["capacity"] is not None and part["capacity"] > limit:
+        c.add("particles.capacity", "too many slots for the neighbour lists", str(part["capacity"]),
+              f"<= {limit} in {d['dim']}D")
+        return
     if dom and _ok(dom["min"], dom["max"]):
         cells = math.prod(max(0.0, b - a) / h0 for a, b in zip(dom["min"], dom["max"]))
         if cells > MAX_GRID_CELLS:
@@ -620,10 +633,10 @@ def _check_sizes(c: _Checker, d: dict) -> None:
         top = (ad.get("levels") or 1) - 1 if ad.get("enabled") else 0
         emitted = _emitted(emitters, s0, d["dim"], top)
         part["capacity"] = int(CAPACITY_MARGIN * need + emitted) + CAPACITY_SLACK
-        if part["capacity"] > MAX_CAPACITY:
+        if part["capacity"] > limit:
             c.add("particles.spacing", "too many particles for the pool",
                   f"{part['capacity']:.3g} slots needed at spacing {s0:g} m",
-                  f"<= {MAX_CAPACITY:.0e}; raise particles.spacing or shrink the fluid")
+                  f"<= {limit} in {d['dim']}D; raise particles.spacing or shrink the fluid")
 
 
 def _validate(raw, label: str, overridden: list[str]) -> tuple[dict | None, list[str]]:

@@ -27,7 +27,7 @@ import taichi as ti
 
 from . import runtime
 from .boundary import Boundary
-from .config import LATTICE_EPS
+from .config import LATTICE_EPS, MAX_NEIGHBOURS   # the lists' length, which bounds the pool
 from .criteria import Criteria
 from .eos import hydrostatic_heights, pressure, sound_speed
 from .grid import LevelGrids
@@ -65,10 +65,6 @@ ACCEL_OVERFLOW = 1e30
 # p/(rho s), smaller ones double-count groups near the parent. 1.5 keeps a margin.
 REACH_FACTOR = 1.5
 
-# Neighbour list length per dimension: about 3x the neighbour count of the rest lattice
-# (12 in 2D, 26 in 3D within h = 2 s), so that only a strongly compressed particle
-# overflows (it then loops over the grid instead; results are the same).
-MAX_NEIGHBOURS = {2: 40, 3: 80}
 
 # Density loop without a branch per candidate, in both dimensions. In 2D a third of the
 # candidates of the 3x3 cells are neighbours and, once the fluid flows, which ones is
