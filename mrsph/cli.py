@@ -75,13 +75,16 @@ def _pixels(text: str) -> int:
     return value
 
 
-def _positive_float(text: str) -> float:
+def fps_arg(text: str) -> float:
+    """--fps: a number of frames per second within config.FPS_RANGE."""
+    from .config import FPS_RANGE
+    lo, hi = FPS_RANGE
     try:
         value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number (got {text!r})") from None
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"expected a positive number (got {text})")
+        value = math.nan
+    if not lo <= value <= hi:     # NaN fails too
+        raise argparse.ArgumentTypeError(f"expected a number in [{lo:g}, {hi:g}] (got {text})")
     return value
 
 
@@ -145,7 +148,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--height", type=_pixels, default=None, metavar="PX",
                         help=f"image height (default: the scene's render.height; the window "
                              f"{WINDOW_SIZE[1]})")
-    parser.add_argument("--fps", type=_positive_float, default=None,
+    parser.add_argument("--fps", type=fps_arg, default=None,
                         help="frames per second of the recorded video (default: the scene's run.fps)")
     parser.add_argument("--frame-budget", type=frame_budget_arg, default=WINDOW_FRAME_BUDGET_MS,
                         metavar="MS", help="window only: simulate until the first step that "

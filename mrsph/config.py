@@ -37,6 +37,9 @@ MAX_NEIGHBOURS = {2: 40, 3: 80}
 # below 2^31: 52 M and 26 M slots, tens of GB at 0.3-0.6 kB a slot. Refused before
 # Taichi tries to allocate (9e7 slots in 2D ended in an int32 overflow, then the OOM killer).
 MAX_CAPACITY = {d: (2**31 - 1) // (MAX_NEIGHBOURS[d] + 1) // 10**6 * 10**6 for d in (2, 3)}
+# Frames per second (run.fps, --fps): a GIF holds a frame at most 655 s, and a
+# frame interval of a millisecond is already far below any time step that matters.
+FPS_RANGE = (0.1, 1000.0)
 # Sizes of the Taichi fields that hold a scene's shapes, criteria and stirrers (allocated
 # once, so that a scene's count does not recompile kernels); a scene asking for more is
 # refused here rather than cut short where the fields are filled.
@@ -264,7 +267,8 @@ SCHEMA = Table(required=True, keys={
         doc=f"Scripted disturbances for headless runs; at most {MAX_STIRRERS} (the mouse's "
         "is one more).", max_items=MAX_STIRRERS),
     "run": Table({
-        "fps": Key("float", 30.0, "> 0", "1/s", "frames rendered or dumped per simulated second"),
+        "fps": Key("float", 30.0, f"[{FPS_RANGE[0]:g}, {FPS_RANGE[1]:g}]", "1/s",
+                   "frames rendered or dumped per simulated second"),
         "frames": Key("int", 0, ">= 0", doc="frames of a headless run; 0 = none given")}),
     "render": Table({
         "width": Key("int", 960, "[64, 8192]", "px", "image width"),

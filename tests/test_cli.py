@@ -141,6 +141,9 @@ def test_bad_option_values(tmp_path):
     assert_usage_error(run(path, "--dump-format", "csv"), "--dump-format")
     assert_usage_error(run(path, "--frame-budget", "-5"), "--frame-budget", "milliseconds >= 0")
     assert_usage_error(run(path, "--frame-budget", "inf"), "--frame-budget", "finite")
+    for fps in ("inf", "0.001", "nan"):    # inf and 1e-3 used to end in encoder tracebacks
+        assert_usage_error(run(path, "--frames", 2, "--fps", fps, "--out", tmp_path / "x.gif"),
+                           "--fps", "[0.1, 1000]")
     assert_usage_error(run(path, "--frames", 2, "--out", tmp_path / "x.avi"), "--out", ".mp4")
     assert_usage_error(run(path, "--frames", 2, "--out", tmp_path / "x.gif", "--width", 100000),
                        "--width", "[64, 8192]")
