@@ -37,6 +37,7 @@ import resource
 import statistics
 import sys
 import time
+from pathlib import Path
 from typing import NamedTuple
 
 #: The phases that exist only because of the multiresolution scheme.
@@ -381,7 +382,7 @@ def run_cases(cases, repeats, arch, threads="auto", log=None) -> tuple[list, lis
 
 
 def main(argv=None) -> int:
-    from .cli import _Formatter, _Parser, _positive_float, _positive_int, threads_arg
+    from .cli import _file_problem, _Formatter, _Parser, _positive_float, _positive_int, threads_arg
     ap = _Parser(prog="python main.py bench", description=__doc__.splitlines()[0],
                  formatter_class=_Formatter)
     ap.add_argument("--full", action="store_true",
@@ -406,6 +407,10 @@ def main(argv=None) -> int:
     if not cases:
         print(f"python main.py bench: no case matches {args.case} (see --list"
               f"{'' if args.full else ' and --full'})", file=sys.stderr)
+        return 2
+    problem = _file_problem("--json", Path(args.json)) if args.json else None
+    if problem:     # before the cases run, not after
+        print(f"python main.py bench: {problem}", file=sys.stderr)
         return 2
     scale = args.interval_scale
     cases = [c._replace(warm=c.warm * scale, interval=c.interval * scale) for c in cases]

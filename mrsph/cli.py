@@ -75,6 +75,16 @@ def _pixels(text: str) -> int:
     return value
 
 
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive number (got {text!r})") from None
+    if not 0 < value < math.inf:
+        raise argparse.ArgumentTypeError(f"expected a finite positive number (got {text})")
+    return value
+
+
 def fps_arg(text: str) -> float:
     """--fps: a number of frames per second within config.FPS_RANGE."""
     from .config import FPS_RANGE

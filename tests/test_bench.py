@@ -149,6 +149,18 @@ def test_bench_rejects_an_unknown_case():
     assert proc.returncode == 2 and "no case matches" in proc.stderr and "Traceback" not in proc.stderr
 
 
+def test_bench_refuses_an_unwritable_json_before_running(tmp_path):
+    """--json into a path under a file: one line and exit 2, before any case runs (it
+    used to end the whole benchmark in a FileNotFoundError traceback)."""
+    a_file = tmp_path / "a_file"
+    a_file.write_text("x")
+    proc = subprocess.run([sys.executable, "main.py", "bench", "--json", str(a_file / "r.json"),
+                           "--case", "10k"], cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.strip().splitlines() == [
+        f"python main.py bench: error: --json {a_file}: exists and is not a directory"], proc.stderr
+
+
 # ----------------------------------------------------------------------------- the plot
 def _plot_tool():
     return load_tool("plot_bench")
