@@ -24,7 +24,7 @@ from mrsph.solver import Simulation  # noqa: E402
 def kinds_figure(path: Path) -> None:
     sim = Simulation(load_scene("region_2d", ["adaptivity.levels=2"]), arch="cpu")
     snap = sim.snapshot()
-    lo, hi = np.array([0.13, 0.0]), np.array([0.43, 0.17])   # the left edge of the refined box
+    lo, hi = np.array([0.13, 0.0]), np.array([0.43, 0.17])   # the refined box's sides and bottom
     keep = np.all((snap.x >= lo - 0.01) & (snap.x <= hi + 0.01), axis=1)
     zoom = replace(snap, x=snap.x[keep], v=snap.v[keep], m=snap.m[keep], rho=snap.rho[keep],
                    level=snap.level[keep], kind=snap.kind[keep], domain_min=lo, domain_max=hi)
