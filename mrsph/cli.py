@@ -147,7 +147,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--headless", action="store_true",
                         help="no window: run --frames frames (or run.frames), then stop")
     parser.add_argument("--frames", type=_positive_int, default=None, metavar="N",
-                        help="frames to run or record (default: the scene's run.frames; "
+                        help="frames to run (headless: N frames simulated, N + 1 states "
+                             "dumped with t = 0) or record (N video frames, the first at t = 0) "
+                             "(default: the scene's run.frames; "
                              f"{FALLBACK_FRAMES} for the video made when no window can open)")
     parser.add_argument("--out", default=None, metavar="FILE",
                         help="record a video instead: .mp4, .gif, or a directory of PNGs "
