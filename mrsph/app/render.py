@@ -19,6 +19,7 @@ field, so unused slots are parked far outside the view (``_PARK``) with radius 0
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +28,7 @@ import taichi as ti
 from . import geometry, palette
 from .palette import Style
 from .raster import AMBIENT, DIFFUSE, LINE_WIDTH_FRACTION
-from .view import OrbitCamera, View2D, camera_for_scene
+from .view import OrbitCamera, View2D, camera_for_scene, scene_setting
 
 #: Where unused slots go: far outside the [0, 1]^2 canvas and any 3D view.
 _PARK = -1.0e6
@@ -124,10 +125,25 @@ class Renderer:
         return View2D(snapshot.domain_min, snapshot.domain_max, w, h, region=(x0 * w, y0 * h, x1 * w, y1 * h))
 
     def ensure_camera(self, snapshot) -> OrbitCamera:
+        """The 3D camera; framed, when there is none, within ``viewport`` (the window
+        leaves out its HUD panel): on the domain box fitted to the viewport's width, or
+        as the scene gives it (``render.camera_*``, framed for a whole image) moved back
+        by the viewport's share of the width; then panned so that its target is seen at
+        the viewport's centre (the projection spans the whole window)."""
         if self.camera is None:
             w, h = self.size
-            self.camera = camera_for_scene(self.scene_settings, snapshot.domain_min,
-                                           snapshot.domain_max, w / h)
+            x0, y0, x1, y1 = self.viewport
+            cam = camera_for_scene(self.scene_settings, snapshot.domain_min, snapshot.domain_max,
+                                   (x1 - x0) * w / max((y1 - y0) * h, 1.0))
+            if any(scene_setting(self.scene_settings, k, None) is not None
+                   for k in ("render.camera_position", "render.camera_lookat")):
+                cam.distance /= x1 - x0
+            centre = x0 + x1 - 1.0      # the viewport's centre, in [-1, 1] across the window
+            if centre != 0.0:
+                _, right, _ = cam.basis()
+                half_width = cam.distance * math.tan(math.radians(cam.fov) / 2.0) * w / h
+                cam.target = cam.target - right * centre * half_width
+            self.camera = cam
         return self.camera
 
     def reset_view(self, scene=None, style: Style | None = None) -> None:

@@ -321,6 +321,11 @@ class _App:
             self.fps = 1.0 / dt_wall if self.fps == 0 else 0.9 * self.fps + 0.1 / dt_wall
             if not self._keys():
                 break
+            # fit the domain into the area left of the HUD panel, so nothing hides (3D:
+            # when the camera is framed, at the start or on f); before any camera use
+            w, _ = self.renderer.size
+            free = self._hud_rect_px()[0] / w if self.show_hud else 1.0
+            self.renderer.viewport = (0.0, 0.0, max(free, 0.3), 1.0)
             self._held_keys(min(dt_wall, 0.1))  # no camera jump after a slow frame
             # The drag velocity is measured in simulated time: the cursor moves so far
             # per frame and the fluid should follow it on screen, however fast the
@@ -355,10 +360,6 @@ class _App:
             snap = self.snap
             st = snap.stats or {}
             self.rates.add(float(snap.time), float(st.get("splits", 0)), float(st.get("merges", 0)))
-            # 2D: fit the domain into the area left of the HUD panel, so nothing hides.
-            w, _ = self.renderer.size
-            free = self._hud_rect_px()[0] / w if self.show_hud else 1.0
-            self.renderer.viewport = (0.0, 0.0, max(free, 0.3), 1.0)
             self.renderer.draw(snap, self.color_mode, self.show_virtual,
                                rest_density=getattr(self.sim, "rest_density", None))
             self._hud(snap)
@@ -535,8 +536,9 @@ class _App:
         if not self.show_hud:
             return
         with gui.sub_window("mrsph", x0 / w, y0 / h, (x1 - x0) / w, (y1 - y0) / h):
-            gui.text(f"scene {self.scene_name} ({snap.dim}D)   h: help  u: hide")
-            gui.text(f"{self.fps:5.1f} fps   frame {snap.frame}" + ("   PAUSED" if self.paused else ""))
+            gui.text(f"scene {self.scene_name} ({snap.dim}D)")
+            gui.text(f"{self.fps:5.1f} fps   frame {snap.frame}" + ("   PAUSED" if self.paused else "")
+                     + "   h: help  u: hide")
             gui.text(f"t = {float(snap.time):.3f} s   dt = {float(st.get('dt', 0.0)):.2e} s")
             speed = self.speed.value()
             if speed is None:
