@@ -123,6 +123,33 @@ def test_orbit_camera_matches_ggui_camera(taichi_cpu):
     np.testing.assert_allclose([proj[0, 0], proj[1, 1]], [mine[0, 0], mine[1, 1]], rtol=1e-5)
 
 
+@pytest.mark.parametrize("given", [False, True], ids=["auto", "scene-camera"])
+def test_3d_camera_frames_the_box_left_of_the_panel(given):
+    """The window leaves the right 30 % to its panel (viewport x in [0, 0.7]): the
+    domain box's corners are all drawn inside the viewport, its centre near the
+    viewport's centre; with a scene's own camera (framed for the whole image) too."""
+    from types import SimpleNamespace
+
+    from mrsph.app.render import Renderer
+    from mrsph.config import load_scene
+
+    w, h = 1280, 720
+    window = SimpleNamespace(get_canvas=lambda: None, get_window_shape=lambda: (w, h))
+    scene = load_scene("dam_break_obstacle_3d")
+    lo, hi = np.asarray(scene.domain.min, float), np.asarray(scene.domain.max, float)
+    renderer = Renderer(window, scene=scene if given else None)
+    renderer.viewport = (0.0, 0.0, 0.7, 1.0)
+    cam = renderer.ensure_camera(SimpleNamespace(domain_min=lo, domain_max=hi))
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    px, depth = cam.project(corners, w, h)
+    assert (depth > 0).all()
+    assert px[:, 0].min() >= 0 and px[:, 0].max() <= 0.7 * w, (
+        f"box drawn over x = {px[:, 0].min():.0f} .. {px[:, 0].max():.0f} px; the viewport ends at {0.7 * w:.0f}")
+    if not given:
+        centre, _ = cam.project(((lo + hi) / 2)[None], w, h)
+        assert centre[0, 0] == pytest.approx(0.35 * w, abs=0.02 * w), f"box centre at {centre[0, 0]:.0f} px"
+
+
 # ----------------------------------------------------------------------------- raster
 @pytest.mark.parametrize("dim", DIMS)
 def test_raster_frame_shows_level_colours(dim, tmp_path):
