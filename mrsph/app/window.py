@@ -188,7 +188,9 @@ class _App:
         self.scene_name = scene_name
         # The simulation first: it initialises Taichi, which the window needs.
         self.sim = self._build(scene_name)
-        self.window = ti.ui.Window(f"mrsph - {scene_name}", (int(width), int(height)), vsync=True)
+        # no scene name in the title: GGUI 1.7.4 cannot change it when the scene changes
+        # (the panel's first line names the scene)
+        self.window = ti.ui.Window("mrsph - adaptive SPH", (int(width), int(height)), vsync=True)
         self.renderer = Renderer(self.window, palette.Style.from_scene(self.sim.scene), self.sim.scene)
         self.paused = False
         self.step_once = False
