@@ -81,6 +81,9 @@ VP_ANCHORED = 8    # virtual parent with a real particle of its own level within
 RELEASED = 16      # virtual parent whose group is being released (claimed atomically)
 FRESH = 32         # real child made by a split in this pass (spread by ``_relax_fresh``)
 NEAR_REGULAR = 64  # real level-c particle with a regular (uncoupled) level-f particle within h_c
+_FLAGS = (NEAR_FINE, NEAR_COARSE, MUST_SPLIT, VP_ANCHORED, RELEASED, FRESH, NEAR_REGULAR)
+if sorted(_FLAGS) != [1 << k for k in range(len(_FLAGS))]:
+    raise ImportError("multires: the flag bits must be distinct single bits")
 
 GATHER_ROUNDS = 3  # pairings per pass: 1 → 2 → 4 → 8 children in the best case
 # A gathered group spans at most this fraction of the release limit; with 1 a group could
@@ -95,7 +98,7 @@ if [a.name for a in ATTRIBUTES if a.on_split == "divide" or a.on_merge == "sum"]
     raise ImportError("particles.ATTRIBUTES: multires.py writes the divide/sum rules of the mass only")
 
 COUNTERS = ("splits", "merges", "released", "gathered")
-SPLITS, MERGES, RELEASED, GATHERED = range(len(COUNTERS))
+EV_SPLITS, EV_MERGES, EV_RELEASED, EV_GATHERED = range(len(COUNTERS))   # indices into them
 
 
 def sampling_offsets(dim: int):
@@ -186,7 +189,7 @@ class Multires:
             self.pool.children[vp, k] = -1
         p[vp].nchild = 0
         p[vp].kind = DEAD
-        ti.atomic_add(self.counters[RELEASED], 1)
+        ti.atomic_add(self.counters[EV_RELEASED], 1)
 
     @ti.func
     def _kill_virtual_children(self, i):
@@ -320,7 +323,7 @@ class Multires:
                             self.fresh[ti.atomic_add(self.n_fresh[None], 1)] = ch
                         self._fit_children(i, s_f)
                         p[i].kind = VIRTUAL_PARENT
-                        ti.atomic_add(self.counters[SPLITS], 1)
+                        ti.atomic_add(self.counters[EV_SPLITS], 1)
 
     @ti.func
     def _relax_fresh(self, c):
@@ -552,7 +555,7 @@ class Multires:
                 p[i].nchild = ni + nj
                 p[j].nchild = 0
                 p[j].kind = DEAD
-                ti.atomic_add(self.counters[GATHERED], 1)
+                ti.atomic_add(self.counters[EV_GATHERED], 1)
 
     @ti.func
     def _merge(self, n, c):
@@ -591,4 +594,4 @@ class Multires:
                     p[i].nchild = 0
                     p[i].parent = -1
                     p[i].kind = REGULAR
-                    ti.atomic_add(self.counters[MERGES], 1)
+                    ti.atomic_add(self.counters[EV_MERGES], 1)
