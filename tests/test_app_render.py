@@ -145,9 +145,16 @@ def test_3d_camera_frames_the_box_left_of_the_panel(given):
     assert (depth > 0).all()
     assert px[:, 0].min() >= 0 and px[:, 0].max() <= 0.7 * w, (
         f"box drawn over x = {px[:, 0].min():.0f} .. {px[:, 0].max():.0f} px; the viewport ends at {0.7 * w:.0f}")
-    if not given:
-        centre, _ = cam.project(((lo + hi) / 2)[None], w, h)
-        assert centre[0, 0] == pytest.approx(0.35 * w, abs=0.02 * w), f"box centre at {centre[0, 0]:.0f} px"
+    # the pivot (the box centre, or the scene's look-at point) stays at the viewport's
+    # centre through orbit and zoom
+    for move in ("start", "orbit", "zoom"):
+        if move == "orbit":
+            cam.orbit(math.pi, 0.2)
+        elif move == "zoom":
+            cam.zoom(0.5)
+        pivot, depth = cam.project(cam.target[None], w, h)
+        assert depth[0] > 0 and pivot[0, 0] == pytest.approx(0.35 * w, abs=1.0), (
+            f"after {move}: the pivot at x = {pivot[0, 0]:.0f} px, the viewport's centre at {0.35 * w:.0f}")
 
 
 # ----------------------------------------------------------------------------- raster

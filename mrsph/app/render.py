@@ -127,22 +127,19 @@ class Renderer:
     def ensure_camera(self, snapshot) -> OrbitCamera:
         """The 3D camera; framed, when there is none, within ``viewport`` (the window
         leaves out its HUD panel): on the domain box fitted to the viewport's width, or
-        as the scene gives it (``render.camera_*``, framed for a whole image) moved back
-        by the viewport's share of the width; then panned so that its target is seen at
-        the viewport's centre (the projection spans the whole window)."""
+        from the scene's ``render.camera_position`` (framed for a whole image) moved back
+        by the viewport's share of the width; its target, the pivot of orbit and zoom, is
+        seen at the viewport's centre (``OrbitCamera.lateral``: the projection spans the
+        whole window)."""
         if self.camera is None:
             w, h = self.size
             x0, y0, x1, y1 = self.viewport
             cam = camera_for_scene(self.scene_settings, snapshot.domain_min, snapshot.domain_max,
                                    (x1 - x0) * w / max((y1 - y0) * h, 1.0))
-            if any(scene_setting(self.scene_settings, k, None) is not None
-                   for k in ("render.camera_position", "render.camera_lookat")):
+            if scene_setting(self.scene_settings, "render.camera_position", None) is not None:
                 cam.distance /= x1 - x0
             centre = x0 + x1 - 1.0      # the viewport's centre, in [-1, 1] across the window
-            if centre != 0.0:
-                _, right, _ = cam.basis()
-                half_width = cam.distance * math.tan(math.radians(cam.fov) / 2.0) * w / h
-                cam.target = cam.target - right * centre * half_width
+            cam.lateral = centre * math.tan(math.radians(cam.fov) / 2.0) * w / h
             self.camera = cam
         return self.camera
 
@@ -208,7 +205,7 @@ class Renderer:
             self._ti_camera = ti.ui.Camera()
         scene, tc = self._scene3d, self._ti_camera
         tc.position(*cam.position)
-        tc.lookat(*cam.target)
+        tc.lookat(*cam.look_at)
         tc.up(0.0, 1.0, 0.0)
         tc.fov(cam.fov)
         tc.z_near(cam.z_near)

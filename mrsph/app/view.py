@@ -82,6 +82,7 @@ class OrbitCamera:
         self.yaw = float(yaw)
         self.pitch = float(pitch)
         self.fov = float(fov)
+        self.lateral = 0.0   # sideways shift of the view, in distances (see look_at)
         self.min_distance = 1e-3
         self.max_distance = 1e6
 
@@ -104,16 +105,29 @@ class OrbitCamera:
         return cam
 
     # -- state -----------------------------------------------------------------------
+    def _back(self) -> np.ndarray:
+        """Unit vector from the target towards the eye (before the sideways shift)."""
+        cp = math.cos(self.pitch)
+        return np.array([cp * math.sin(self.yaw), math.sin(self.pitch), cp * math.cos(self.yaw)])
+
     @property
     def position(self) -> np.ndarray:
-        cp = math.cos(self.pitch)
-        offset = np.array([cp * math.sin(self.yaw), math.sin(self.pitch), cp * math.cos(self.yaw)])
-        return self.target + self.distance * offset
+        """The eye: ``distance`` from the target, shifted sideways by ``lateral``."""
+        return self.look_at + self.distance * self._back()
+
+    @property
+    def look_at(self) -> np.ndarray:
+        """The point the view centre looks at: the target, shifted sideways (along the
+        view's right) by ``lateral`` times the distance. The target stays the pivot of
+        orbit and zoom, and is seen at lateral / (tan(fov/2) aspect) across the image
+        (NDC): the window puts it at the centre of the area its panel leaves free."""
+        if self.lateral == 0.0:
+            return self.target.copy()
+        return self.target - self.basis()[1] * (self.lateral * self.distance)
 
     def basis(self):
         """(forward, right, up) unit vectors of the view."""
-        forward = self.target - self.position
-        forward /= np.linalg.norm(forward)
+        forward = -self._back()
         right = np.cross(forward, np.array([0.0, 1.0, 0.0]))
         right /= np.linalg.norm(right)
         up = np.cross(right, forward)

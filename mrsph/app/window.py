@@ -539,8 +539,8 @@ class _App:
             return
         with gui.sub_window("mrsph", x0 / w, y0 / h, (x1 - x0) / w, (y1 - y0) / h):
             gui.text(f"scene {self.scene_name} ({snap.dim}D)")
-            gui.text(f"{self.fps:5.1f} fps   frame {snap.frame}" + ("   PAUSED" if self.paused else "")
-                     + "   h: help  u: hide")
+            gui.text("h: help   u: hide this panel")
+            gui.text(f"{self.fps:5.1f} fps   frame {snap.frame}" + ("   PAUSED" if self.paused else ""))
             gui.text(f"t = {float(snap.time):.3f} s   dt = {float(st.get('dt', 0.0)):.2e} s")
             speed = self.speed.value()
             if speed is None:
