@@ -153,6 +153,7 @@ def build_parser() -> argparse.ArgumentParser:
                              f"{FALLBACK_FRAMES} for the video made when no window can open)")
     parser.add_argument("--out", default=None, metavar="FILE",
                         help="record a video instead: .mp4, .gif, or a directory of PNGs "
+                             "(its frame_*.png of an earlier run are removed first) "
                              "(default: no recording)")
     parser.add_argument("--width", type=_pixels, default=None, metavar="PX",
                         help=f"image width (default: the scene's render.width; the window "
@@ -173,6 +174,7 @@ def build_parser() -> argparse.ArgumentParser:
                              "--set fluid.viscosity=2.0 (default: none)")
     parser.add_argument("--dump", default=None, metavar="DIR",
                         help="write every frame's particles and a stats.csv row to DIR "
+                             "(frame files of an earlier run there are removed first) "
                              "(default: no dump)")
     parser.add_argument("--dump-format", choices=FORMATS, default="npz",
                         help="format of the frame files: npz, ply (binary point cloud) or vtk (.vtu)")

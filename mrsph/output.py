@@ -43,7 +43,7 @@ def clear_frames(directory, suffixes) -> int:
     d = Path(directory)
     if not d.is_dir():
         return 0
-    pattern = re.compile(r"frame_\d{5}\.(?:%s)" % "|".join(map(re.escape, suffixes)))
+    pattern = re.compile(r"frame_\d{5,}\.(?:%s)" % "|".join(map(re.escape, suffixes)))   # FRAME_NAME
     old = [f for f in d.iterdir() if pattern.fullmatch(f.name) and f.is_file()]
     for f in old:
         f.unlink()

@@ -346,8 +346,7 @@ class _App:
                 except Exception as e:  # blow-up: stop and say so, keep the window
                     self.paused = True
                     line = (str(e).splitlines() or [type(e).__name__])[0]
-                    print(f"mrsph: {self.scene_name}: simulation stopped: {line}", file=sys.stderr,
-                          flush=True)
+                    print(f"error: {line}", file=sys.stderr, flush=True)   # as headless runs say it
                     self.message = f"simulation stopped: {line[:240]} (r: reset)"
                 advanced = float(self.sim.time) - t0
                 if advanced > 0.0:
