@@ -614,17 +614,17 @@ def _check_sizes(c: _Checker, d: dict) -> None:
     if not (part and _ok(part["spacing"], part["support"])):
         return
     s0, h0 = part["spacing"], part["spacing"] * part["support"]
-    limit = MAX_CAPACITY[d["dim"]]
-    if part["capacity"] is not None and part["capacity"] > limit:
-        c.add("particles.capacity", "too many slots for the neighbour lists", str(part["capacity"]),
-              f"<= {limit} in {d['dim']}D")
-        return
     if dom and _ok(dom["min"], dom["max"]):
         cells = math.prod(max(0.0, b - a) / h0 for a, b in zip(dom["min"], dom["max"]))
         if cells > MAX_GRID_CELLS:
             c.add("domain", "too large for the neighbour grid",
                   f"{cells:.3g} cells of size h0 = {h0:g} m",
                   f"<= {MAX_GRID_CELLS:.0e} cells; raise particles.spacing or shrink the domain")
+    limit = MAX_CAPACITY[d["dim"]]
+    if part["capacity"] is not None and part["capacity"] > limit:
+        c.add("particles.capacity", "too many slots for the neighbour lists", str(part["capacity"]),
+              f"<= {limit} in {d['dim']}D")
+        return
     if not (fluid and all(_block_ok(b) for b in fluid["blocks"])) or part["capacity"] is None:
         return
     need = _lattice_count(fluid["blocks"], s0)

@@ -1624,7 +1624,7 @@ class Simulation:
         return {"attributes": {a.name: getattr(p, a.name).to_numpy() for a in ATTRIBUTES},
                 "children": self.pool.children.to_numpy(), "n": self.pool.count(),
                 "refused": int(self.pool.refused[None]),
-                "clock": (self.time, self.frame, self.steps, self.dt),
+                "clock": (self.time, self.frame, self.steps, self.dt, self.chosen_dt),
                 "emitters": list(self._emit_acc), "capacity": self.capacity, "dim": self.dim}
 
     def restore_state(self, state: dict) -> None:
@@ -1638,8 +1638,7 @@ class Simulation:
         self.pool.n[None] = state["n"]
         self.pool.refused[None] = state["refused"]
         self._refused_reported = state["refused"]
-        self.time, self.frame, self.steps, self.dt = state["clock"]
-        self.chosen_dt = self.dt
+        self.time, self.frame, self.steps, self.dt, self.chosen_dt = state["clock"]
         self._emit_acc = list(state["emitters"])
         if self.reaction is not None:
             self.reaction.fill(0.0)
