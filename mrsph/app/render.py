@@ -158,10 +158,17 @@ class Renderer:
         self.canvas.set_background_color(tuple(float(c) for c in self.style.background))
         rgb = palette.colours(snapshot, color_mode, rest_density=rest_density)
         keep = np.ones(len(rgb), dtype=bool) if show_virtual else ~palette.is_virtual(snapshot.kind)
-        if snapshot.dim == 2:
-            self._draw_canvas(snapshot, rgb, keep)
-        else:
-            self._draw_scene(snapshot, rgb, keep)
+        # GGUI's own staging kernels, compiled in an f64 program, warn "Assign may lose
+        # precision: f32 <- f64" a dozen times: not ours to fix, so not shown (mrsph.runtime
+        # runs Taichi at WARN, restored after)
+        ti.set_logging_level(ti.ERROR)
+        try:
+            if snapshot.dim == 2:
+                self._draw_canvas(snapshot, rgb, keep)
+            else:
+                self._draw_scene(snapshot, rgb, keep)
+        finally:
+            ti.set_logging_level(ti.WARN)
         if legend:
             draw_legend(self.window.get_gui(), snapshot, color_mode, self.size, rest_density=rest_density)
 
