@@ -44,7 +44,7 @@ _FRONT3 = ("the adaptive front runs ahead by 3.7 % on average with a chaotic spr
            "made to keep the group's barycentre (+18 %, +13 %). Moving the new children down "
            "their fine density gradient to rho0 instead: -7.2, -6.3 % (x1.00, x1.02); with "
            "the artificial viscosity scaled as h0 on every level as well: -0.6, -1.2 %, but "
-           "2D +9.9, +5.6 % and a 3D saving of 4.5x (README, status). Measured relative error")
+           "2D +9.9, +5.6 % and a 3D saving of 4.5x (docs/dam-front.md). Measured relative error")
 KNOWN_FAILURES = {("dam_front", 3): _FRONT3}
 
 
@@ -165,7 +165,7 @@ DAM_T = 1.0
 # Also printed (not asserted): the front at EARLY_T, before the block. Far from the block
 # the adaptive fluid is coarse, and the coarse levels run slower than the uniform fine
 # fluid (more artificial viscosity, alpha c h); at 1 s that lag and a faster passage over
-# the block partly cancel (README, status).
+# the block partly cancel (docs/dam-front.md).
 EARLY_T = 0.4
 # Merges are counted over a longer adaptive run: fine fluid first gets far enough past the
 # block to want the coarse level again (0.1 m + 1.25 bands of 0.16 m, x > 1.6 m) at about
