@@ -85,7 +85,13 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
 
     if args.one:
-        print(json.dumps(run_one(**json.loads(args.one))), flush=True)
+        sys.path.insert(0, str(ROOT))
+        from mrsph.config import SceneError
+        try:
+            print(json.dumps(run_one(**json.loads(args.one))), flush=True)
+        except SceneError as e:
+            print(e, file=sys.stderr)
+            return 2
         return 0
 
     jobs = [dict(dim=args.dim, viscosity=v, cfl=c, sets=args.sets, uniform=u)
