@@ -533,6 +533,14 @@ def _check_places(c: _Checker, d: dict) -> None:
             if what:
                 c.add(f"fluid.blocks.{i}", f"overlaps obstacles.{j}",
                       f"min {_fmt(b['min'])}, max {_fmt(b['max'])}", f"no overlap with {what}")
+        # each block is seeded with its own lattice: where two overlap, the fluid would
+        # start at twice its density and burst apart
+        for j, other in blocks:
+            what = j < i and _overlap(b, {"shape": "box", "min": other["min"], "max": other["max"]})
+            if what:
+                c.add(f"fluid.blocks.{i}", f"overlaps fluid.blocks.{j}",
+                      f"min {_fmt(b['min'])}, max {_fmt(b['max'])}",
+                      f"blocks that at most touch (no overlap with {what})")
     if not (dom and _ok(dom["min"], dom["max"])):
         return
     where = f"inside the domain {_fmt(dom['min'])} .. {_fmt(dom['max'])}"
@@ -556,6 +564,57 @@ def _check_places(c: _Checker, d: dict) -> None:
             center = _block_ok(cr) and tuple((a + b) / 2 for a, b in zip(cr["min"], cr["max"]))
         if center and not inside(center):
             c.add(f"criteria.{i}", "region centre outside the domain", _fmt(center), where)
+
+
+def emitter_disc(center, radius: float, velocity, s: float):
+    """Lattice points (spacing ``s``) of an emitter's disc (a segment in 2D): the points
+    within ``radius`` of ``center`` in the plane normal to ``velocity``, as an (n, dim)
+    numpy array. The solver emits these; the scene check keeps them in the fluid's space."""
+    import numpy as np
+    normal = np.asarray(velocity, np.float64)
+    normal = normal / np.linalg.norm(normal)
+    dim = len(normal)
+    basis = np.linalg.svd(normal.reshape(1, -1))[2][1:]     # orthonormal, in the plane
+    n = int(math.floor(radius / s))
+    ticks = np.arange(-n, n + 1) * s
+    pts = np.stack(np.meshgrid(*([ticks] * (dim - 1)), indexing="ij"), -1).reshape(-1, dim - 1)
+    pts = pts[np.linalg.norm(pts, axis=1) <= radius + 1e-9]
+    return np.asarray(center, np.float64) + pts @ basis
+
+
+def _inside_obstacle(p, ob) -> bool:
+    """Whether point ``p`` lies strictly inside obstacle ``ob``."""
+    if ob["shape"] == "box":
+        return all(a < x < b for a, x, b in zip(ob["min"], p, ob["max"]))
+    return sum((x - c) ** 2 for x, c in zip(p, ob["center"])) < ob["radius"] ** 2
+
+
+def _check_emitters(c: _Checker, d: dict) -> None:
+    """Every point an emitter places lies in the domain and outside every obstacle (a
+    particle placed inside a solid is thrown out of it at many times the emitter's speed)."""
+    dom, part, ad = d["domain"], d.get("particles") or {}, d["adaptivity"] or {}
+    if not (dom and _ok(dom["min"], dom["max"]) and _ok(part.get("spacing"))):
+        return
+    for i, e in enumerate(d["emitters"]):
+        if not (e and _ok(e["center"], e["radius"], e["velocity"], e["level"])
+                and len(e["center"]) == len(e["velocity"]) == d["dim"] and any(e["velocity"])):
+            continue
+        if not all(a <= x <= b for a, x, b in zip(dom["min"], e["center"], dom["max"])):
+            continue                         # reported by _check_places
+        level = e["level"] if ad.get("enabled") else 0
+        pts = emitter_disc(e["center"], e["radius"], e["velocity"], part["spacing"] * 2 ** level)
+        outside = [p for p in pts if not all(a <= x <= b for a, x, b in zip(dom["min"], p, dom["max"]))]
+        if outside:
+            c.add(f"emitters.{i}", "outlet outside the domain",
+                  f"centre {_fmt(e['center'])}, radius {e['radius']!r}",
+                  f"a disc inside the domain {_fmt(dom['min'])} .. {_fmt(dom['max'])} "
+                  f"(its point {_fmt([round(float(x), 6) for x in outside[0]])} is not)")
+        for j, ob in enumerate(d["obstacles"]):
+            valid = ob and (_block_ok(ob) if ob["shape"] == "box" else _ok(ob["center"], ob["radius"]))
+            if valid and any(_inside_obstacle(p, ob) for p in pts):
+                c.add(f"emitters.{i}", f"outlet inside obstacles.{j}",
+                      f"centre {_fmt(e['center'])}, radius {e['radius']!r}",
+                      f"a disc clear of the {ob['shape']} obstacles.{j}")
 
 
 def _check_values(c: _Checker, d: dict) -> None:
@@ -649,7 +708,7 @@ def _validate(raw, label: str, overridden: list[str]) -> tuple[dict | None, list
     dim = dim if dim in (2, 3) and isinstance(dim, int) and not isinstance(dim, bool) else None
     d = c.table(SCHEMA, raw, "", dim)
     if d is not None and dim is not None:
-        for check in (_check_places, _check_values, _check_levels, _check_sizes):
+        for check in (_check_places, _check_values, _check_levels, _check_emitters, _check_sizes):
             check(c, d)
     return d, c.problems
 

@@ -28,6 +28,7 @@ import taichi as ti
 from . import runtime
 from .boundary import Boundary
 from .config import LATTICE_EPS, MAX_NEIGHBOURS   # the lists' length, which bounds the pool
+from .config import emitter_disc
 from .criteria import Criteria
 from .eos import hydrostatic_heights, pressure, sound_speed
 from .grid import LevelGrids
@@ -502,14 +503,7 @@ class Simulation:
 
     def _emitter_layer(self, e, s, normal, advance):
         """Lattice points of the emitting disc (segment in 2D), moved ``advance`` along it."""
-        r = float(e["radius"])
-        # an orthonormal basis of the disc's plane
-        basis = np.linalg.svd(normal.reshape(1, -1))[2][1:]
-        n = int(math.floor(r / s))
-        ticks = (np.arange(-n, n + 1)) * s
-        pts = np.stack(np.meshgrid(*([ticks] * (self.dim - 1)), indexing="ij"), -1).reshape(-1, self.dim - 1)
-        pts = pts[np.linalg.norm(pts, axis=1) <= r + 1e-9]
-        return np.asarray(e["center"], np.float64) + pts @ basis + advance * normal
+        return emitter_disc(e["center"], float(e["radius"]), normal, s) + advance * normal
 
     def _adapt(self):
         self.multires.adapt()

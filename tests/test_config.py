@@ -476,6 +476,38 @@ def test_emitter_rules(dim):
         "<dict>: emitters.0.stop: not after start (got 1.0; expected a number > start = 2.0)"]
 
 
+def test_fluid_blocks_overlapping_each_other(dim):
+    """Each block gets its own lattice: overlapping blocks would start at twice the
+    density there and burst apart. Blocks that only touch are fine."""
+    scene = minimal(dim)
+    scene["fluid"]["blocks"] += [{"min": [0.5] + [0.0] * (dim - 1), "max": [0.8] + [0.5] * (dim - 1)},
+                                 {"min": [0.1] * dim, "max": [0.3] * dim}]
+    line = only_problem(scene)
+    assert line.startswith("<dict>: fluid.blocks.2: overlaps fluid.blocks.0 (got min "), line
+    assert line.endswith(f"expected blocks that at most touch (no overlap with the box "
+                         f"{[0.0] * dim} .. {[0.5] * dim}))"), line
+
+
+def test_emitter_outlet_inside_an_obstacle_or_outside_the_domain(dim):
+    """Every point an emitter places must lie in the fluid's space: one placed inside a
+    solid is thrown out of it at many times the emitter's speed."""
+    scene = minimal(dim)
+    scene["obstacles"] = [{"shape": "sphere", "center": [0.8] * dim, "radius": 0.1}]
+    down = [0.0, -1.0] + [0.0] * (dim - 2)
+    scene["emitters"] = [{"center": [0.8] * dim, "radius": 0.02, "velocity": down},   # in the sphere
+                         {"center": [0.98] * dim, "radius": 0.05, "velocity": down},  # past the wall
+                         {"center": [0.7, 0.9] + [0.7] * (dim - 2), "radius": 0.05,   # clear
+                          "velocity": down}]
+    found = problems(scene)
+    assert len(found) == 2, found
+    assert found[0] == (f"<dict>: emitters.0: outlet inside obstacles.0 (got centre {[0.8] * dim}, "
+                        "radius 0.02; expected a disc clear of the sphere obstacles.0)")
+    assert found[1].startswith(
+        f"<dict>: emitters.1: outlet outside the domain (got centre {[0.98] * dim}, radius 0.05; "
+        f"expected a disc inside the domain {[0.0] * dim} .. {[1.0] * dim} (its point "), found[1]
+    assert "1.03" in found[1].rsplit("its point", 1)[1], found[1]     # 0.98 + 0.05 along the disc
+
+
 def test_region_centre_outside_domain(dim):
     scene = minimal(dim)
     scene["adaptivity"] = {"enabled": True, "levels": 2}
