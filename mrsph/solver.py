@@ -1600,7 +1600,7 @@ class Simulation:
         s = self.scene.data
         return Snapshot(
             dim=self.dim, levels=self.levels, time=self.time, frame=self.frame,
-            x=parts["x"].astype(np.float32), v=parts["v"].astype(np.float32),
+            x=parts["x"], v=parts["v"],       # the simulation's precision: dumps keep f64
             m=parts["m"], rho=parts["rho"], level=parts["level"], kind=parts["kind"],
             radius=np.array([0.5 * self.s0 * 2**l for l in range(self.levels)]),
             domain_min=np.asarray(s["domain"]["min"], float), domain_max=np.asarray(s["domain"]["max"], float),

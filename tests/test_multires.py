@@ -317,6 +317,9 @@ def test_mass_is_kept_to_round_off_with_partial_groups(dim):
     assert splits >= 100 and merges >= 100, (
         f"{dim}D: too few events to test: {splits} splits, {merges} merges in {steps} steps")
     assert partial > 0, f"{dim}D: no partial group merged in {steps} steps ({merges} merges)"
+    snap = sim.snapshot(stats=False)       # what --dump writes: the run's own precision
+    assert snap.x.dtype == snap.v.dtype == np.float64, (
+        f"{dim}D: an f64 run's snapshot holds {snap.x.dtype} positions, {snap.v.dtype} velocities")
 
 
 # ================================================================== 3. momentum through a pass
