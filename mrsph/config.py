@@ -657,9 +657,20 @@ def _check_levels(c: _Checker, d: dict) -> None:
         used = levels if ad["enabled"] else 1
         if ad["background_level"] == -1:
             ad["background_level"] = used - 1
-        part = d["particles"]
+        part, dom = d["particles"], d["domain"]
         if ad["band"] == 0.0 and part and _ok(part["spacing"], part["support"]):
             ad["band"] = 2 * part["support"] * part["spacing"] * 2 ** (used - 1)
+        # a level whose support reaches across the whole domain has no fluid to resolve:
+        # its few particles see mostly their own mirror images
+        if used > 1 and part and dom and _ok(part["spacing"], part["support"], dom["min"], dom["max"]):
+            side = min(b - a for a, b in zip(dom["min"], dom["max"]))
+            h0 = part["support"] * part["spacing"]
+            if h0 * 2 ** (used - 1) > side:
+                fit = max(1, int(math.floor(math.log2(side / h0) + 1e-9)) + 1) if side >= h0 else 1
+                c.add("adaptivity.levels", "too many for the domain", str(levels),
+                      f"at most {fit}: level {used - 1}'s support radius, "
+                      f"{_fmt(h0 * 2 ** (used - 1))} m, exceeds the domain's smallest side, "
+                      f"{_fmt(side)} m")
     if ad["merge_min_children"] is not None:
         if ad["merge_min_children"] > 2 ** dim:
             c.add("adaptivity.merge_min_children", "more children than a parent has",
@@ -702,6 +713,23 @@ def _check_sizes(c: _Checker, d: dict) -> None:
                   f"<= {limit} in {d['dim']}D; raise particles.spacing or shrink the fluid")
 
 
+def _check_enabled(c: _Checker, raw: dict) -> None:
+    """Criteria or several levels without ``adaptivity.enabled``: the refinement the scene
+    describes would silently not happen (enabled defaults to false)."""
+    ad = raw.get("adaptivity")
+    ad = ad if isinstance(ad, dict) else {}
+    if "enabled" in ad:
+        return
+    given = []
+    if isinstance(raw.get("criteria"), list) and raw["criteria"]:
+        given.append("[[criteria]]")
+    if isinstance(ad.get("levels"), int) and not isinstance(ad["levels"], bool) and ad["levels"] > 1:
+        given.append(f"adaptivity.levels = {ad['levels']}")
+    if given:
+        c.add("adaptivity.enabled", "not set", " and ".join(given) + " given",
+              "adaptivity.enabled = true to refine, or false to run uniform at the finest spacing")
+
+
 def _validate(raw, label: str, overridden: list[str]) -> tuple[dict | None, list[str]]:
     c = _Checker(label, overridden)
     dim = raw.get("dim") if isinstance(raw, dict) else None
@@ -710,6 +738,8 @@ def _validate(raw, label: str, overridden: list[str]) -> tuple[dict | None, list
     if d is not None and dim is not None:
         for check in (_check_places, _check_values, _check_levels, _check_emitters, _check_sizes):
             check(c, d)
+        if not c.problems:          # a forgotten switch, worth a line once the rest is right
+            _check_enabled(c, raw)
     return d, c.problems
 
 

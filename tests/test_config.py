@@ -112,8 +112,33 @@ def test_automatic_values_resolved(dim):
 
 
 def test_automatic_values_with_adaptivity_off():
-    adaptivity = load_scene(put(minimal(2), "adaptivity.levels", 3)).adaptivity
+    scene = put(put(minimal(2), "adaptivity.levels", 3), "adaptivity.enabled", False)
+    adaptivity = load_scene(scene).adaptivity
     assert adaptivity.background_level == 0 and adaptivity.band == pytest.approx(2 * 2.0 * 0.05)
+
+
+def test_refinement_asked_for_without_adaptivity_enabled():
+    """enabled defaults to false: criteria or several levels without it would silently
+    run uniform. Saying enabled = false (as --set does for a uniform twin) is fine."""
+    criteria = [{"type": "obstacles", "distance": 0.1}]
+    expected = ("<dict>: adaptivity.enabled: not set (got {} given; expected adaptivity.enabled "
+                "= true to refine, or false to run uniform at the finest spacing)")
+    scene = minimal(2) | {"criteria": criteria}
+    assert only_problem(scene) == expected.format("[[criteria]]")
+    scene = minimal(2) | {"criteria": criteria, "adaptivity": {"levels": 3}}
+    assert only_problem(scene) == expected.format("[[criteria]] and adaptivity.levels = 3")
+    assert not load_scene(scene, {"adaptivity.enabled": "false"}).adaptivity.enabled
+
+
+def test_too_many_levels_for_the_domain(dim):
+    """Level n's support radius is 2^n h0 (h0 = 2 x 0.05 m here); past the domain's
+    smallest side (1 m) a level has no fluid to resolve."""
+    scene = put(put(minimal(dim), "adaptivity.enabled", True), "adaptivity.levels", 4)
+    load_scene(scene)                                            # 0.8 m: fits
+    put(scene, "adaptivity.levels", 5)
+    assert only_problem(scene) == (
+        "<dict>: adaptivity.levels: too many for the domain (got 5; expected at most 4: level 4's "
+        "support radius, 1.6 m, exceeds the domain's smallest side, 1.0 m)")
 
 
 def test_automatic_capacity_counts_emitters(dim):
