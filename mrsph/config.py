@@ -338,7 +338,9 @@ def _convert(k: Key, v, dim: int | None):
     if k.kind in ("float", "int"):
         if not _is_num(v) or (k.kind == "int" and not isinstance(v, numbers.Integral)):
             raise _Bad("wrong type", typed=True)
-        if not math.isfinite(v) or not _in_range(v, k.range):
+        if not math.isfinite(v):
+            raise _Bad("not finite")
+        if not _in_range(v, k.range):
             raise _Bad("out of range")
         return float(v) if k.kind == "float" else v
     if k.kind == "bool":
@@ -360,7 +362,9 @@ def _convert(k: Key, v, dim: int | None):
             raise _Bad("wrong type", typed=True)
         if n is not None and len(v) != n:
             raise _Bad("wrong length")
-        if not all(math.isfinite(c) and _in_range(c, k.range) for c in v):
+        if not all(math.isfinite(c) for c in v):
+            raise _Bad("not finite")
+        if not all(_in_range(c, k.range) for c in v):
             raise _Bad("out of range")
         return tuple(float(c) for c in v)
     # a path: waypoints [t, x, y(, z)]
@@ -372,7 +376,7 @@ def _convert(k: Key, v, dim: int | None):
     if dim is not None and any(len(w) != dim + 1 for w in v):
         raise _Bad("waypoint of the wrong length")
     if not all(math.isfinite(c) for w in v for c in w):
-        raise _Bad("out of range")
+        raise _Bad("not finite")
     if any(b[0] <= a[0] for a, b in zip(v, v[1:])):
         raise _Bad("waypoint times not strictly increasing")
     return tuple(tuple(float(c) for c in w) for w in v)

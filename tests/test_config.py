@@ -294,6 +294,14 @@ def test_bad_value_reported(key, value, expected):
         assert f"(got {json.dumps(value)}" in line
 
 
+@pytest.mark.parametrize("key, value", [("physics.max_speed", float("nan")),
+                                        ("domain.max", [float("inf"), 0.5]),
+                                        ("fluid.blocks.0.velocity", [0.0, float("-inf")])])
+def test_non_finite_value_named_as_such(key, value):
+    line = only_problem(put(minimal(2), key, value))
+    assert line.startswith(f"<dict>: {key}: not finite (got "), line
+
+
 def test_unknown_choice_hints_the_nearest():
     line = only_problem(put(minimal(2), "fluid.eos", "tiat"))
     assert line == ('<dict>: fluid.eos: unknown choice, did you mean \'tait\'? '
