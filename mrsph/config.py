@@ -550,7 +550,7 @@ def _check_places(c: _Checker, d: dict) -> None:
     where = f"inside the domain {_fmt(dom['min'])} .. {_fmt(dom['max'])}"
 
     def inside(p) -> bool:
-        return all(a <= x <= b for a, x, b in zip(dom["min"], p, dom["max"]))
+        return _in_box(p, dom["min"], dom["max"])
 
     for i, b in blocks:
         if not (inside(b["min"]) and inside(b["max"])):
@@ -586,6 +586,11 @@ def emitter_disc(center, radius: float, velocity, s: float):
     return np.asarray(center, np.float64) + pts @ basis
 
 
+def _in_box(p, lo, hi) -> bool:
+    """Whether point ``p`` lies in the closed box ``lo`` .. ``hi``."""
+    return all(a <= x <= b for a, x, b in zip(lo, p, hi))
+
+
 def _inside_obstacle(p, ob) -> bool:
     """Whether point ``p`` lies strictly inside obstacle ``ob``."""
     if ob["shape"] == "box":
@@ -603,11 +608,11 @@ def _check_emitters(c: _Checker, d: dict) -> None:
         if not (e and _ok(e["center"], e["radius"], e["velocity"], e["level"])
                 and len(e["center"]) == len(e["velocity"]) == d["dim"] and any(e["velocity"])):
             continue
-        if not all(a <= x <= b for a, x, b in zip(dom["min"], e["center"], dom["max"])):
+        if not _in_box(e["center"], dom["min"], dom["max"]):
             continue                         # reported by _check_places
         level = e["level"] if ad.get("enabled") else 0
         pts = emitter_disc(e["center"], e["radius"], e["velocity"], part["spacing"] * 2 ** level)
-        outside = [p for p in pts if not all(a <= x <= b for a, x, b in zip(dom["min"], p, dom["max"]))]
+        outside = [p for p in pts if not _in_box(p, dom["min"], dom["max"])]
         if outside:
             c.add(f"emitters.{i}", "outlet outside the domain",
                   f"centre {_fmt(e['center'])}, radius {e['radius']!r}",
