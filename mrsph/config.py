@@ -559,6 +559,11 @@ def _check_places(c: _Checker, d: dict) -> None:
     for i, e in enumerate(emitters):
         if e and e["center"] is not None and not inside(e["center"]):
             c.add(f"emitters.{i}.center", "outside the domain", _fmt(e["center"]), where)
+    for i, st in enumerate(d["stirrers"]):
+        away = [w for w in (st and st["path"] or []) if not inside(w[1:])]
+        if away:
+            c.add(f"stirrers.{i}.path", "waypoint outside the domain", _fmt(list(away[0])),
+                  f"every waypoint's position {where}")
     for i, cr in enumerate(d["criteria"]):
         if not (cr and cr["type"] == "region" and cr["shape"] in SHAPES):
             continue

@@ -435,6 +435,16 @@ def test_stirrer_path_rules(path, what):
     assert line.endswith("expected a list of >= 2 waypoints [t, x, y] with strictly increasing t)")
 
 
+def test_stirrer_waypoint_outside_the_domain():
+    """A stirrer outside the domain stirs nothing; the path is checked waypoint by waypoint."""
+    scene = minimal(2)
+    scene["stirrers"] = [{"radius": 0.1, "strength": 1.0, "path": [[0, 0.5, 0.5], [1, 0.9, 0.5]]},
+                         {"radius": 0.1, "strength": 1.0, "path": [[0, 0.5, 0.5], [1, 5.0, 6.0]]}]
+    assert only_problem(scene) == (
+        "<dict>: stirrers.1.path: waypoint outside the domain (got [1.0, 5.0, 6.0]; expected "
+        "every waypoint's position inside the domain [0.0, 0.0] .. [1.0, 1.0])")
+
+
 def test_criterion_path_in_3d_needs_four_numbers():
     scene = minimal(3)
     scene["criteria"] = [{"type": "region", "shape": "sphere", "center": [0.5] * 3, "radius": 0.1,
