@@ -206,8 +206,17 @@ SCHEMA = Table(required=True, keys={
                                   "always merges); 0 = 2^(dim-1), one layer of the coarse "
                                   "cell, so that a film one fine particle thick can coarsen; "
                                   "<= 2^dim"),
+        "merge_remnants": Key("bool", False, doc="a group smaller than merge_min_children "
+                              "merges too where it sits among coarse particles (a real "
+                              "coarse particle within its virtual parent's support) and no "
+                              "group can join it, down to 2^-dim of the nominal mass; false = "
+                              "such remnants stay fine (and keep the time step fine)"),
         "gather_factor": Key("float", 1.0, "(0, 2]", doc="virtual parents closer than "
                              "gather_factor * coarse spacing may gather"),
+        "gather_span": Key("float", 0.9, "(0, 1)", doc="a gathered group spans at most "
+                           "gather_span * the release distance, so that it is not released "
+                           "at the next pass and gathered again; above sqrt(dim)/2 (0.87 in "
+                           "3D) so that a lattice cell of 2^dim fine particles can gather"),
         "background_level": Key("int", -1, ">= -1", doc="level wanted where no criterion "
                                 "asks for finer; -1 = L-1, the coarsest"),
         "limit_virtual_density": Key("bool", True, doc="scale down the masses of virtual "

@@ -45,12 +45,14 @@ coarsest down (§5.4), rebuilding the grids between pairs, and for the coarse le
 5. ``_couple_fine``: regular level-f particles near real level-c ones become transient
    children with a virtual parent of their own (§6).
 6. ``_propose``/``_accept`` (a few rounds): neighbouring virtual parents whose groups fit
-   in 2^d children and span at most ``GATHER_MARGIN`` of the release distance gather
+   in 2^d children and span at most ``gather_span`` of the release distance gather
    under one (mutual nearest pairs, so the parallel pass has no races) — merging is
    incremental. By default only where the criteria want level c (``gather_coarse_only``).
 7. ``_merge``: a virtual parent whose position no longer wants level f (λ > c + η) and
    whose group is full, or has at least ``merge_min_children`` children and no group
-   within reach that it could take in (§6: "a group need not be full"), none of them
+   within reach that it could take in (§6: "a group need not be full"; with
+   ``merge_remnants``, any number of children where the virtual parent has a real
+   level-c particle within its support, the transition layer proper), none of them
    carrying virtual children of its own, becomes a real regular level-c particle with the group's
    total mass, mass-weighted velocity and centre of mass; the children are removed.
    Virtual parents form in the transition layer (next to a real coarse particle) and
@@ -86,9 +88,6 @@ if sorted(_FLAGS) != [1 << k for k in range(len(_FLAGS))]:
     raise ImportError("multires: the flag bits must be distinct single bits")
 
 GATHER_ROUNDS = 3  # pairings per pass: 1 → 2 → 4 → 8 children in the best case
-# A gathered group spans at most this fraction of the release limit; with 1 a group could
-# be released at the next pass and gathered again (see ``_propose``).
-GATHER_MARGIN = 0.8
 
 # Event counters, read by ``take_counters`` (refused splits are the pool's ``refused``).
 # Mass is divided on a split and summed on a merge (``particles.ATTRIBUTES``); the kernels
@@ -120,6 +119,8 @@ class Multires:
         self.release_factor = float(a["release_factor"])
         self.merge_min = int(a["merge_min_children"])   # 0 resolved by the config
         self.gather_factor = float(a["gather_factor"])
+        self.gather_span = float(a["gather_span"])
+        self.merge_remnants = bool(a["merge_remnants"])
         self.gather_coarse_only = bool(a["gather_coarse_only"])
         self.relax_iterations = int(a["split_relax_iterations"])
         self.relax_distance = float(a["split_min_distance"])
@@ -516,8 +517,12 @@ class Multires:
         # a gathered group must stay well inside the release limit, or it is released at
         # the next pass and gathered again, and every such cycle moves the virtual parents
         # (measured in a resting pool: ~3000 releases and gathers per second among ~240
-        # transient particles, and an interface that never came to rest)
-        keep = GATHER_MARGIN * self.release_factor * self._h(c - 1)
+        # transient particles, and an interface that never came to rest). The default 0.9
+        # is the first tenth above a 3D lattice cell's diagonal, sqrt(3)/2 = 0.87 of the
+        # release distance: at 0.8 no cell of eight could gather, and a 3D fluid left by
+        # a stirrer kept 469 of its 2003 real particles fine (193 of 1789 at 0.9;
+        # tests/test_multires.py, test_fine_fluid_a_stirrer_left_merges_back)
+        keep = self.gather_span * self.release_factor * self._h(c - 1)
         for i in range(n):
             self.partner[i] = -1
             if p[i].kind == VIRTUAL_PARENT and p[i].level == c and p[i].nchild < self.nmax \
@@ -568,8 +573,11 @@ class Multires:
             # particles span more than the release distance, so full groups never form
             # and, with full groups only, the film stayed fine for good (0 merges)
             k = p[i].nchild
+            least = self.merge_min
+            if ti.static(self.merge_remnants) and (p[i].flags & VP_ANCHORED) != 0:
+                least = 1
             if p[i].kind == VIRTUAL_PARENT and p[i].level == c and \
-                    (k == self.nmax or (k >= self.merge_min and self.partner[i] == -1)) \
+                    (k == self.nmax or (k >= least and self.partner[i] == -1)) \
                     and p[i].lam > c + self.hysteresis and (p[i].flags & MUST_SPLIT) == 0:
                 ok = True
                 for q in range(p[i].nchild):

@@ -276,6 +276,8 @@ def test_float_is_not_an_integer():
     ("adaptivity.release_factor", 2.5, "a number in [0.5, 2]"),
     ("adaptivity.merge_min_children", -1, "an integer >= 0"),
     ("adaptivity.gather_factor", 0, "a number in (0, 2]"),
+    ("adaptivity.gather_span", 1, "a number in (0, 1)"),
+    ("adaptivity.merge_remnants", 1, "true or false"),
     ("adaptivity.background_level", -2, "an integer >= -1"),
     ("run.fps", 0, "a number in [0.1, 1000]"),
     ("run.fps", 1e-3, "a number in [0.1, 1000]"),
