@@ -520,7 +520,7 @@ class Multires:
         # transient particles, and an interface that never came to rest). The default 0.9
         # is the first tenth above a 3D lattice cell's diagonal, sqrt(3)/2 = 0.87 of the
         # release distance: at 0.8 no cell of eight could gather, and a 3D fluid left by
-        # a stirrer kept 469 of its 2003 real particles fine (193 of 1789 at 0.9;
+        # a stirrer kept 462 of its 2000 real particles fine (190 of 1791 at 0.9;
         # tests/test_multires.py, test_fine_fluid_a_stirrer_left_merges_back)
         keep = self.gather_span * self.release_factor * self._h(c - 1)
         for i in range(n):

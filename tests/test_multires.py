@@ -505,8 +505,8 @@ def test_fine_fluid_a_stirrer_left_merges_back(dim, remnants):
     """METHOD.md §6: particles merge wherever the merged particle would not meet the split
     criterion. After a stir the released fine particles must gather again into groups
     that can merge. Measured when written (3D, fine particles left that want level 1, at
-    0.2 s): 469 of 2003 real particles when a gathered group could span only 0.8 of the
-    release distance (a lattice cell of eight spans 0.87), 193 of 1789 with
+    0.2 s): 462 of 2000 real particles when a gathered group could span only 0.8 of the
+    release distance (a lattice cell of eight spans 0.87), 190 of 1791 with
     ``gather_span`` = 0.9; the rest are groups of 1–3 that no group can join, which
     ``merge_remnants`` merges where they sit among coarse particles (0 left). 2D: 4 left."""
     sim = make_sim(stirred_slab_scene(dim, merge_remnants=remnants))
