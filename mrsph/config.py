@@ -410,6 +410,7 @@ def _hint(name: str, candidates) -> str:
 class _Checker:
     def __init__(self, label: str, overridden: list[str]):
         self.label, self.overridden, self.problems = label, overridden, []
+        self.broken: set[str] = set()   # arrays of the wrong type, read as empty
 
     def add(self, key: str, what: str, got: str = "", expected: str = "", note: str = ""):
         detail = note or "; ".join(s for s in (got and "got " + got,
@@ -419,7 +420,8 @@ class _Checker:
         label = self.label
         if self.overridden:
             label += f" with --set {', '.join(self.overridden)}"
-        where = next((f"--set {o}" for o in self.overridden
+        # a key inside a table or array given whole (--set physics={cfl=5}) is named in full
+        where = next((f"--set {o}" + ("" if key == o else f": {key}") for o in self.overridden
                       if key == o or key.startswith(o + ".")), f"{label}: {key}")
         self.problems.append(f"{where}: {what}" + (f" ({detail})" if detail else ""))
 
@@ -453,6 +455,7 @@ class _Checker:
                 items = raw.get(name, [])
                 if not isinstance(items, (list, tuple)):
                     self.add(k, "wrong type", _fmt(items, True), f"an array of tables [[{k}]]")
+                    self.broken.add(k)
                     items = []
                 if sub.max_items and len(items) > sub.max_items:
                     self.add(k, "too many entries", str(len(items)), f"at most {sub.max_items}")
@@ -523,7 +526,9 @@ def _check_places(c: _Checker, d: dict) -> None:
     """Fluid, emitters and regions inside the domain; fluid outside the obstacles."""
     dom, fluid, emitters = d["domain"], d["fluid"], d["emitters"]
     blocks = [(i, b) for i, b in enumerate(fluid["blocks"] if fluid else []) if _block_ok(b)]
-    if fluid is not None and not fluid["blocks"] and not emitters:
+    # an array of the wrong type is reported already: it is not also 'no fluid'
+    if (fluid is not None and not fluid["blocks"] and not emitters
+            and not c.broken & {"fluid.blocks", "emitters"}):
         c.add("fluid.blocks", "no fluid", "no [[fluid.blocks]] and no [[emitters]]",
               "at least one [[fluid.blocks]] or one [[emitters]]")
     for shape in SHAPES:

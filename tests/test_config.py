@@ -509,6 +509,13 @@ def test_no_fluid_at_all():
         "expected at least one [[fluid.blocks]] or one [[emitters]])")
 
 
+def test_fluid_blocks_of_the_wrong_type_are_not_also_no_fluid():
+    """The wrong type is the problem; an array read as empty is not a second one."""
+    for key in ("fluid.blocks", "emitters"):
+        assert problems(put(minimal(2), key, 3)) == [
+            f"<dict>: {key}: wrong type (got 3 (integer); expected an array of tables [[{key}]])"]
+
+
 def test_emitter_rules(dim):
     scene = minimal(dim)
     scene["emitters"] = [{"center": [1.5] * dim, "radius": 0.05, "velocity": [0.0] * dim,
@@ -737,6 +744,13 @@ def test_bad_override_value_is_labelled_with_set():
         "--set fluid.viscosity: out of range (got -1; expected a number >= 0)")
     assert only_problem(minimal(2), ["fluid.eos=ideal"]).startswith(
         '--set fluid.eos: unknown choice (got "ideal"; ')
+
+
+def test_bad_key_inside_a_whole_table_override_is_named_in_full():
+    assert only_problem(minimal(2), ["physics={cfl = 5.0}"]) == (
+        "--set physics: physics.cfl: out of range (got 5.0; expected a number in (0, 1])")
+    assert only_problem(minimal(2), {"fluid.blocks": "[{min = [0, 0], max = [0.2]}]"}).startswith(
+        "--set fluid.blocks: fluid.blocks.0.max: ")
 
 
 def test_malformed_overrides():
