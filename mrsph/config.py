@@ -410,7 +410,7 @@ def _hint(name: str, candidates) -> str:
 class _Checker:
     def __init__(self, label: str, overridden: list[str]):
         self.label, self.overridden, self.problems = label, overridden, []
-        self.broken: set[str] = set()   # arrays of the wrong type, read as empty
+        self.broken: set[str] = set()   # keys already reported as bad (arrays read as empty)
 
     def add(self, key: str, what: str, got: str = "", expected: str = "", note: str = ""):
         detail = note or "; ".join(s for s in (got and "got " + got,
@@ -467,6 +467,7 @@ class _Checker:
                 except _Bad as bad:
                     self.add(k, bad.what, _fmt(raw[name], bad.typed), _expected(sub, dim))
                     out[name] = None
+                    self.broken.add(k)
             elif sub.default is REQUIRED:
                 self.add(k, "missing required key", expected=_expected(sub, dim))
                 out[name] = None
@@ -559,6 +560,15 @@ def _check_places(c: _Checker, d: dict) -> None:
                 c.add(f"fluid.blocks.{i}", f"overlaps fluid.blocks.{j}",
                       f"min {_fmt(b['min'])}, max {_fmt(b['max'])}",
                       f"blocks that at most touch (no overlap with {what})")
+    for i, cr in enumerate(d["criteria"]):
+        # a region that loops over no path, or over one waypoint, never moves
+        if not (cr and cr["type"] == "region" and cr["loop"]):
+            continue
+        path = cr["path"]
+        if path is None and f"criteria.{i}.path" not in c.broken or path and len(path) < 2:
+            c.add(f"criteria.{i}.loop", "nothing to repeat",
+                  "no path" if path is None else "a path of one waypoint",
+                  "a path of at least 2 waypoints with loop = true")
     if not (dom and _ok(dom["min"], dom["max"])):
         return
     where = f"inside the domain {_fmt(dom['min'])} .. {_fmt(dom['max'])}"

@@ -516,6 +516,22 @@ def test_fluid_blocks_of_the_wrong_type_are_not_also_no_fluid():
             f"<dict>: {key}: wrong type (got 3 (integer); expected an array of tables [[{key}]])"]
 
 
+def test_a_looping_region_needs_a_path_to_repeat(dim):
+    region = {"type": "region", "level": 0, "shape": "sphere", "center": [0.5] * dim,
+              "radius": 0.1, "loop": True}
+    scene = put(put(minimal(dim), "adaptivity", {"enabled": True, "levels": 2}),
+                "criteria", [region])
+    expected = "expected a path of at least 2 waypoints with loop = true)"
+    assert only_problem(scene) == f"<dict>: criteria.0.loop: nothing to repeat (got no path; {expected}"
+    region["path"] = [[0.0] + [0.5] * dim]
+    assert only_problem(scene) == (
+        f"<dict>: criteria.0.loop: nothing to repeat (got a path of one waypoint; {expected}")
+    region["path"] = [[0.0] + [0.5] * dim, [1.0] + [0.6] * dim]
+    assert load_scene(scene).criteria[0].loop
+    region["path"] = [[0.0, 0.5]]                     # a bad path is reported once, as itself
+    assert only_problem(scene).startswith("<dict>: criteria.0.path: waypoint of the wrong length")
+
+
 def test_emitter_rules(dim):
     scene = minimal(dim)
     scene["emitters"] = [{"center": [1.5] * dim, "radius": 0.05, "velocity": [0.0] * dim,
