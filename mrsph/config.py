@@ -177,7 +177,9 @@ SCHEMA = Table(required=True, keys={
         "start": Key("float", 0.0, ">= 0", "s", "time emission starts"),
         "stop": Key("float", 1e9, "> 0", "s", "time emission stops, > start"),
         "level": Key("int", 0, ">= 0", doc="level of emitted particles, < adaptivity.levels")}),
-        doc="Inflows that add fluid while the simulation runs."),
+        doc="Inflows that add fluid while the simulation runs. Each has a nozzle: while it "
+        "emits, fluid within one support of its disc (of the emitted level; ahead or behind, "
+        "within the radius plus half a spacing) moves at its velocity, as in a hose's pipe."),
     "adaptivity": Table({
         "enabled": Key("bool", False, doc="split and merge particles between levels"),
         "levels": Key("int", 1, "[1, 6]", doc="number of levels L; >= 2 when enabled"),
