@@ -925,10 +925,18 @@ def _label(path: str) -> str:
 
 
 def _build(raw: dict, path: str, name: str, overrides) -> Scene:
-    raw = copy.deepcopy(raw)
+    original, raw = raw, copy.deepcopy(raw)
     pairs, problems = _parse_overrides(overrides)
     applied = [key for key, value in pairs if _apply(raw, key, value, problems)]
-    data, found = _validate(raw, "<dict>" if path == "<dict>" else _label(path), applied)
+    label = "<dict>" if path == "<dict>" else _label(path)
+    data, found = _validate(raw, label, applied)
+    if applied and found:
+        # a problem the scene has without the --set values too is the scene's own: it is
+        # not labelled "with --set ..." (which says an override may have caused it)
+        _, own = _validate(copy.deepcopy(original), label, [])
+        prefix = f"{label} with --set {', '.join(applied)}: "
+        found = [f"{label}: {f[len(prefix):]}" if f.startswith(prefix) and
+                 f"{label}: {f[len(prefix):]}" in own else f for f in found]
     if problems or found:
         raise SceneError(problems + found)
     return Scene(name, path, data, raw)

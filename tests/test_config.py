@@ -785,6 +785,17 @@ def test_override_problems_and_scene_problems_together():
                      "<dict>: fluid.gamma: out of range (got 0; expected a number in [1, 10])"]
 
 
+def test_a_scene_problem_is_not_blamed_on_an_unrelated_set():
+    """The scene's own problems keep the scene's label; only those the --set values may
+    have caused say "with --set"."""
+    scene = put(minimal(2), "fluid.gamma", 0)
+    assert problems(scene, ["physics.cfl=0.3"]) == [
+        "<dict>: fluid.gamma: out of range (got 0; expected a number in [1, 10])"]
+    found = problems(scene, ["domain.max=[0.1, 0.1]"])
+    assert found[0] == "<dict>: fluid.gamma: out of range (got 0; expected a number in [1, 10])"
+    assert found[1].startswith("<dict> with --set domain.max: fluid.blocks.0: outside the domain")
+
+
 def test_with_overrides_revalidates_a_copy():
     scene = load_scene(minimal(2))
     finer = scene.with_overrides({"particles.spacing": "0.01"})
