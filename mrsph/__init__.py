@@ -12,7 +12,7 @@ The Python API, without importing Taichi until it is used::
 ``load_scene``, ``Scene``, ``SceneError`` and ``list_scenes`` come from
 :mod:`mrsph.config` (no Taichi); ``Simulation`` and ``SimulationError`` from
 :mod:`mrsph.solver` and ``Disturbance`` from :mod:`mrsph.interaction` (these import
-Taichi on first access). The command line is :mod:`mrsph.cli` (``python main.py``).
+Taichi on first access). The command line is :mod:`mrsph.cli` (``python3 main.py``).
 """
 from __future__ import annotations
 

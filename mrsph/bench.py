@@ -1,4 +1,4 @@
-"""``python main.py bench``: how fast mrsph runs, and where the time goes.
+"""``python3 main.py bench``: how fast mrsph runs, and where the time goes.
 
 Every case builds its scene in a fresh Taichi program and takes one step, which
 compiles every kernel of the step (kernels come from Taichi's offline cache when an
@@ -383,7 +383,7 @@ def run_cases(cases, repeats, arch, threads="auto", log=None) -> tuple[list, lis
 
 def main(argv=None) -> int:
     from .cli import _file_problem, _Formatter, _Parser, _positive_float, _positive_int, threads_arg
-    ap = _Parser(prog="python main.py bench", description=__doc__.splitlines()[0],
+    ap = _Parser(prog="python3 main.py bench", description=__doc__.splitlines()[0],
                  formatter_class=_Formatter)
     ap.add_argument("--full", action="store_true",
                     help="the long set: adds 50k 2D and 100k 3D dam breaks and finer pairs")
@@ -405,12 +405,12 @@ def main(argv=None) -> int:
             print(f"{c.name:40s} {c.kind:5s} {c.scene} {' '.join(c.overrides)}")
         return 0
     if not cases:
-        print(f"python main.py bench: no case matches {args.case} (see --list"
+        print(f"python3 main.py bench: no case matches {args.case} (see --list"
               f"{'' if args.full else ' and --full'})", file=sys.stderr)
         return 2
     problem = _file_problem("--json", Path(args.json)) if args.json else None
     if problem:     # before the cases run, not after
-        print(f"python main.py bench: {problem}", file=sys.stderr)
+        print(f"python3 main.py bench: {problem}", file=sys.stderr)
         return 2
     scale = args.interval_scale
     cases = [c._replace(warm=c.warm * scale, interval=c.interval * scale) for c in cases]

@@ -1,5 +1,5 @@
-"""The command line: ``python main.py [SCENE] [options]``, ``python main.py list``,
-``python main.py bench ...``.
+"""The command line: ``python3 main.py [SCENE] [options]``, ``python3 main.py list``,
+``python3 main.py bench ...``.
 
 Without ``--headless`` an interactive window opens when a display is available;
 otherwise a short video is recorded instead. ``--headless`` runs a fixed number of
@@ -47,7 +47,12 @@ def _default_scene() -> str:
 
 def threads_arg(text: str):
     """--threads: "auto" or a positive integer."""
-    return text if text == "auto" else _positive_int(text)
+    if text == "auto":
+        return text
+    try:
+        return _positive_int(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"expected auto or a positive integer (got {text!r})") from None
 
 
 def _positive_int(text: str) -> int:
@@ -120,18 +125,18 @@ class _Parser(argparse.ArgumentParser):
 def build_parser() -> argparse.ArgumentParser:
     from .output import FORMATS
     parser = _Parser(
-        prog="python main.py",
+        prog="python3 main.py",
         description="mrsph: adaptive-resolution SPH fluids in Taichi.\n"
                     "Opens an interactive window on SCENE (or, with no display, records a\n"
                     "short video of it); --headless runs it without a window.",
         epilog="commands:\n"
-               "  python main.py list          the scenes in scenes/ with a one-line description\n"
-               "  python main.py bench ...     benchmarks (python main.py bench --help)\n"
+               "  python3 main.py list          the scenes in scenes/ with a one-line description\n"
+               "  python3 main.py bench ...     benchmarks (python3 main.py bench --help)\n"
                "\nexamples:\n"
-               "  python main.py dam_break_2d\n"
-               "  python main.py dam_break_2d --headless --frames 60 --dump out/dump\n"
-               "  python main.py pool_3d --out out/pool.mp4 --frames 150\n"
-               "  python main.py dam_break_obstacle_2d --set fluid.viscosity=2.0 --set adaptivity.enabled=false\n"
+               "  python3 main.py dam_break_2d\n"
+               "  python3 main.py dam_break_2d --headless --frames 60 --dump out/dump\n"
+               "  python3 main.py pool_3d --out out/pool.mp4 --frames 150\n"
+               "  python3 main.py dam_break_obstacle_2d --set fluid.viscosity=2.0 --set adaptivity.enabled=false\n"
                "\nexit status: 0 done, 1 the simulation failed, 2 usage or scene error, "
                "130 interrupted",
         formatter_class=_Formatter)
@@ -216,7 +221,7 @@ def _show_warning(default):
 def _cmd_list(argv) -> int:
     from .config import list_scenes
     if argv and argv[0] in ("-h", "--help"):
-        print("usage: python main.py list\n\nThe scenes in scenes/, each with its description.")
+        print("usage: python3 main.py list\n\nThe scenes in scenes/, each with its description.")
         return EXIT_OK
     scenes = list_scenes()
     if not scenes:

@@ -6,7 +6,7 @@
          → integrate → boundaries → advect virtual
 
 Each phase is one or a few Taichi kernels and can be timed on its own
-(``Simulation(…, profile=True)``, used by ``python main.py bench``).
+(``Simulation(…, profile=True)``, used by ``python3 main.py bench``).
 
 Physics (METHOD.md §1, thesis ch. 3): density by poly6 over same-level particles (self
 included, Eq. 7); pressure from the equation of state (``eos.py``); the symmetric pressure

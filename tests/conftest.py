@@ -7,7 +7,7 @@ Nothing here touches Taichi at import time.
   module that asks for it. Fresh, because an earlier module may have re-initialised
   Taichi (an f64 scene does) or reset it, which frees every field.
 - ``fresh_program`` (function scope) gives one test a fresh Taichi program, as a
-  separate ``python main.py`` run would have: Taichi's offline cache then serves the
+  separate ``python3 main.py`` run would have: Taichi's offline cache then serves the
   simulation kernels compiled by an earlier run, which matters for the 3D kernels.
   The Simulation itself picks the precision its scene asks for
   (:func:`mrsph.runtime.ensure`), so tests that need f64 say so in the scene; they are

@@ -257,7 +257,7 @@ def test_window_frame_budget_cuts_frames_into_slow_motion(xdisplay, tmp_path):
 
 
 def test_window_real_scene_stir_and_quit(xdisplay, tmp_path):
-    """The real app, ``python main.py pool_2d``: a drag across the resting pool stirs it
+    """The real app, ``python3 main.py pool_2d``: a drag across the resting pool stirs it
     (KE 0.0018 -> 5.2 and 5.6 J in two runs; the pool's own sloshing after its start has read
     0.08 J)."""
     from mrsph.config import load_scene

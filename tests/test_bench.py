@@ -1,4 +1,4 @@
-"""The benchmark (``python main.py bench``) and its plot (tools/plot_bench.py).
+"""The benchmark (``python3 main.py bench``) and its plot (tools/plot_bench.py).
 
 The pair arithmetic, the table and the case sizes are checked on hand-made numbers
 (no Taichi); one smoke run of the command line checks that every kind of case runs and
@@ -158,7 +158,7 @@ def test_bench_refuses_an_unwritable_json_before_running(tmp_path):
                            "--case", "10k"], cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S)
     assert proc.returncode == 2, proc.stderr
     assert proc.stderr.strip().splitlines() == [
-        f"python main.py bench: error: --json {a_file}: exists and is not a directory"], proc.stderr
+        f"python3 main.py bench: error: --json {a_file}: exists and is not a directory"], proc.stderr
 
 
 # ----------------------------------------------------------------------------- the plot

@@ -1,4 +1,4 @@
-"""The command line, run as ``python main.py`` in a subprocess.
+"""The command line, run as ``python3 main.py`` in a subprocess.
 
 Scene and usage errors must end with exit status 2 and readable lines (file, key, what
 was expected), never a traceback; a tiny headless run must write the documented dumps.
@@ -204,7 +204,7 @@ def test_help_lists_every_option_and_its_default():
                     else "(default: demo_2d)"]:
         assert default in out, default
     assert out.count("(default:") >= len(options) - 1   # --help itself has none
-    assert "python main.py list" in out and "python main.py bench" in out
+    assert "python3 main.py list" in out and "python3 main.py bench" in out
 
 
 def test_list_shows_every_scene_with_its_description():

@@ -34,7 +34,7 @@ def signed_distance(x: np.ndarray, obstacle: dict) -> np.ndarray:
 @pytest.fixture
 def fresh_taichi():
     """Each scene in a fresh Taichi program: fields of earlier scenes are freed, and the
-    kernels compile to what a separate ``python main.py`` run of the scene compiles to,
+    kernels compile to what a separate ``python3 main.py`` run of the scene compiles to,
     so Taichi's offline cache serves both."""
     from mrsph import runtime
     runtime.reset()
