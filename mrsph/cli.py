@@ -381,6 +381,9 @@ def _run_window_or_video(scene, args) -> int:
         from .app.window import run_window
         if args.dump:
             _err("mrsph: --dump applies to headless runs and recordings; the window does not dump")
+        if args.frames is not None:
+            _err("mrsph: --frames applies to headless runs and recordings; the window runs "
+                 "until it is closed (add --headless to run N frames)")
         from .config import SCENES_DIR, list_scenes, load_scene
         names = [name for name, _ in list_scenes()]
         # the window offers the scenes of scenes/ by name; a scene from elsewhere by path
