@@ -1,10 +1,11 @@
 """Make the README's pictures with the project's own renderer.
 
-    python3 tools/figures.py            # assets/kinds.png and assets/demo.gif
+    python3 tools/figures.py            # assets/kinds.png and assets/demo.gif (--out DIR: elsewhere)
 
 kinds.png: a zoom on a level interface of region_2d at t = 0 (two levels), coloured by
 kind, virtual particles shown. demo.gif: the adaptive dam break hitting a block.
 """
+import argparse
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -38,8 +39,13 @@ def demo_gif(path: Path) -> None:
 
 
 if __name__ == "__main__":
-    out = ROOT / "assets"
-    out.mkdir(exist_ok=True)
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter,
+                                 epilog="Without --out it overwrites the README's assets/kinds.png and assets/demo.gif.")
+    ap.add_argument("--out", type=Path, default=ROOT / "assets", help="folder for the two files "
+                    "(default: assets/)")
+    out = ap.parse_args().out
+    out.mkdir(parents=True, exist_ok=True)
     kinds_figure(out / "kinds.png")
     demo_gif(out / "demo.gif")
     print("wrote", out / "kinds.png", out / "demo.gif")
