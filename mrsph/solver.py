@@ -1620,7 +1620,8 @@ class Simulation:
         m = parts["m"][real].astype(np.float64)
         v = parts["v"][real].astype(np.float64)
         mom = (m[:, None] * v).sum(axis=0) if len(m) else np.zeros(self.dim)
-        row = {"frame": self.frame, "time": self.time, "dt": self.chosen_dt,
+        # before the first step there is no step to report: dt 0, not dt_max
+        row = {"frame": self.frame, "time": self.time, "dt": self.chosen_dt if self.steps else 0.0,
                "n_real": int(real.sum()), "n_virtual": int((~real).sum()),
                "total_mass": math.fsum(m.tolist())}
         for k, ax in enumerate("xyz"[: self.dim]):

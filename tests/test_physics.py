@@ -556,6 +556,7 @@ def test_stats_dt_is_the_chosen_step_not_the_frame_remainder(dim):
     frame exactly."""
     scene = tank_scene(dim)
     sim = make_sim(scene)
+    assert sim.stats()["dt"] == 0.0, f"{dim}D: frame 0, before any step, reports dt {sim.stats()['dt']}"
     rows = []
     for _ in range(3):
         sim.advance_frame()
