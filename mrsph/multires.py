@@ -26,7 +26,8 @@ coarsest down (§5.4), rebuilding the grids between pairs, and for the coarse le
    must split: no regular particle may neighbour one two levels away).
 2. ``_release``: groups whose children drifted apart beyond ``release_factor``·h_f, or
    of which neither the virtual parent nor any child has a real level-c particle within
-   h_c any more, or one of whose children must split, are released (§5.3).
+   h_c any more (unless the virtual parent's position wants level c: that group is on
+   its way to a merge), or one of whose children must split, are released (§5.3).
 3. ``_split``: real level-c particles wanting level ≤ f split (§5.1–2). A transient
    parent's virtual children become real transient children and the parent becomes
    their virtual parent; a regular particle gets 2^d new children. §5.2's other

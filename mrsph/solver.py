@@ -1146,10 +1146,10 @@ class Simulation:
         virtual partners, as the pressure is halved, was measured (tests/
         test_adaptive_flow.py, session of 2026-11-22): the refined pool's mean speed
         0.0086 sqrt(gH) in 2D (0.0032-0.0063 as here) and 0.0062 in 3D (0.0061-0.0077),
-        the dam-break fronts +5.0 % in 2D (+3.7 %) and +4.3 % in 3D (+3.6 % on average):
+        the dam-break fronts +5.0 % in 2D (then +3.7 % without) and +4.3 % in 3D (+3.6 %):
         with less damping at the interface the fine fluid runs further ahead, so the
         interface keeps the extra damping.
-        Measured in a resting pool with a refined box (2D, 2 levels, no adaptivity after
+        Measured then in a resting pool with a refined box (2D, 2 levels, no adaptivity after
         the start): mean speed 0.0069 sqrt(gH), against 0.017 with the symmetric form,
         whose virtual pressures come from virtual densities that reach 1.3 ρ0 where
         virtual children overlap each other and the walls.
