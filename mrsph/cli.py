@@ -223,6 +223,10 @@ def _cmd_list(argv) -> int:
     if argv and argv[0] in ("-h", "--help"):
         print("usage: python3 main.py list\n\nThe scenes in scenes/, each with its description.")
         return EXIT_OK
+    if argv:
+        print(f"python3 main.py list: error: unrecognized arguments: {' '.join(argv)} "
+              "(list takes none)", file=sys.stderr)
+        return EXIT_USAGE
     scenes = list_scenes()
     if not scenes:
         from .config import SCENES_DIR
@@ -457,6 +461,11 @@ def main(argv=None) -> int:
         return _cmd_bench(argv[1:])
     from .config import SceneError
     args = build_parser().parse_args(argv)
+    if args.scene in ("list", "bench") and not Path(args.scene).exists():
+        # "--quiet list": the commands come first, before any option
+        _err(f"python3 main.py: error: '{args.scene}' is a command: it comes first "
+             f"(python3 main.py {args.scene} ...), before any option")
+        return EXIT_USAGE
     with warnings.catch_warnings():
         warnings.simplefilter("once", RuntimeWarning)
         warnings.showwarning = _show_warning(warnings.showwarning)

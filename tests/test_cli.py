@@ -207,6 +207,17 @@ def test_help_lists_every_option_and_its_default():
     assert "python3 main.py list" in out and "python3 main.py bench" in out
 
 
+def test_list_takes_no_arguments_and_commands_come_first():
+    proc = run("list", "extra")
+    assert proc.returncode == 2 and proc.stderr.strip() == (
+        "python3 main.py list: error: unrecognized arguments: extra (list takes none)"), proc.stderr
+    for command in ("list", "bench"):
+        proc = run("--quiet", command)
+        assert proc.returncode == 2 and proc.stderr.strip() == (
+            f"python3 main.py: error: '{command}' is a command: it comes first "
+            f"(python3 main.py {command} ...), before any option"), proc.stderr
+
+
 def test_list_shows_every_scene_with_its_description():
     proc = run("list")
     assert proc.returncode == 0, proc.stderr
