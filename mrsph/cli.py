@@ -366,6 +366,8 @@ def _run_headless(sim, frames: int, args) -> int:
 
 def _record(sim, out, frames: int, args) -> Path:
     from .app.record import record
+    if Path(out).is_file():
+        _err(f"mrsph: {out} exists; it is replaced")
     target = sim
     dumper = _Dumper(args.dump, args.dump_format, sim.dim, sim.levels) if args.dump else None
     if dumper:

@@ -134,6 +134,14 @@ def test_headless_without_an_end_is_refused(tmp_path):
     assert_usage_error(run(path, "--out", tmp_path / "x.mp4", cwd=tmp_path), NO_END)
 
 
+def test_a_recording_over_an_earlier_file_says_it_replaces_it(tmp_path):
+    path, gif = scene_file(tmp_path), tmp_path / "x.gif"
+    first = run(path, "--frames", 1, "--out", gif, "--quiet", "--width", 64, "--height", 64, cwd=tmp_path)
+    assert first.returncode == 0 and gif.is_file() and "replaced" not in first.stderr, first.stderr
+    again = run(path, "--frames", 1, "--out", gif, "--quiet", "--width", 64, "--height", 64, cwd=tmp_path)
+    assert again.returncode == 0 and f"mrsph: {gif} exists; it is replaced" in again.stderr, again.stderr
+
+
 def test_bad_option_values(tmp_path):
     path = scene_file(tmp_path)
     assert_usage_error(run(path, "--headless", "--frames", 0), "--frames")
