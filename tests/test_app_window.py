@@ -53,8 +53,19 @@ def xdisplay():
         pytest.skip("no free X display number in :90-:199")
     proc = subprocess.Popen(["Xvfb", f":{n}", "-screen", "0", "1280x800x24", "-nolisten", "tcp"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    deadline = time.time() + 15
-    while not Path(f"/tmp/.X11-unix/X{n}").exists():
+    deadline = time.time() + 30
+
+    def ready() -> bool:
+        # the socket can exist before the server answers: a loaded machine once failed
+        # the first window with "cannot initialize GLFW"; ask the server itself
+        if not Path(f"/tmp/.X11-unix/X{n}").exists():
+            return False
+        if shutil.which("xdpyinfo") is None:
+            return True
+        return subprocess.run(["xdpyinfo", "-display", f":{n}"], stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL).returncode == 0
+
+    while not ready():
         if proc.poll() is not None or time.time() > deadline:
             proc.kill()
             pytest.skip(f"Xvfb :{n} did not start")
