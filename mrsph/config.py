@@ -601,6 +601,16 @@ def _check_places(c: _Checker, d: dict) -> None:
             c.add(f"criteria.{i}", "region centre outside the domain", _fmt(center), where)
 
 
+def mass_exact(data: dict) -> bool:
+    """Whether a scene keeps its total real mass bit for bit: where every merge takes a
+    full group of 2^d children (or nothing merges), splits divide by 2^d and merges add
+    the parts back, exactly in binary. Partial groups (``merge_min_children`` < 2^d, or
+    ``merge_remnants``) add their masses in the pool's precision: round-off, not more."""
+    ad = data["adaptivity"]
+    return (not ad["enabled"] or
+            (ad["merge_min_children"] == 2 ** data["dim"] and not ad["merge_remnants"]))
+
+
 def emitter_disc(center, radius: float, velocity, s: float):
     """Lattice points (spacing ``s``) of an emitter's disc (a segment in 2D): the points
     within ``radius`` of ``center`` in the plane normal to ``velocity``, as an (n, dim)

@@ -785,6 +785,15 @@ def test_override_problems_and_scene_problems_together():
                      "<dict>: fluid.gamma: out of range (got 0; expected a number in [1, 10])"]
 
 
+def test_mass_is_exact_only_where_full_groups_merge():
+    from mrsph.config import mass_exact
+    assert mass_exact(load_scene("dam_break_2d").data)                        # uniform
+    assert not mass_exact(load_scene("demo_2d").data)                         # remnants merge
+    assert not mass_exact(load_scene("region_2d").data)                       # groups of 2 merge
+    assert mass_exact(load_scene("region_2d", ["adaptivity.merge_min_children=4"]).data)
+    assert not mass_exact(load_scene("region_3d", ["adaptivity.merge_min_children=4"]).data)
+
+
 def test_a_scene_problem_is_not_blamed_on_an_unrelated_set():
     """The scene's own problems keep the scene's label; only those the --set values may
     have caused say "with --set"."""

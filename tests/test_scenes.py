@@ -11,7 +11,7 @@ scene files themselves are sized for an interactive run.
 import numpy as np
 import pytest
 
-from mrsph.config import list_scenes, load_scene
+from mrsph.config import list_scenes, load_scene, mass_exact
 
 SCENES = [name for name, _ in list_scenes()]
 FRAMES = 5
@@ -76,8 +76,11 @@ def test_scene_runs(name, fresh_taichi):
         now = sim.stats()["total_mass"]
         if emits:
             assert now >= mass          # emitters only add fluid
-        else:
+        elif mass_exact(data):
             assert now == mass, f"{name}: total mass changed from {mass!r} to {now!r}"
+        else:   # partial groups merge: float32 round-off (one particle is ~1e-4 of it)
+            assert now == pytest.approx(mass, rel=1e-7), \
+                f"{name}: total mass changed from {mass!r} to {now!r} (beyond round-off)"
         mass = now
 
     assert n_real > 0, f"{name}: no fluid after {FRAMES} frames"

@@ -49,7 +49,7 @@ def _parts(x, m, kind=None):
             "level": np.zeros(n, np.int32)}
 
 
-SCENE = {"domain": {"min": [0.0, 0.0], "max": [2.0, 1.0]},
+SCENE = {"dim": 2, "domain": {"min": [0.0, 0.0], "max": [2.0, 1.0]},
          "obstacles": [{"shape": "box", "min": [1.0, 0.0], "max": [1.2, 0.5]}]}
 
 
@@ -70,6 +70,21 @@ def test_checks_pass_on_a_clean_state_and_flag_each_fault():
     virtual = _parts([[0.5, 0.5], [1.5, 0.2], [1.2, 0.3], [1.1, 0.3]], [0.1, 0.1, 0.2, 0.4],
                      kind=[0, 0, 0, 4])
     assert soak_tool.check_state(virtual, SCENE, mass0, 1e-6) == []
+
+
+def test_mass_is_exact_where_only_full_groups_merge_and_to_round_off_elsewhere():
+    full = {**SCENE, "dim": 2, "adaptivity": {"enabled": True, "merge_min_children": 4,
+                                              "merge_remnants": False}}
+    partial = {**full, "adaptivity": {**full["adaptivity"], "merge_remnants": True}}
+    assert soak_tool.mass_rtol(full) == 0.0 and soak_tool.mass_rtol(SCENE) == 0.0
+    assert soak_tool.mass_rtol(partial) == soak_tool.PARTIAL_MASS_RTOL
+    m = [0.1, 0.1, 0.2]
+    mass0 = math.fsum(float(np.float32(v)) for v in m)
+    rounded = _parts([[0.5, 0.5], [1.5, 0.2], [1.2, 0.3]], [0.1, 0.1, 0.2000001])   # 2.5e-7
+    assert soak_tool.check_state(rounded, partial, mass0, 1e-6) == []
+    assert len(soak_tool.check_state(rounded, full, mass0, 1e-6)) == 1
+    lost = _parts([[0.5, 0.5], [1.2, 0.3]], [0.1, 0.2])
+    assert "real mass" in soak_tool.check_state(lost, partial, mass0, 1e-6)[0]
 
 
 def test_cursor_pushes_pulls_and_lets_go_inside_the_fluid():

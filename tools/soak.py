@@ -19,10 +19,12 @@ Every ``--check-every`` steps, and after the last one, it checks:
 - every real particle inside the domain box and outside every obstacle (signed
   distances evaluated in numpy from the scene, as ``mrsph/boundary.py`` defines them),
   to within :data:`POSITION_TOLERANCE` finest spacings;
-- the real mass exactly equal to the mass at the start (``math.fsum`` over the float64
-  values of the masses: splits and merges of full groups are exact in binary; the demo
-  merges full groups only, and a scene that lets partial groups merge keeps its mass to
-  round-off only, see ``tests/test_multires.py``);
+- the real mass equal to the mass at the start (``math.fsum`` over the float64 values of
+  the masses): exactly where the scene merges full groups only (splits and merges of full
+  groups are exact in binary), and to :data:`PARTIAL_MASS_RTOL` where partial groups may
+  merge (``adaptivity.merge_min_children`` < 2^d or ``merge_remnants``; the demo does):
+  a partial group's sum is rounded to float32, see ``tests/test_multires.py``. One lost
+  particle of the demo is 2e-4 of its mass, 200 times that tolerance;
 - capacity refusals (the pool's ``refused`` counter and ``sim.warnings``): reported, not
   failures, since a full pool is a documented state (the simulation goes on coarser);
   but refusals counted without a warning in ``sim.warnings`` fail.
@@ -113,6 +115,18 @@ def obstacle_sdf(x: np.ndarray, obstacles) -> np.ndarray:
     return best
 
 
+PARTIAL_MASS_RTOL = 1e-6
+
+
+def mass_rtol(scene_data: dict) -> float:
+    """0 (exact) where only full groups merge (:func:`mrsph.config.mass_exact`), else
+    :data:`PARTIAL_MASS_RTOL`."""
+    from mrsph.config import mass_exact
+    if "adaptivity" not in scene_data or mass_exact(scene_data):
+        return 0.0
+    return PARTIAL_MASS_RTOL
+
+
 def check_state(parts: dict, scene_data: dict, mass0: float, tolerance: float) -> list[str]:
     """The checks of one moment, as failure lines (empty when all pass)."""
     from mrsph.particles import VIRTUAL_CHILD
@@ -138,7 +152,7 @@ def check_state(parts: dict, scene_data: dict, mass0: float, tolerance: float) -
             problems.append(f"{int(inside.sum())} real particle(s) inside an obstacle "
                             f"(deepest {-phi.min():.3g} m)")
     mass = math.fsum(parts["m"][real].astype(np.float64).tolist())
-    if mass != mass0:
+    if abs(mass - mass0) > mass_rtol(scene_data) * abs(mass0):
         problems.append(f"real mass {mass!r} kg differs from the start's {mass0!r} kg "
                         f"(by {mass - mass0:.3g} kg)")
     return problems
