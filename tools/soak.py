@@ -24,7 +24,7 @@ Every ``--check-every`` steps, and after the last one, it checks:
   groups are exact in binary), and to :data:`PARTIAL_MASS_RTOL` where partial groups may
   merge (``adaptivity.merge_min_children`` < 2^d or ``merge_remnants``; the demo does):
   a partial group's sum is rounded to float32, see ``tests/test_multires.py``. One lost
-  particle of the demo is 2e-4 of its mass, 200 times that tolerance;
+  finest-level particle of the demo is 1e-4 of its mass, 100 times that tolerance;
 - capacity refusals (the pool's ``refused`` counter and ``sim.warnings``): reported, not
   failures, since a full pool is a documented state (the simulation goes on coarser);
   but refusals counted without a warning in ``sim.warnings`` fail.
