@@ -417,6 +417,10 @@ def _run_window_or_video(scene, args) -> int:
         return EXIT_OK
     frames = args.frames or FALLBACK_FRAMES
     out = FALLBACK_DIR / f"{scene.name}.mp4"
+    problem = args.dump and _dir_problem("--dump", Path(args.dump))
+    if problem:
+        _err(problem)
+        return EXIT_USAGE
     _err(f"mrsph: no window ({why}); recording {frames} frames to {out} instead")
     from .solver import SimulationError
     sim = _make_sim(scene, args)
@@ -436,8 +440,10 @@ def _run_window_or_video(scene, args) -> int:
 def _run(args) -> int:
     from .config import load_scene
     scene = load_scene(args.scene, args.overrides)
+    # a window does not dump: its --dump folder is made only once no window opens
+    dumps = args.dump and (args.headless or args.out)
     for problem in (args.out and _out_kind_problem(args.out),
-                    args.dump and _dir_problem("--dump", Path(args.dump))):
+                    dumps and _dir_problem("--dump", Path(args.dump))):
         if problem:
             _err(problem)
             return EXIT_USAGE

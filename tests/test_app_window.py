@@ -297,13 +297,17 @@ def test_window_switches_to_a_scene_that_auto_runs_on_more_threads(xdisplay, tmp
     from mrsph.config import load_scene
     assert (runtime.auto_threads(load_scene("pool_2d")), runtime.auto_threads(load_scene("pool_3d"))) \
         == (1, None), "the two scenes no longer differ in their automatic thread count"
-    # --frames, which the window does not honour, is said to be ignored (and still is)
+    # --frames and --dump, which the window does not honour, are said to be ignored (and
+    # still are: no dump folder is made)
+    no_dump = tmp_path / "no_dump"
     app = App([str(REPO / "main.py"), "pool_2d", "--width", WIDTH, "--height", HEIGHT,
-               "--frames", "2"], xdisplay, tmp_path)
+               "--frames", "2", "--dump", str(no_dump)], xdisplay, tmp_path)
     try:
         app.wait_window(FIRST_FRAMES_TIMEOUT_S)
         app.wait_frames(3, FIRST_FRAMES_TIMEOUT_S)
         assert "--frames applies to headless runs and recordings" in app.output(), app.output()
+        assert "the window does not dump" in app.output(), app.output()
+        assert not no_dump.exists(), f"the window made the --dump folder {no_dump}, which it never fills"
         app.xdo("key", "Tab")
         deadline = time.time() + FIRST_FRAMES_TIMEOUT_S
         while sum(r["scene"] == "pool_3d" for r in app.stats()) < 3:
