@@ -409,9 +409,14 @@ def _hint(name: str, candidates) -> str:
 
 
 # ------------------------------------------------------------------------- validation
+#: how problems name an override given as "KEY=VALUE" text, as the command line does
+OPTION_FLAG = "--set"
+
+
 class _Checker:
-    def __init__(self, label: str, overridden: list[str]):
+    def __init__(self, label: str, overridden: list[str], flag: str = OPTION_FLAG):
         self.label, self.overridden, self.problems = label, overridden, []
+        self.flag = flag   # how overrides are named: "--set", or "override" from Python
         self.broken: set[str] = set()   # keys already reported as bad (arrays read as empty)
 
     def add(self, key: str, what: str, got: str = "", expected: str = "", note: str = ""):
@@ -421,9 +426,9 @@ class _Checker:
         # --set may have caused elsewhere (a spacing that leaves a block empty) says so
         label = self.label
         if self.overridden:
-            label += f" with --set {', '.join(self.overridden)}"
+            label += f" with {self.flag} {', '.join(self.overridden)}"
         # a key inside a table or array given whole (--set physics={cfl=5}) is named in full
-        where = next((f"--set {o}" + ("" if key == o else f": {key}") for o in self.overridden
+        where = next((f"{self.flag} {o}" + ("" if key == o else f": {key}") for o in self.overridden
                       if key == o or key.startswith(o + ".")), f"{label}: {key}")
         self.problems.append(f"{where}: {what}" + (f" ({detail})" if detail else ""))
 
@@ -780,8 +785,8 @@ def _check_enabled(c: _Checker, raw: dict) -> None:
               "adaptivity.enabled = true to refine, or false to run uniform at the finest spacing")
 
 
-def _validate(raw, label: str, overridden: list[str]) -> tuple[dict | None, list[str]]:
-    c = _Checker(label, overridden)
+def _validate(raw, label: str, overridden: list[str], flag: str = OPTION_FLAG) -> tuple[dict | None, list[str]]:
+    c = _Checker(label, overridden, flag)
     dim = raw.get("dim") if isinstance(raw, dict) else None
     dim = dim if dim in (2, 3) and isinstance(dim, int) and not isinstance(dim, bool) else None
     d = c.table(SCHEMA, raw, "", dim)
@@ -811,14 +816,14 @@ def _parse_overrides(overrides) -> tuple[list[tuple[str, Any]], list[str]]:
     for item in overrides:
         key, eq, value = item.partition("=")
         if not eq or not key.strip():
-            problems.append(f"--set {item}: not KEY=VALUE (got {_fmt(item)}; "
+            problems.append(f"{OPTION_FLAG} {item}: not KEY=VALUE (got {_fmt(item)}; "
                             "expected for example fluid.viscosity=0.2)")
         else:
             pairs.append((key.strip(), _parse_value(value.strip())))
     return pairs, problems
 
 
-def _apply(raw: dict, key: str, value, problems: list[str]) -> bool:
+def _apply(raw: dict, key: str, value, problems: list[str], flag: str = OPTION_FLAG) -> bool:
     """Set ``raw[key]`` for a dotted key ("fluid.blocks.0.max"), checked against SCHEMA."""
     node, spec = raw, SCHEMA
     parts = key.split(".")
@@ -826,7 +831,7 @@ def _apply(raw: dict, key: str, value, problems: list[str]) -> bool:
         last = n == len(parts) - 1
         if isinstance(spec, Array):
             if not part.isdigit() or int(part) > len(node):
-                problems.append(f"--set {key}: no such entry (got {part}; expected an index "
+                problems.append(f"{flag} {key}: no such entry (got {part}; expected an index "
                                 f"from 0 to {len(node)}, where {len(node)} adds an entry)")
                 return False
             index = int(part)
@@ -841,14 +846,14 @@ def _apply(raw: dict, key: str, value, problems: list[str]) -> bool:
             continue
         keys = _all_keys(spec)
         if part not in keys:
-            problems.append(f"--set {key}: unknown key ({_hint(part, keys)})")
+            problems.append(f"{flag} {key}: unknown key ({_hint(part, keys)})")
             return False
         if last:
             node[part] = value
             return True
         sub = keys[part]
         if isinstance(sub, Key):
-            problems.append(f"--set {key}: unknown key ({'.'.join(parts[:n + 1])} is a value, "
+            problems.append(f"{flag} {key}: unknown key ({'.'.join(parts[:n + 1])} is a value, "
                             "not a table)")
             return False
         kind = list if isinstance(sub, Array) else dict
@@ -937,14 +942,16 @@ def _label(path: str) -> str:
 def _build(raw: dict, path: str, name: str, overrides) -> Scene:
     original, raw = raw, copy.deepcopy(raw)
     pairs, problems = _parse_overrides(overrides)
-    applied = [key for key, value in pairs if _apply(raw, key, value, problems)]
+    # overrides from the command line are named as it names them; a dict from Python as such
+    flag = "override" if isinstance(overrides, dict) else OPTION_FLAG
+    applied = [key for key, value in pairs if _apply(raw, key, value, problems, flag)]
     label = "<dict>" if path == "<dict>" else _label(path)
-    data, found = _validate(raw, label, applied)
+    data, found = _validate(raw, label, applied, flag)
     if applied and found:
         # a problem the scene has without the --set values too is the scene's own: it is
         # not labelled "with --set ..." (which says an override may have caused it)
         _, own = _validate(copy.deepcopy(original), label, [])
-        prefix = f"{label} with --set {', '.join(applied)}: "
+        prefix = f"{label} with {flag} {', '.join(applied)}: "
         found = [f"{label}: {f[len(prefix):]}" if f.startswith(prefix) and
                  f"{label}: {f[len(prefix):]}" in own else f for f in found]
     if problems or found:
@@ -982,7 +989,9 @@ def load_scene(source: str | Path | dict, overrides: dict | list[str] | None = N
     """Load, override and validate a scene; raise SceneError listing every problem.
 
     ``source``: a scene name, a path, or a dict shaped like the TOML file. ``overrides``:
-    {"fluid.viscosity": "0.2"} (strings parsed as TOML values) or ["fluid.viscosity=0.2"].
+    {"fluid.viscosity": "0.2"} (strings parsed as TOML values) or ["fluid.viscosity=0.2"]
+    (as the command line's --set passes them). Problems name a dict's keys "override
+    KEY", a list's "--set KEY".
     """
     if isinstance(source, dict):
         return _build(source, "<dict>", "custom", overrides)

@@ -756,7 +756,7 @@ def test_unknown_override_key():
 
 
 def test_bad_override_value_is_labelled_with_set():
-    assert only_problem(minimal(2), {"fluid.viscosity": "-1"}) == (
+    assert only_problem(minimal(2), ["fluid.viscosity=-1"]) == (
         "--set fluid.viscosity: out of range (got -1; expected a number >= 0)")
     assert only_problem(minimal(2), ["fluid.eos=ideal"]).startswith(
         '--set fluid.eos: unknown choice (got "ideal"; ')
@@ -765,8 +765,21 @@ def test_bad_override_value_is_labelled_with_set():
 def test_bad_key_inside_a_whole_table_override_is_named_in_full():
     assert only_problem(minimal(2), ["physics={cfl = 5.0}"]) == (
         "--set physics: physics.cfl: out of range (got 5.0; expected a number in (0, 1])")
-    assert only_problem(minimal(2), {"fluid.blocks": "[{min = [0, 0], max = [0.2]}]"}).startswith(
+    assert only_problem(minimal(2), ["fluid.blocks=[{min = [0, 0], max = [0.2]}]"]).startswith(
         "--set fluid.blocks: fluid.blocks.0.max: ")
+
+
+def test_overrides_from_python_are_not_called_set():
+    """A dict of overrides comes from Python, where there is no --set to name: its problems
+    say "override" (a list of KEY=VALUE strings is what the command line passes)."""
+    assert only_problem(minimal(2), {"fluid.viscosity": -1}) == (
+        "override fluid.viscosity: out of range (got -1; expected a number >= 0)")
+    assert only_problem(minimal(2), {"fluid.viscosty": 1}) == (
+        "override fluid.viscosty: unknown key (did you mean 'viscosity'?)")
+    assert only_problem(minimal(2), {"physics": {"cfl": 5.0}}) == (
+        "override physics: physics.cfl: out of range (got 5.0; expected a number in (0, 1])")
+    found = problems(minimal(2), {"particles.spacing": 5.0})
+    assert found and all(f.startswith("<dict> with override particles.spacing: ") for f in found), found
 
 
 def test_malformed_overrides():
