@@ -1,6 +1,7 @@
 """Mouse gestures -> Disturbance, and 3D picking (pure logic, no window)."""
 from __future__ import annotations
 
+import math
 
 import numpy as np
 import pytest
@@ -9,6 +10,9 @@ from mrsph.app.mouse import MouseDisturbance, pick_point, ray_box, ray_plane
 from mrsph.interaction import Disturbance
 
 DT = 1.0 / 60.0
+#: The documented time constant of the cursor-velocity smoothing (mouse.SMOOTHING_S),
+#: written out so that a changed default is caught.
+TAU = 0.05
 
 
 def make(dim=2, **kw):
@@ -36,8 +40,15 @@ def test_left_drag_pushes_along_the_drag(dim):
     assert v.shape == (dim,)
     cos = v @ step / (np.linalg.norm(v) * np.linalg.norm(step))
     assert cos > 0.999, f"velocity {v} not along the drag {step}"
-    # smoothed, but after 20 frames (~6 time constants) close to the cursor speed
-    np.testing.assert_allclose(v, step / DT, rtol=0.05)
+    # Exponential smoothing with the documented 50 ms time constant: frame 0 starts at
+    # rest, each of the 19 later frames moves the velocity a fraction
+    # alpha = 1 - exp(-DT / TAU) of the way to the cursor's velocity step / DT, so
+    # v = step / DT * (1 - exp(-19 DT / TAU)) (0.9982 of it at 60 fps). Twice the time
+    # constant would give 0.958 of it, another law another value: pinned to 1e-6.
+    expected = step / DT * (1.0 - math.exp(-19 * DT / TAU))
+    np.testing.assert_allclose(v, expected, rtol=1e-6,
+                               err_msg=f"{dim}D: smoothed velocity {v} vs {expected} "
+                                       f"(time constant {TAU} s)")
     np.testing.assert_allclose(ds[-1].center, np.full(dim, 0.5) + 19 * step)
     assert ds[-1].radius == pytest.approx(0.1) and ds[-1].strength == m.strength
 
@@ -48,7 +59,12 @@ def test_first_frame_of_a_drag_is_at_rest_and_jitter_is_smoothed():
     assert np.allclose(d0.velocity, 0.0)
     d1 = m.update((0.51, 0.5), {"left"}, DT)
     raw = 0.01 / DT
-    assert 0 < d1.velocity[0] < raw, "one-frame jump should be damped by the smoothing"
+    # one frame of the exponential smoothing: a fraction 1 - exp(-DT / TAU) of the jump
+    expected = raw * (1.0 - math.exp(-DT / TAU))   # 0.28 of the raw 0.6 m/s
+    assert d1.velocity[0] == pytest.approx(expected, rel=1e-6), (
+        f"one-frame jump smoothed to {d1.velocity[0]:.6g} m/s; expected {expected:.6g} "
+        f"(raw {raw:.6g}, time constant {TAU} s)")
+    assert d1.velocity[1] == 0.0, f"no sideways velocity from a jump along x: {d1.velocity}"
 
 
 @pytest.mark.parametrize("buttons", [{"right"}, {"left", "shift"}, {"RMB"}, {"LMB", "Shift"}])
@@ -119,7 +135,10 @@ def test_pick_point_misses_box_uses_plane_facing_camera():
 def test_pick_point_from_inside_or_pointing_away_falls_back():
     p = pick_point((0.5, 0.5, 0.5), (0, 0, 1), (0, 0, 0), (1, 1, 1), (0.5, 0.5, 0.2),
                    plane_normal=(0, 0, 1))
-    assert p is not None and p.shape == (3,)
+    # from inside the box the ray's entry (t_near = -0.5, behind the eye) does not count,
+    # and the fallback plane z = 0.2 lies behind the ray too: the plane point itself
+    np.testing.assert_allclose(p, (0.5, 0.5, 0.2), atol=1e-12,
+                               err_msg=f"picked {p}; expected the fallback plane point")
     far = pick_point((0.5, 0.5, 5.0), (0, 0, 1), (0, 0, 0), (1, 1, 1), (0.5, 0.5, 0.5))
     np.testing.assert_allclose(far, (0.5, 0.5, 0.5))
 

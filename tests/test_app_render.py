@@ -58,7 +58,36 @@ def test_colours_every_mode(dim, mode):
     snap = fake_snapshot(dim, frames=1)
     rgb = palette.colours(snap, mode)
     assert rgb.shape == (len(snap.x), 3) and rgb.dtype == np.float32
-    assert np.all((rgb >= 0) & (rgb <= 1)), f"{mode}: colours outside [0, 1]"
+    assert np.all((rgb >= 0) & (rgb <= 1)), (
+        f"{mode}: colours outside [0, 1]: min {rgb.min():.4f}, max {rgb.max():.4f}")
+    # The continuous modes must map their input: three real particles (virtual ones
+    # are greyed out) get chosen values, and their colours are read off the colormaps.
+    a, b, c = np.nonzero(~palette.is_virtual(snap.kind))[0][:3]
+    if mode == "speed":
+        scale = palette.default_speed_scale(snap.domain_min, snap.domain_max)
+        snap.v[a] = 0.0
+        snap.v[b] = 0.0
+        snap.v[b][0] = scale              # |v| = the top of the colormap
+        rgb = palette.colours(snap, mode)
+        want = palette.speed_colormap(np.array([0.0, 1.0]))
+        np.testing.assert_allclose(rgb[[a, b]], want, atol=1e-5,
+                                   err_msg=f"{dim}D: |v| = 0 and |v| = {scale:.3f} m/s coloured "
+                                           f"{rgb[[a, b]].tolist()}; expected {want.tolist()}")
+        gap = float(np.linalg.norm(rgb[b] - rgb[a]))
+        assert gap > 0.5, f"{dim}D: slowest and fastest colours only {gap:.3f} apart"
+    elif mode == "density":
+        rho0 = float(FakeSimulation.REST_DENSITY)
+        half = palette.DENSITY_RATIO_HALF_RANGE
+        snap.rho[[a, b, c]] = rho0 * np.array([1.0, 1.0 - 0.6 * half, 1.0 + 0.6 * half])
+        rgb = palette.colours(snap, mode, rest_density=rho0)
+        # rest density at the midpoint (grey), -/+ 60 % of the half range at 0.2 / 0.8
+        want = palette.density_colormap(np.array([0.5, 0.2, 0.8]))
+        np.testing.assert_allclose(rgb[[a, b, c]], want, atol=1e-5,
+                                   err_msg=f"{dim}D: rho / rho0 = 1, {1 - 0.6 * half}, {1 + 0.6 * half} "
+                                           f"coloured {rgb[[a, b, c]].tolist()}; expected {want.tolist()}")
+        lo, hi = rgb[b], rgb[c]
+        assert lo[2] > lo[0] + 0.2 and hi[0] > hi[2] + 0.2, (
+            f"{dim}D: too light should be blue, compressed red: got {lo} and {hi}")
 
 
 def test_level_colours_distinct_and_finest_warm():
@@ -142,7 +171,7 @@ def test_3d_camera_frames_the_box_left_of_the_panel(given):
     cam = renderer.ensure_camera(SimpleNamespace(domain_min=lo, domain_max=hi))
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
     px, depth = cam.project(corners, w, h)
-    assert (depth > 0).all()
+    assert (depth > 0).all(), f"box corners behind the camera: depths {np.round(depth, 3).tolist()}"
     assert px[:, 0].min() >= 0 and px[:, 0].max() <= 0.7 * w, (
         f"box drawn over x = {px[:, 0].min():.0f} .. {px[:, 0].max():.0f} px; the viewport ends at {0.7 * w:.0f}")
     # the pivot (the box centre, or the scene's look-at point) stays at the viewport's

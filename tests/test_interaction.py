@@ -34,9 +34,9 @@ def test_drag_pushes_inside_its_radius_along_the_drag_and_refines(dim):
     before = sim.particles(virtual=False)
     assert (before["level"] == 1).all(), "with nothing disturbed, every particle is coarse"
     centre = np.full(dim, 0.5)
-    radius, drag = 0.15, np.zeros(dim)
+    radius, strength, drag = 0.15, 40.0, np.zeros(dim)
     drag[0] = 2.0
-    sim.set_disturbance(Disturbance(tuple(centre), radius, 40.0, "push", tuple(drag)))
+    sim.set_disturbance(Disturbance(tuple(centre), radius, strength, "push", tuple(drag)))
     for _ in range(5):
         sim.step()
     after = sim.particles(virtual=False)
@@ -44,9 +44,22 @@ def test_drag_pushes_inside_its_radius_along_the_drag_and_refines(dim):
     inside, outside = d < 0.6 * radius, d > radius + 2 * 0.08   # 0.08 = a coarse support
     vx_in = after["v"][inside, 0].mean()
     speed_out = np.linalg.norm(after["v"][outside], axis=1).max()
-    assert vx_in > 0.05, f"{dim}D: mean x velocity inside the drag {vx_in:.4f} m/s; expected > 0.05 along +x"
-    assert abs(after["v"][inside, 1:].mean()) < 0.2 * vx_in, (
-        f"{dim}D: sideways mean velocity {after['v'][inside, 1:].mean():.4f} vs {vx_in:.4f} along the drag")
+    # The push relaxes u toward the drag velocity u_d: du/dt = strength w (u_d - u) with
+    # w = (1 - (r/R)^2)^2, so from rest u = u_d (1 - exp(-strength w t)) per particle
+    # (they move ~0.3 mm in these 5 steps, so w at the end will do). The fluid's own
+    # forces only spread that momentum outward (viscosity, pressure), so the mean inside
+    # is at most this (+ ~1 % for the explicit step, (1 - k w dt)^n < exp(-k w t)), and
+    # viscosity drains only a few % in 5 steps (measured 0.966 pred in 2D, 0.927 in 3D).
+    # Half the strength gives ~0.5 pred, twice it or a dropped w ~1.5-1.9 pred.
+    w = (1.0 - (d[inside] / radius) ** 2) ** 2
+    pred = float(np.mean(drag[0] * (1.0 - np.exp(-strength * w * sim.time))))
+    assert 0.8 * pred <= vx_in <= 1.1 * pred, (
+        f"{dim}D: mean x velocity inside the drag {vx_in:.5f} m/s after t = {sim.time:.5f} s; "
+        f"the relaxation predicts {pred:.5f} (ratio {vx_in / pred:.3f}, expected 0.8 .. 1.1)")
+    side = np.abs(after["v"][inside, 1:].mean(axis=0)).max()
+    assert side <= 1e-3 * vx_in, (
+        f"{dim}D: sideways mean velocity {side:.3g} m/s vs {vx_in:.4f} along the drag; "
+        f"expected < 0.1 % (the block is symmetric about the drag's axis)")
     assert speed_out < 0.1 * vx_in, (
         f"{dim}D: fastest particle well outside the radius moves at {speed_out:.4f} m/s; "
         f"expected < 10 % of the push ({vx_in:.4f})")
