@@ -152,10 +152,13 @@ def test_density_next_to_the_interface_matches_uniform(pool_runs, request):
     dim, a, u = pool_runs["dim"], pool_runs["adaptive"], pool_runs["uniform"]
     err = a["peak"] / u["peak"] - 1.0
     known_xfail(request, KNOWN_FAILURES, dim, "rest_peak", err)
-    assert abs(err) <= 0.03, (f"{dim}D: largest density next to the level interface {a['peak']:.4f} rho0 "
-                              f"(time average of each snapshot's largest), uniform run {u['peak']:.4f} "
-                              f"rho0 ({100 * err:+.2f} %, expected within 3 %; worst snapshot "
-                              f"{a['worst']:.4f} against {u['worst']:.4f})")
+    # The issue asks for 3 %. Held to 0.5 %: measured within 0.1 % over four runs each,
+    # and the weaker coupling (`symmetric`, limiter off) reads +0.9 % / +1.6 % (README),
+    # which 3 % would let through.
+    assert abs(err) <= 0.005, (f"{dim}D: largest density next to the level interface {a['peak']:.4f} rho0 "
+                               f"(time average of each snapshot's largest), uniform run {u['peak']:.4f} "
+                               f"rho0 ({100 * err:+.2f} %, expected within 0.5 %, the issue's bound "
+                               f"3 %; worst snapshot {a['worst']:.4f} against {u['worst']:.4f})")
 
 
 # ================================================================== dam break

@@ -5,8 +5,6 @@ says yes and skips with its reason elsewhere.
 """
 from __future__ import annotations
 
-import os
-
 import imageio.v3 as iio
 import numpy as np
 import pytest
@@ -119,7 +117,16 @@ def test_progress_bar_goes_to_stderr(tmp_path, capsys):
     assert "3/3" in captured.err and captured.out == ""
 
 
-def test_vulkan_probe_is_cached():
+def test_vulkan_probe_is_cached(monkeypatch):
+    """The probe (a subprocess, seconds) runs once per process, whatever it found."""
+    calls = []
+
+    def probe(*args, **kwargs):
+        calls.append(args)
+        return False, "no Vulkan in this test"
+    monkeypatch.delenv(rec.NO_VULKAN_ENV, raising=False)
+    monkeypatch.setattr(rec, "_probe_cache", {})
+    monkeypatch.setattr(rec, "run_probe", probe)
     first = rec.vulkan_available()
-    assert isinstance(first, tuple) and isinstance(first[0], bool) and first[1]
-    assert rec.vulkan_available() is first or os.environ.get(rec.NO_VULKAN_ENV)
+    assert first == (False, "no Vulkan in this test"), first
+    assert rec.vulkan_available() == first and len(calls) == 1, f"the probe ran {len(calls)} times for two calls"

@@ -508,7 +508,7 @@ def test_fine_fluid_a_stirrer_left_merges_back(dim, remnants):
     0.2 s): 462 of 2000 real particles when a gathered group could span only 0.8 of the
     release distance (a lattice cell of eight spans 0.87), 190 of 1791 with
     ``gather_span`` = 0.9; the rest are groups of 1–3 that no group can join, which
-    ``merge_remnants`` merges where they sit among coarse particles (0 left). 2D: 4 left."""
+    ``merge_remnants`` merges where they sit among coarse particles (0 left). 2D: 2 left."""
     sim = make_sim(stirred_slab_scene(dim, merge_remnants=remnants))
     sim.advance(0.2)
     p = sim.particles(virtual=False)
@@ -523,8 +523,11 @@ def test_fine_fluid_a_stirrer_left_merges_back(dim, remnants):
         assert stuck == 0, (f"{dim}D: {stuck} fine particles want level 1 and have not merged 0.08 s after "
                             f"the stirrer left, with merge_remnants on; expected none")
     else:
-        assert stuck <= 0.15 * n, (f"{dim}D: {stuck} of {n} real particles are fine, want level 1 and have not "
-                                   f"merged 0.08 s after the stirrer left; expected at most 15 %")
+        # 3D leaves groups of 1-3 (190 of 1791, 11 %); 2D all but a few (2 of 695)
+        share = 0.15 if dim == 3 else 0.02
+        assert stuck <= share * n, (f"{dim}D: {stuck} of {n} real particles are fine, want level 1 and have "
+                                    f"not merged 0.08 s after the stirrer left; expected at most "
+                                    f"{100 * share:g} %")
 
 
 @pytest.mark.parametrize("on", [False, True], ids=["criteria-only", "near-regular"])
@@ -665,10 +668,12 @@ def test_a_restored_state_steps_exactly_as_the_original(dim):
     for _ in range(25):          # an odd count: the pass's phase matters
         first.step()
     state = first.save_state()
+    first.stats()                # counts events since the last call: start from zero here
     for _ in range(30):
         first.step()
     events = first.stats()
-    assert events["splits"] + events["merges"] > 0, f"{dim}D: no split or merge in the steps compared"
+    assert events["splits"] + events["merges"] > 0, (
+        f"{dim}D: no split or merge in the 30 steps compared ({events['splits']}, {events['merges']})")
     second = Simulation(load_scene(scene), arch="cpu", threads=1)
     second.restore_state(state)
     for _ in range(30):

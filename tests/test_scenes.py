@@ -66,7 +66,8 @@ def test_scene_runs(name, fresh_taichi):
         parts = sim.particles(virtual=False)
         x = parts["x"].astype(np.float64)
         n_real = len(x)
-        assert np.isfinite(x).all() and np.isfinite(parts["v"]).all()
+        bad = int((~np.isfinite(x)).any(axis=1).sum() + (~np.isfinite(parts["v"])).any(axis=1).sum())
+        assert bad == 0, f"{name}: {bad} non-finite positions or velocities at t = {sim.time:.3f} s"
         assert (x >= lo - DOMAIN_TOL).all() and (x <= hi + DOMAIN_TOL).all(), \
             f"{name}: particles outside the domain at t = {sim.time:.3f} s"
         for i, ob in enumerate(data["obstacles"]):
@@ -75,7 +76,8 @@ def test_scene_runs(name, fresh_taichi):
                 f"{name}: a particle {-depth:.2e} m inside obstacles.{i} at t = {sim.time:.3f} s"
         now = sim.stats()["total_mass"]
         if emits:
-            assert now >= mass          # emitters only add fluid
+            assert now >= mass, (f"{name}: total mass fell from {mass!r} to {now!r} at t = "
+                                 f"{sim.time:.3f} s; emitters only add fluid")
         elif mass_exact(data):
             assert now == mass, f"{name}: total mass changed from {mass!r} to {now!r}"
         else:   # partial groups merge: float32 round-off (one particle is ~1e-4 of it)
