@@ -71,12 +71,13 @@ def kinds_figure(path: Path) -> None:
     snap = sim.snapshot(stats=False)
     n, pool = sim.pool.count(), sim.pool.p
     # pool order (not particles(), which leaves out dead slots): parent links index it
-    x, kind, level, parent = (getattr(pool, a).to_numpy()[:n] for a in ("x", "kind", "level", "parent"))
+    x, v, m, rho, kind, level, parent = (getattr(pool, a).to_numpy()[:n] for a in
+                                         ("x", "v", "m", "rho", "kind", "level", "parent"))
     lo, hi = KINDS_WINDOW
     pad = 2 * sim.s0 * 2 ** (sim.levels - 1)
     near = np.all((x >= lo - pad) & (x <= hi + pad), axis=1) & (kind != DEAD)
     real = near & ~palette.is_virtual(kind)
-    zoom = replace(snap, x=x[real], v=x[real] * 0, m=x[real, 0] * 0, rho=x[real, 0] * 0,
+    zoom = replace(snap, x=x[real], v=v[real], m=m[real], rho=rho[real],
                    level=level[real], kind=kind[real], domain_min=lo, domain_max=hi)
     width, height = 1040, 610
     img = Rasterizer(width, height).render(zoom, color_mode="kind", legend=False,
