@@ -238,13 +238,28 @@ SCHEMA = Table(required=True, keys={
                                   "their groups may go on to merge; false = anywhere in the "
                                   "transition layer (each gather moves mass at the coarse "
                                   "level and stirs a resting interface)"),
-        "split_relax_iterations": Key("int", 8, ">= 0", doc="iterations that move the "
-                                      "children of a split apart from each other and from "
-                                      "the real particles of their level already there, "
-                                      "velocities unchanged; 0 = children stay on the lattice"),
-        "split_min_distance": Key("float", 1.0, "(0, 2]", doc="distance, in spacings of the "
-                                  "children's level, that those iterations open between a "
-                                  "new child and its real neighbours"),
+        "split_relax": Key("choice", "spacing", choices=("spacing", "density"),
+                           doc="how the children of a split leave their parent's lattice "
+                           "cell, velocities unchanged: spacing = each is pushed "
+                           "split_min_distance away from its real neighbours; density = "
+                           "each moves down the gradient of its level's density until it "
+                           "reads no more than its parent's (rho0 at least). With two "
+                           "levels density stops the splits of a thin sheet from throwing "
+                           "fluid; with a third, coarser level it threw more (see the "
+                           "README's table of choices)"),
+        "split_density_tolerance": Key("float", 0.01, "[0, 0.1]", doc="with split_relax = "
+                                       "density: how far above its parent's density (and "
+                                       "rho0), as a fraction, a new child may read before it "
+                                       "is moved; 0 = not at all, which also moves the "
+                                       "children of splits in a resting pool and stirs it; "
+                                       "larger lets more of the split's compression through "
+                                       "(see the README)"),
+        "split_relax_iterations": Key("int", 8, ">= 0", doc="iterations of split_relax; "
+                                      "0 = children stay on the lattice"),
+        "split_min_distance": Key("float", 1.0, "(0, 2]", doc="with split_relax = spacing: "
+                                  "the distance, in spacings of the children's level, that "
+                                  "the iterations open between a new child and its real "
+                                  "neighbours"),
         "split_near_regular": Key("bool", False, doc="also split a transient parent that "
                                   "has a regular particle of the finer level within its "
                                   "support, where the criteria do not want it merged "

@@ -278,6 +278,8 @@ def test_float_is_not_an_integer():
     ("adaptivity.gather_factor", 0, "a number in (0, 2]"),
     ("adaptivity.gather_span", 1, "a number in (0, 1)"),
     ("adaptivity.merge_remnants", 1, "true or false"),
+    ("adaptivity.split_relax", "lattice", 'one of "spacing", "density"'),
+    ("adaptivity.split_density_tolerance", 0.2, "a number in [0, 0.1]"),
     ("adaptivity.background_level", -2, "an integer >= -1"),
     ("run.fps", 0, "a number in [0.1, 1000]"),
     ("run.fps", 1e-3, "a number in [0.1, 1000]"),

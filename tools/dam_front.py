@@ -5,7 +5,9 @@
     python3 tools/dam_front.py --dim 2 --set adaptivity.release_factor=0.8 --uniform
 
 The scene is the one ``tests/test_adaptive_flow.py`` checks (``refined_dam``: a dam break
-in a long tank, refined within 0.1 m of a low block, three levels), and so is the front
+in a long tank, two levels, 1 and 2 cm, refined within 3 cm of a low block; the earlier
+three-level scene is ``--set adaptivity.levels=3 --set criteria.0.distance=0.1 --set
+adaptivity.band=0 --set adaptivity.merge_remnants=false``), and so is the front
 (``body_front``: the largest x of the connected bodies holding at least 5 % of the mass).
 Each combination of a viscosity factor and a CFL number runs in its own process, ``--jobs``
 at a time, one core each. Without ``--uniform`` the error is taken against the uniform
