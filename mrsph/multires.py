@@ -477,15 +477,13 @@ class Multires:
         of each other's and their neighbours' and their pressure throws them off: the
         split injected energy where METHOD.md §5 wants the flow undisturbed. Measured
         with two levels (1 and 2 cm) in the dam break of tests/test_adaptive_flow.py,
-        refined within 0.1 m of the block, in the 0.06 s of the first splits
-        (docs/dam-front.md, "The split kick"): with ``"spacing"``
-        (children pushed one fine spacing apart from their neighbours, the rule before)
-        the 3D fluid's energy rose by 0.37 J while its uniform 2 cm twin's fell, and 96 to
-        138 particles ran faster than 3.5 m/s (at most 6.5 m/s, in a 2.9 m/s flow); with
-        ``"density"`` the energy falls as the twin's. The 2D fluid gained 3.6 J against
-        0.4 J. The thrown fluid flattened the jet off the block (2D: 45-50° against the
-        uniform runs' 70-78°, now 68-74°) and took the 3D front at 1 s to 16-24 % ahead
-        of the uniform run's; now +1.1..+4.7 % (seven CFL numbers).
+        refined within 0.1 m of the block, across the first splits (docs/dam-front.md,
+        "How it came right"): with ``"spacing"`` the fluid's mechanical energy rose by
+        2.7 % (2D) and 4.2 % (3D) and particles left at 5.3 and 7.2 m/s from a 2.9 m/s
+        sheet; with ``"density"`` by 0.2 % and not at all. The thrown fluid flattened
+        the jet off the block (2D: 45-50° against the uniform runs' 70-78°; 68-74° with
+        ``"density"`` at tolerance 0) and took the 3D front at 1 s to 16-24 % ahead of
+        the uniform run's; with ``"density"`` +1.1..+4.7 % (seven CFL numbers).
         ``test_first_splits_add_no_energy`` holds the energy.
 
         Why it is not the default: with three levels (1, 2 and 4 cm, the same dam break)

@@ -176,8 +176,8 @@ def refined_dam(dim: int) -> dict:
     thrown forward by the splits at the block. With two levels the uniform twin is 8x
     the coarse run in 3D, so a 5x saving leaves room for about 800 fine particles on
     average: the shell is 3 cm (at 4 cm, 4.9x). Measured with ``tools/dam_front.py
-    --dim D --cfl 0.17,...,0.23`` (docs/dam-front.md): 3D front -1.6 .. -0.3 % (mean
-    -1.2 %), 5.2x fewer particles; 2D -2.5 .. +1.1 % (mean -1.0 %), 3.2x. In 3D the
+    --dim D --cfl 0.17,...,0.23`` (docs/dam-front.md): 3D front -0.5 .. 0.0 % (mean
+    -0.2 %), 5.2x fewer particles; 2D -1.7 .. +1.8 % (mean +0.3 %), 3.2x. In 3D the
     uniform twin (9600 particles) takes about 90 s of the suite on one core."""
     s0 = 0.01
     lo, hi = box(dim, (0, 0), (DAM_L, 0.6), (0, 0.12))
