@@ -25,7 +25,7 @@ SCENES_DIR = Path(__file__).resolve().parent.parent / "scenes"
 
 REQUIRED = object()  # default of a key that the scene must give
 # Counted in cells of h0 (the level-0 grid splits those 2x in 2D, 4x in 3D along its rows,
-# solver.CELLS_PER_SUPPORT); past ~50e6 such cells its per-cell arrays alone take hundreds
+# grid.CELLS_PER_SUPPORT); past ~50e6 such cells its per-cell arrays alone take hundreds
 # of MB, so such a domain is almost surely a unit slip.
 MAX_GRID_CELLS = 50e6
 # Neighbour list length per dimension (solver.py): about 3x the neighbour count of the
@@ -127,6 +127,9 @@ SCHEMA = Table(required=True, keys={
     "fluid": Table(required=True, keys={
         "rest_density": Key("float", 1000.0, "> 0", "kg/m^3", "rest density rho0"),
         "viscosity": Key("float", 1.0, ">= 0", "Pa s", "dynamic viscosity mu; with fluid.artificial_viscosity it is the scheme's dissipation, so it sits far above water's 0.001 (Müller et al. 2003 used 3.5)"),
+        "solver": Key("choice", "wcsph", choices=("wcsph",), doc="pressure solver "
+                      "(mrsph/pressure/): wcsph, weakly compressible, pressure from the equation of "
+                      "state fluid.eos, time step tied to the sound speed sqrt(fluid.stiffness)"),
         "eos": Key("choice", "linear", choices=("linear", "tait"), doc="equation of state: "
                    "linear p = k (rho - rho0); tait p = rho0 k / gamma ((rho/rho0)^gamma - 1); "
                    "both have sound speed sqrt(k) at rest"),

@@ -28,6 +28,19 @@ PAD_SUPPORTS = 2  # padding around the domain, in supports, so that block look-u
 # them), and the serial sum over every cell was the largest serial cost of its step.
 SCAN_BLOCK = 64
 
+# Cells per support radius of the neighbour grids (grid.py), per axis: whole supports
+# across the rows and 2 (2D) or 4 (3D) cells a support along them (the last axis). A
+# block is then 3^(d-1) rows of (2k+1)/k supports each: fewer candidates than whole-support
+# cells (3 supports a row) with as few rows. What pays is the number of rows, not of
+# candidates: half-support cells on every axis (25 rows in 3D) had cut the candidates
+# from 27 h³ to 125/8 h³ and the 3D density pass only from 12.7 to 9.9 ms (30k dam break,
+# one thread), and (2, 2, 4) cells, 10 % fewer candidates again, saved nothing.
+# Measured with DENSITY_CLUSTER, the flowing dam break (3D ~100k at t = 0.2 s, 2D ~50k
+# at 0.25 s), one thread, density pass alone, 10th percentile of 10: 3D (1, 1, 4) 22.6 ms,
+# (1, 1, 2) 24.8, (1, 1, 8) 22.9, 1 27.4, 2 27.7; 2D (1, 2) 2.07 ms, 1 2.25, (1, 4) 2.02
+# (more cells for the sort to clear).
+CELLS_PER_SUPPORT = {2: (1, 2), 3: (1, 1, 4)}
+
 
 @ti.data_oriented
 class LevelGrids:

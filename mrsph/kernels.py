@@ -15,7 +15,7 @@ Müller's 3D kernel.
 
 The Taichi functions take precomputed per-level constants (see :func:`constants`) so that
 the inner loops do no powers; the numpy twins below are the reference for the tests.
-The density loops call :func:`poly6`; the pair force (``Simulation._pair_force_values``)
+The density loops call :func:`poly6`; the pair force (``forces.Forces.pair_values``)
 writes :func:`spiky_grad` and :func:`visc_lap` out inline, folding pressure, artificial
 viscosity and their constants into one factor along r per pair, with the spiky constant
 divided by :func:`lattice_gradient_factor`. The two functions here are the formulas as

@@ -8,7 +8,7 @@ A frame dump holds every alive particle, virtual ones included, with the arrays
 ``m``    (N,)      mass, kg
 ``rho``  (N,)      density, kg/m^3
 ``level`` (N,)     int32, resolution level (0 = finest)
-``kind`` (N,)      int32, kind code (docs/CONTRACTS.md; virtual = kind >= 4)
+``kind`` (N,)      int32, kind code (docs/ARCHITECTURE.md; virtual = kind >= 4)
 =======  ========  ===========================================================
 
 ``frame_00000.npz`` keeps them as they are. ``frame_00000.ply`` is a binary

@@ -10,7 +10,7 @@ import numpy as np
 
 @dataclass
 class Snapshot:
-    """One frame (fields documented in docs/CONTRACTS.md)."""
+    """One frame (fields documented in docs/ARCHITECTURE.md)."""
     dim: int
     levels: int
     time: float

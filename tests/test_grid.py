@@ -376,7 +376,6 @@ def test_density_pass_equals_brute_force_sums_and_lists(dim, adaptive):
     on a moving fluid. Every particle it sums that is more than a support from the walls
     (no wall image) must get ρ_i = Σ_j m_j W_poly6(x_i − x_j, h_l) over the particles of
     its level, and its neighbour list must be the brute-force set."""
-    import taichi as ti
 
     from mrsph.config import load_scene
     from mrsph.kernels import constants
@@ -386,21 +385,16 @@ def test_density_pass_equals_brute_force_sums_and_lists(dim, adaptive):
     name, sets, warm = DENSITY_RUNS[(dim, adaptive)]
     sim = Simulation(load_scene(name, sets), threads=2)
     sim.advance(warm)
-    n = sim.grids.sort(sim.pool)
-    if sim.limit_virtual:            # the step's order: the fine lists, the limiter, density
-        sim._list_fine_neighbours(n)
-        sim._limit_virtual_mass(n)
-    sim._density(n)
-    ti.sync()
+    n = sim.run_phases("grid", "density")
     p = sim.pool.p
     x = p.x.to_numpy()[:n].astype(np.float64)
     m = p.m.to_numpy()[:n].astype(np.float64)
     level = p.level.to_numpy()[:n]
     kind = p.kind.to_numpy()[:n]
     rho = p.rho.to_numpy()[:n].astype(np.float64)
-    count = sim.neighbour_count.to_numpy()[:n]
-    lists = sim.neighbours.to_numpy()[:n]
-    summed = kind < VIRTUAL_CHILD if sim.variational else np.ones(n, bool)
+    count = sim.neighbours.count.to_numpy()[:n]
+    lists = sim.neighbours.lists.to_numpy()[:n]
+    summed = kind < VIRTUAL_CHILD if sim.coupling.variational else np.ones(n, bool)
     if adaptive:
         assert len(set(level[summed].tolist())) >= 2, "the adaptive run should hold two levels or more"
         assert (~summed).any(), "the adaptive run should hold virtual particles"
@@ -421,7 +415,7 @@ def test_density_pass_equals_brute_force_sums_and_lists(dim, adaptive):
             checked += 1
             # pairs within 1e-5 h of the cut-off may fall either way in single precision
             sure = near[(near != i) & (np.abs(np.sqrt(r2) / hl - 1.0) > 1e-5)]
-            if count[i] <= sim.max_neighbours:
+            if count[i] <= sim.neighbours.max_neighbours:
                 got = set(lists[i, : count[i]].tolist())
                 if not set(sure.tolist()) <= got or len(got - set(near.tolist())):
                     bad_lists.append(i)

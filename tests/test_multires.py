@@ -267,7 +267,7 @@ def test_mass_is_bit_identical_through_splits_and_merges(dim):
     scene["adaptivity"]["merge_min_children"] = 2**dim
     sim = make_sim(scene)
     assert sim.multires.merge_min == 2**dim, f"merge_min_children resolved to {sim.multires.merge_min}"
-    nominal = sim.lev_m.to_numpy()
+    nominal = sim.lev.m.to_numpy()
     pool = raw_pool(sim)
     m_start = real_mass(pool)
     for steps, splits, merges, ev in event_steps(sim):
@@ -298,7 +298,7 @@ def test_mass_is_kept_to_round_off_with_partial_groups(dim):
     scene["adaptivity"]["merge_min_children"] = 1
     scene["particles"]["precision"] = "f64"
     sim = make_sim(scene)
-    nominal = sim.lev_m.to_numpy()
+    nominal = sim.lev.m.to_numpy()
     m_start = real_mass(raw_pool(sim))
     partial = 0          # steps after which some real particle had a non-nominal mass
     worst = 0.0
@@ -351,7 +351,7 @@ def test_adaptivity_pass_keeps_momentum(dim):
         sim.multires.take_counters()     # the step's own pass (the first step has one)
         before = raw_pool(sim)
         p0, scale0 = real_momentum(before)
-        sim.multires.adapt()
+        sim.multires.adapt(sim.time)
         ev = sim.multires.take_counters()
         after = raw_pool(sim)
         p1, scale1 = real_momentum(after)
@@ -550,8 +550,8 @@ def test_transient_parent_next_to_a_regular_fine_particle_splits_when_asked(dim,
     target = parents[np.argmax(lam[parents])]
     xt = pool["x"][target].astype(np.float64)
     away = np.sign(xt - 0.5)
-    sim._append((xt + 0.25 * S0[dim] * away)[None], np.zeros((1, dim)), 0)
-    sim.multires.adapt()          # (sorts the pool: slots move, so find the parent by place)
+    sim.seeder.append((xt + 0.25 * S0[dim] * away)[None], np.zeros((1, dim)), 0)
+    sim.multires.adapt(sim.time)          # (sorts the pool: slots move, so find the parent by place)
     after = raw_pool(sim)
     coarse = np.flatnonzero((after["level"] == 1) & np.isin(after["kind"], REAL_KINDS + (V_PARENT,)))
     here = coarse[np.argmin(np.linalg.norm(after["x"][coarse] - xt, axis=1))]
@@ -579,12 +579,12 @@ def test_adaptive_seed_holds_the_uniform_runs_fluid(dim):
              "fluid": {"blocks": [{"min": lo, "max": hi}], "hydrostatic_start": False},
              "adaptivity": {"enabled": True, "levels": 3}}
     sim = make_sim(scene)
-    seeds = sim._block_lattices(lo, hi)
+    seeds = sim.seeder.block_lattices(lo, hi)
     x = np.concatenate([xs for _, xs in seeds])
     s_own = np.concatenate([np.full(len(xs), s0 * 2.0**level) for level, xs in seeds])
     per_level = {level: sum(len(xs) for l2, xs in seeds if l2 == level) for level in range(3)}
     uniform_n = sim.scene.estimate_particles()
-    m0 = float(sim.lev_m[0])
+    m0 = float(sim.lev.m[0])
     mass = real_mass(raw_pool(sim))
     print(f"\n{dim}D seed: {per_level} particles per level, mass after the first passes "
           f"{mass / m0:.4f} m0 (uniform lattice {uniform_n})")
@@ -739,3 +739,20 @@ def test_a_full_pool_refuses_splits_warns_once_and_loses_nothing(dim):
     assert len(full) == 1 and sim.warnings == [str(full[0].message)], (
         f"{dim}D: expected one 'pool full' warning, got {len(full)} "
         f"({len(sim.warnings)} in sim.warnings); first: {full[0].message if full else None}")
+
+
+def test_scratch_flags_are_distinct_single_bits():
+    """The adaptivity pass ORs and masks its scratch flags: two flags on one bit would
+    make a particle carry the other's meaning."""
+    from mrsph.multires import topology
+    bits = sorted(topology._FLAGS)
+    assert bits == [1 << k for k in range(len(bits))], f"flag bits {bits} are not distinct single bits"
+
+
+def test_mass_is_the_only_attribute_divided_on_split_or_summed_on_merge():
+    """The split and merge kernels (multires/topology.py) write the divide/sum rules of
+    the mass by hand, as the merge's mass-weighted means need it; an attribute given
+    either rule would be carried wrongly."""
+    from mrsph.particles import ATTRIBUTES
+    ruled = [a.name for a in ATTRIBUTES if a.on_split == "divide" or a.on_merge == "sum"]
+    assert ruled == ["m"], f"attributes with divide/sum rules: {ruled}; topology.py writes only the mass"

@@ -361,7 +361,7 @@ def test_emitter_delivers_its_flux_at_its_velocity(dim):
     the emitter's velocity: over a run the fluid it adds is rho0 |U| A (stop - start) to
     within one layer, with no gravity to bend the jet. A start past t = 0 and a stop
     between steps check that the clock counts only the open interval. The jet stays whole
-    and moves at U: without the nozzle (Simulation._hold_in_nozzles) the 2D jet broke up
+    and moves at U: without the nozzle (emitters.Emitters.hold) the 2D jet broke up
     at its outlet and was thrown back out of it, its mean velocity 1.54 m/s for 1.5."""
     from mrsph.config import emitter_disc
     s, speed, start, stop = 0.02, 1.5, 0.04, 0.4437
@@ -425,7 +425,7 @@ def test_short_time_step_names_the_bound_that_set_it(dim):
 
     scene = tank_scene(dim)
     probe = make_sim(scene)
-    sound_dt = 0.2 * probe.h0 / probe._c_sound
+    sound_dt = 0.2 * probe.h0 / probe.pressure.signal_speed()
     scene["physics"]["dt_min"] = 0.5 * sound_dt
     sim = make_sim(scene)
     sim.step()
@@ -600,7 +600,7 @@ def test_time_step_obeys_cfl_and_force_bounds(dim, bound):
 
 def test_viscous_bound_keeps_a_fluid_made_very_viscous_live_stable(dim):
     """physics.viscous_factor: explicit viscosity is unstable past dt ~ 0.067 h^2 rho/mu
-    (Simulation._finish_step). The viscosity is raised live, as the window's slider does,
+    (integrator.Integrator.bounds). The viscosity is raised live, as the window's slider does,
     until the viscous bound is a fifth of the CFL step: dt must follow it, and the
     column, honey-thick now, must creep. At the CFL step instead (the bound taken out)
     the same run rings at 5-9 m/s within 0.02 s."""

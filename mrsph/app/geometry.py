@@ -1,7 +1,7 @@
 """Drawable geometry of the scene furniture (domain box, obstacles), shared by the
 GGUI renderer and the software rasteriser. Numpy only.
 
-Obstacles come from ``Snapshot.obstacles`` (docs/CONTRACTS.md):
+Obstacles come from ``Snapshot.obstacles`` (docs/ARCHITECTURE.md):
 ``{"shape": "box", "min": .., "max": ..}`` or ``{"shape": "sphere", "center": .., "radius": r}``
 (a "sphere" in 2D is a circle).
 """

@@ -45,7 +45,7 @@ def _hex(h: str) -> tuple[float, float, float]:
 #: (8, 3) float32; level ``l`` uses row ``l % 8``.
 LEVEL_COLOURS = np.array([_hex(h) for h in _LEVEL_HEX], dtype=np.float32)
 
-#: Kind codes (docs/CONTRACTS.md) -> colour. Transient states get the saturated colours
+#: Kind codes (docs/ARCHITECTURE.md) -> colour. Transient states get the saturated colours
 #: because they are the interesting, short-lived part of a split or merge.
 KIND_NAMES = (
     "regular",
@@ -158,7 +158,7 @@ def default_speed_scale(domain_min, domain_max) -> float:
 
 
 def is_virtual(kind: np.ndarray) -> np.ndarray:
-    """Kind codes 4 and 5 are virtual (docs/CONTRACTS.md)."""
+    """Kind codes 4 and 5 are virtual (docs/ARCHITECTURE.md)."""
     return np.asarray(kind) >= 4
 
 

@@ -2,7 +2,7 @@
 
 Levels: level n has support h_n = 2^n h0, spacing s_n = 2^n s0 and nominal mass
 m_n = 2^(d n) m0, so the density is the same at every level. Particles interact only
-with particles of their own level (``solver.py``); levels are coupled through virtual
+with particles of their own level (``density.py``, ``forces.py``); levels are coupled through virtual
 particles:
 
 - a real level-(n+1) particle within h_{n+1} of a real level-n particle is a *transient
@@ -14,8 +14,8 @@ particles:
 So the fine side of an interface sees a full fine neighbourhood (real fine particles and
 the coarse particles' virtual children) and the coarse side a full coarse one. The
 reaction of every real–virtual force goes back to the real particles the virtual one
-stands for (``solver.Simulation._hand_on`` in the force pass with the default variational
-coupling, ``_virtual_coupling`` after it with the symmetric one), so momentum is conserved.
+stands for (``coupling.py``: in the force pass with the default variational coupling,
+in a pass after it with the symmetric one), so momentum is conserved.
 
 One adaptivity pass (every ``adaptivity.interval`` steps) walks the level pairs from the
 coarsest down (§5.4), rebuilding the grids between pairs, and for the coarse level c
@@ -87,7 +87,7 @@ import itertools
 import numpy as np
 import taichi as ti
 
-from .particles import (ATTRIBUTES, DEAD, REGULAR, ROLE_CHILD, ROLE_PARENT, VIRTUAL_CHILD,
+from ..particles import (DEAD, REGULAR, ROLE_CHILD, ROLE_PARENT, VIRTUAL_CHILD,
                         VIRTUAL_PARENT, is_real, merge_mass_mean, split_inherited)
 
 # scratch bits in ``flags`` during one level pair of a pass
@@ -99,9 +99,7 @@ VP_ANCHORED = 8    # virtual parent with a real particle of its own level within
 RELEASED = 16      # virtual parent whose group is being released (claimed atomically)
 FRESH = 32         # real child made by a split in this pass (spread by ``_relax_fresh``)
 NEAR_REGULAR = 64  # real level-c particle with a regular (uncoupled) level-f particle within h_c
-_FLAGS = (NEAR_FINE, NEAR_COARSE, MUST_SPLIT, VP_ANCHORED, RELEASED, FRESH, NEAR_REGULAR)
-if sorted(_FLAGS) != [1 << k for k in range(len(_FLAGS))]:
-    raise ImportError("multires: the flag bits must be distinct single bits")
+_FLAGS = (NEAR_FINE, NEAR_COARSE, MUST_SPLIT, VP_ANCHORED, RELEASED, FRESH, NEAR_REGULAR)   # distinct bits (a test holds it)
 
 GATHER_ROUNDS = 3  # pairings per pass: 1 → 2 → 4 → 8 children in the best case
 # The longest move of a new child in one iteration of ``_settle_fresh``, in fine spacings:
@@ -113,10 +111,7 @@ SETTLE_STEP = 0.25
 # Event counters, read by ``take_counters`` (refused splits are the pool's ``refused``).
 # Mass is divided on a split and summed on a merge (``particles.ATTRIBUTES``); the kernels
 # below write it by hand, as the merge's means need it, so an attribute given either rule
-# must be written there too.
-if [a.name for a in ATTRIBUTES if a.on_split == "divide" or a.on_merge == "sum"] != ["m"]:
-    raise ImportError("particles.ATTRIBUTES: multires.py writes the divide/sum rules of the mass only")
-
+# must be written there too (a test holds that the mass is the only one).
 COUNTERS = ("splits", "merges", "released", "gathered")
 EV_SPLITS, EV_MERGES, EV_RELEASED, EV_GATHERED = range(len(COUNTERS))   # indices into them
 
@@ -128,14 +123,20 @@ def sampling_offsets(dim: int):
 
 @ti.data_oriented
 class Multires:
-    def __init__(self, sim):
-        self.sim = sim
-        self.dim = sim.dim
-        self.pool = sim.pool
-        self.g = sim.grids
-        self.levels = sim.levels
+    """The topology of the levels: which particles are transient, split, merge, release
+    and gather (the module's docstring). It owns the pool's links and flags; the coupling
+    (``coupling.py``) reads them."""
+
+    def __init__(self, parts):
+        self.dim = parts.dim
+        self.pool = parts.pool
+        self.g = parts.grids
+        self.levels = parts.levels
+        self.lev, self.nb = parts.lev, parts.neighbours
+        self.criteria, self.boundary, self.disturbances = parts.criteria, parts.boundary, parts.disturbances
+        self.rest_density = float(parts.scene["fluid"]["rest_density"])
         self.nmax = 2 ** self.dim
-        a = sim.scene["adaptivity"]
+        a = parts.scene["adaptivity"]
         self.hysteresis = float(a["hysteresis"])
         self.release_factor = float(a["release_factor"])
         self.merge_min = int(a["merge_min_children"])   # 0 resolved by the config
@@ -160,10 +161,9 @@ class Multires:
         self.n_fresh = ti.field(ti.i32, shape=())
 
     # ------------------------------------------------------------------ host driver
-    def adapt(self) -> None:
-        """One adaptivity pass over every level pair, coarsest first."""
-        sim = self.sim
-        sim.criteria.update(sim.time)
+    def adapt(self, time: float) -> None:
+        """One adaptivity pass over every level pair, coarsest first (criteria at ``time``)."""
+        self.criteria.update(time)
         for c in range(self.levels - 1, 0, -1):
             self._pair_pass(self.g.sort(self.pool), c)
 
@@ -203,7 +203,7 @@ class Multires:
 
     @ti.func
     def _h(self, l):
-        return self.sim.lev_h[l]
+        return self.lev.h[l]
 
     @ti.func
     def _release_group(self, vp):
@@ -234,8 +234,8 @@ class Multires:
     def _wanted(self, n):
         for i in range(n):
             if self.pool.p[i].kind != DEAD:
-                self.pool.p[i].lam = self.sim.criteria.wanted(
-                    self.pool.p[i].x, self.sim.boundary, self.sim.disturbances)
+                self.pool.p[i].lam = self.criteria.wanted(
+                    self.pool.p[i].x, self.boundary, self.disturbances)
 
     @ti.func
     def _flags(self, n, c):
@@ -316,7 +316,7 @@ class Multires:
     def _split(self, n, c):
         p = ti.static(self.pool.p)
         f = c - 1
-        s_f = self.sim.lev_s[f]
+        s_f = self.lev.s[f]
         for i in range(n):
             k = p[i].kind
             if is_real(k) and p[i].level == c and (k & ROLE_CHILD) == 0:
@@ -344,7 +344,7 @@ class Multires:
                             p[ch].parent = i
                             p[ch].v = p[i].v
                             # full share: a virtual child's mass may have been scaled
-                            # down (``Simulation._limit_virtual_mass``)
+                            # down (``limiter.VirtualMassLimiter``)
                             p[ch].m = p[i].m / self.nmax
                             p[ch].flags = FRESH
                             self.fresh[ti.atomic_add(self.n_fresh[None], 1)] = ch
@@ -377,8 +377,8 @@ class Multires:
         fine particle within its support, so they rarely overlap any."""
         p = ti.static(self.pool.p)
         f = c - 1
-        dmin = self.relax_distance * self.sim.lev_s[f]
-        margin = 0.5 * self.sim.lev_s[f]
+        dmin = self.relax_distance * self.lev.s[f]
+        margin = 0.5 * self.lev.s[f]
         ti.loop_config(serialize=True)
         for _ in range(self.relax_iterations):
             for q in range(self.n_fresh[None]):
@@ -404,7 +404,7 @@ class Multires:
         during the adaptivity pass), then keep it ``margin`` inside the walls and outside
         the obstacles (as ``_fit_children``)."""
         p = ti.static(self.pool.p)
-        b = self.sim.boundary
+        b = self.boundary
         for q in range(self.n_fresh[None]):
             i = self.fresh[q]
             x = p[i].x + p[i].a
@@ -422,7 +422,7 @@ class Multires:
         or virtual: those in the grid but this pass's new children, and the new children
         from their list (children of a regular parent are not in the grid yet). ``check``:
         xq is an obstacle image, and only the particles whose own image lies inside the
-        obstacle count (``Simulation._image_in_solid``)."""
+        obstacle count (``Neighbours.image_in_solid``)."""
         p = ti.static(self.pool.p)
         rho = 0.0
         grad = ti.Vector.zero(float, self.dim)
@@ -449,7 +449,7 @@ class Multires:
         ok = r2 < h2
         if ti.static(check):
             if ok:
-                ok = self.sim._image_in_solid(p[j].x, p0, nrm)
+                ok = self.nb.image_in_solid(p[j].x, p0, nrm)
         w = 0.0
         dw = ti.Vector.zero(float, self.dim)
         if ok:
@@ -505,12 +505,12 @@ class Multires:
         compression through: the 3D dam-break front above reads +1.0 % on average at 0,
         +2.6 % (up to +4.7 %) at 1 %, +6.0 % (up to +12.3 %) at 2 %."""
         p = ti.static(self.pool.p)
-        b = self.sim.boundary
+        b = self.boundary
         f = c - 1
-        h = self.sim.lev_h[f]
+        h = self.lev.h[f]
         h2 = h * h
-        c6 = self.sim.lev_poly6[f]
-        s_f = self.sim.lev_s[f]
+        c6 = self.lev.poly6[f]
+        s_f = self.lev.s[f]
         margin = 0.5 * s_f
         ti.loop_config(serialize=True)
         for _ in range(self.relax_iterations):
@@ -531,7 +531,7 @@ class Multires:
                     r_img, g_img = self._fresh_density(xo, f, h2, c6, 0.5 * (xi + xo), nrm, True)
                     rho += r_img
                     grad += g_img - 2.0 * nrm.dot(g_img) * nrm
-                target = ti.cast(ti.static(self.sim.rest_density), float)
+                target = ti.cast(ti.static(self.rest_density), float)
                 vp = p[i].parent
                 if vp >= 0:
                     target = ti.max(target, p[vp].rho)
@@ -559,7 +559,7 @@ class Multires:
         the first splits near the obstacle). Moving the block keeps the lattice; mass and
         velocities are untouched."""
         p = ti.static(self.pool.p)
-        b = self.sim.boundary
+        b = self.boundary
         margin = 0.5 * s_f
         shift = ti.Vector.zero(float, self.dim)
         for k in ti.static(range(self.dim)):
@@ -600,7 +600,7 @@ class Multires:
     def _parent_roles(self, n, c):
         p = ti.static(self.pool.p)
         f = c - 1
-        s_f = self.sim.lev_s[f]
+        s_f = self.lev.s[f]
         for i in range(n):
             k = p[i].kind
             if is_real(k) and p[i].level == c:
@@ -678,7 +678,7 @@ class Multires:
     @ti.func
     def _propose(self, n, c):
         p = ti.static(self.pool.p)
-        reach = self.gather_factor * self.sim.lev_s[c]
+        reach = self.gather_factor * self.lev.s[c]
         # a gathered group must stay well inside the release limit, or it is released at
         # the next pass and gathered again, and every such cycle moves the virtual parents
         # (measured in a resting pool: ~3000 releases and gathers per second among ~240

@@ -1,0 +1,14 @@
+"""Adaptive multiresolution (METHOD.md §2–6): the levels' topology and their coupling.
+
+- ``topology.py``: ``Multires``, the adaptivity pass (criteria, split, merge, release,
+  gather) that changes which particles exist and how they are linked;
+- ``coupling.py``: one object per ``adaptivity.coupling`` mode (``Uniform`` without
+  adaptivity), whose hooks the density, force and integration passes call;
+- ``limiter.py``: the virtual-mass limiter the coupling runs before the density pass.
+"""
+
+from .coupling import Symmetric, Uniform, Variational, make as make_coupling
+from .topology import COUNTERS, Multires, sampling_offsets
+
+__all__ = ["COUNTERS", "Multires", "Symmetric", "Uniform", "Variational", "make_coupling",
+           "sampling_offsets"]

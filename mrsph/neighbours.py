@@ -1,0 +1,118 @@
+"""The one neighbour visitor: same-level candidates and the wall and obstacle images.
+
+Every pass that sums over a particle's neighbourhood (density, forces, the level
+coupling, the placement of split children) visits it through this object:
+
+- ``candidates(i, xq, …, l, listed, with_self, visit, acc)`` calls ``visit(i, j, …, ctx, acc)`` for each
+  candidate j near the point xq at level l: i's neighbour list (``listed``; i itself first
+  with ``with_self``, as an image of x_i sees i), or the rows of the grid block around xq.
+  The visit tests the distance; a list holds every particle within h of x_i, which is
+  every particle within h of a mirror image of x_i across the domain walls (mirroring
+  only moves a point on the fluid side away from the others on that side).
+- ``images(i, h, visit, acc)`` calls ``visit(i, xq, L, p0, nrm, check, ctx, acc)`` for each wall
+  image of x_i within h of a wall (xq the image, L the reflection's linear part, so that
+  x_i − x_j' = L (xq − x_j) and u_j' = L u_j) and for its obstacle image (``check`` true:
+  only particles whose own image lies inside the obstacle count, ``image_in_solid``).
+
+The density, force and coupling passes keep one partial sum per image (the image's visit
+sums its candidates and adds the result), so that sums are grouped as the method writes
+them: own level, then each image. ``for_each_neighbour`` composes the two into one sum,
+with one visit for i's own candidates and one for its images' (the implicit pressure
+solver's passes).
+The lists are written by the density pass (``density.py``), which is the only place that
+scans the grid for the whole pool; a particle with more neighbours than a list holds (a
+fluid compressed ~3×) falls back to the grid everywhere (``is_listed``).
+"""
+
+import taichi as ti
+
+from .config import MAX_NEIGHBOURS   # the lists' length, which bounds the pool
+
+
+@ti.data_oriented
+class Neighbours:
+    def __init__(self, dim: int, pool, grids, boundary):
+        self.dim = dim
+        self.pool, self.grids, self.boundary = pool, grids, boundary
+        self.max_neighbours = MAX_NEIGHBOURS[dim]
+        # neighbour lists (same level, r < h, self excluded), filled by the density pass
+        # and read by the force and coupling passes, which then visit ~13 (2D) / ~33 (3D)
+        # neighbours instead of the ~36 / ~125 candidates of the grid block. One spare
+        # slot: the density pass writes every candidate and keeps the neighbours.
+        self.lists = ti.field(ti.i32, shape=(pool.capacity, self.max_neighbours + 1))
+        self.count = ti.field(ti.i32, shape=pool.capacity)
+
+    @ti.func
+    def is_listed(self, i):
+        """Does i's list hold all its neighbours (else it overflowed: use the grid)?"""
+        return self.count[i] <= ti.static(self.max_neighbours)
+
+    @ti.func
+    def candidates(self, i, xq, L, p0, nrm, check: ti.template(), l, listed, with_self: ti.template(),
+                   visit: ti.template(), ctx: ti.template(), acc: ti.template()):
+        """``visit(i, j, xq, L, p0, nrm, check, ctx, acc)`` for each candidate j of level l
+        near xq (x_i or one of its images, with the image's context, see ``images``): i's
+        list when ``listed`` (i itself first with ``with_self``), else the grid block's
+        rows. ``ctx``: the pass's constants for particle i (a local vector, read only);
+        ``acc``: what the visit adds to."""
+        if listed:
+            if ti.static(with_self):
+                visit(i, i, xq, L, p0, nrm, check, ctx, acc)
+            for q in range(self.count[i]):
+                visit(i, self.lists[i, q], xq, L, p0, nrm, check, ctx, acc)
+        else:
+            base = self.grids.around(xq, l)
+            for o in ti.grouped(ti.ndrange(*self.grids.row_axes)):
+                lo, hi = self.grids.row(base, o, l)
+                for j in range(lo, hi):
+                    visit(i, j, xq, L, p0, nrm, check, ctx, acc)
+
+    @ti.func
+    def images(self, i, h, visit: ti.template(), ctx: ti.template(), acc: ti.template()):
+        """``visit(i, xq, L, p0, nrm, check, ctx, acc)`` for each wall image xq of x_i within h
+        of its walls (``check`` False) and for its obstacle image (``check`` True, p0 and
+        nrm the obstacle's tangent plane)."""
+        xi = self.pool.p[i].x
+        for mask in range(1, 2 ** self.dim):
+            ok, xr, sgn = self.boundary.domain_image(xi, h, mask)
+            if ok:
+                Ld = ti.Matrix.zero(float, self.dim, self.dim)
+                for k in ti.static(range(self.dim)):
+                    Ld[k, k] = sgn[k]
+                visit(i, xr, Ld, xi, xi, False, ctx, acc)
+        ok, xo, nrm = self.boundary.obstacle_image(xi, h)
+        if ok:
+            Lo = ti.Matrix.identity(float, self.dim) - 2.0 * nrm.outer_product(nrm)
+            visit(i, xo, Lo, 0.5 * (xi + xo), nrm, True, ctx, acc)
+
+    @ti.func
+    def image_in_solid(self, xj, p0, nrm):
+        """Is x_j's mirror image across the plane (p0, nrm) inside an obstacle? Near a
+        convex corner the tangent-plane mirror puts some images back in the fluid; those
+        must not count, or the corner pushes fluid away."""
+        img = xj - 2.0 * (xj - p0).dot(nrm) * nrm
+        phi, _n = self.boundary.obstacle_sdf(img)
+        return phi < 0.0
+
+    @ti.func
+    def for_each_neighbour(self, i, l, h, listed, own: ti.template(), image: ti.template(),
+                           ctx: ti.template(), acc: ti.template()):
+        """Every candidate of particle i's neighbourhood into one ``acc``: ``own(i, j, x_i,
+        I, …)`` for its same-level candidates, ``image(i, j, xq, L, …)`` for those of
+        each wall and obstacle image (i itself included, as its image sees it). For a
+        pass that needs no per-image partial sums (the implicit pressure solver)."""
+        xi = self.pool.p[i].x
+        eye = ti.Matrix.identity(float, self.dim)
+        self.candidates(i, xi, eye, xi, xi, False, l, listed, False, own, ctx, acc)
+        for mask in range(1, 2 ** self.dim):
+            ok, xr, sgn = self.boundary.domain_image(xi, h, mask)
+            if ok:
+                Ld = ti.Matrix.zero(float, self.dim, self.dim)
+                for k in ti.static(range(self.dim)):
+                    Ld[k, k] = sgn[k]
+                self.candidates(i, xr, Ld, xi, xi, False, l, listed, True, image, ctx, acc)
+        ok, xo, nrm = self.boundary.obstacle_image(xi, h)
+        if ok:
+            Lo = ti.Matrix.identity(float, self.dim) - 2.0 * nrm.outer_product(nrm)
+            self.candidates(i, xo, Lo, 0.5 * (xi + xo), nrm, True, l, False, True, image, ctx, acc)
+
