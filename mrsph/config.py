@@ -127,9 +127,11 @@ SCHEMA = Table(required=True, keys={
     "fluid": Table(required=True, keys={
         "rest_density": Key("float", 1000.0, "> 0", "kg/m^3", "rest density rho0"),
         "viscosity": Key("float", 1.0, ">= 0", "Pa s", "dynamic viscosity mu; with fluid.artificial_viscosity it is the scheme's dissipation, so it sits far above water's 0.001 (Müller et al. 2003 used 3.5)"),
-        "solver": Key("choice", "wcsph", choices=("wcsph",), doc="pressure solver "
+        "solver": Key("choice", "wcsph", choices=("wcsph", "dfsph"), doc="pressure solver "
                       "(mrsph/pressure/): wcsph, weakly compressible, pressure from the equation of "
-                      "state fluid.eos, time step tied to the sound speed sqrt(fluid.stiffness)"),
+                      "state fluid.eos, time step tied to the sound speed sqrt(fluid.stiffness); "
+                      "dfsph, divergence-free SPH (Bender & Koschier 2015), implicit, time step "
+                      "tied to the flow speed (keys in [dfsph])"),
         "eos": Key("choice", "linear", choices=("linear", "tait"), doc="equation of state: "
                    "linear p = k (rho - rho0); tait p = rho0 k / gamma ((rho/rho0)^gamma - 1); "
                    "both have sound speed sqrt(k) at rest"),
@@ -155,6 +157,25 @@ SCHEMA = Table(required=True, keys={
                 "slabs left over (the same fluid as the uniform run; a block whose sides "
                 "are all whole multiples of the coarsest spacing starts coarse everywhere). "
                 "At least one, unless there is an emitter.")}),
+    "dfsph": Table({
+        "cfl": Key("float", 0.4, "(0, 1]", doc="lambda of the CFL bound dt <= lambda s / max |u| "
+                   "(s the particle's level spacing): a particle moves at most lambda spacings a step"),
+        "density_tolerance": Key("float", 0.001, "> 0", doc="the density solve stops when the average "
+                                 "predicted compression (rho* - rho0)/rho0 of the real particles is "
+                                 "within this (0.001 = 0.1 %)"),
+        "divergence_tolerance": Key("float", 0.01, "> 0", doc="the divergence solve stops when the "
+                                    "average density rate of change times dt, over rho0, is within this"),
+        "min_iterations": Key("int", 1, ">= 0", doc="velocity updates of the density solve at least"),
+        "max_iterations": Key("int", 100, ">= 1", doc="velocity updates of the density solve at most; "
+                              "a solve that stops here is counted in stats (unconverged) and warned once"),
+        "divergence_min_iterations": Key("int", 0, ">= 0", doc="velocity updates of the divergence "
+                                         "solve at least"),
+        "divergence_max_iterations": Key("int", 100, ">= 1", doc="velocity updates of the divergence "
+                                         "solve at most (counted and warned as max_iterations)"),
+        "divergence_solve": Key("bool", True, doc="run the divergence solve each step (false: the "
+                                "density solve alone, as IISPH-like schemes)"),
+        "warm_start": Key("bool", True, doc="start the density solve from the last step's pressure")},
+        doc="The divergence-free solver (fluid.solver = \"dfsph\"); ignored by wcsph."),
     "physics": Table({
         "gravity": Key("vec", lambda dim: (0.0, -9.81, 0.0)[:dim], unit="m/s^2",
                        doc="gravitational acceleration", default_doc="(0, -9.81[, 0])"),
@@ -699,6 +720,11 @@ def _check_values(c: _Checker, d: dict) -> None:
         if e and _ok(e["start"], e["stop"]) and e["stop"] <= e["start"]:
             c.add(f"emitters.{i}.stop", "not after start", _fmt(e["stop"]),
                   f"a number > start = {e['start']!r}")
+    fl, ad = d["fluid"], d["adaptivity"]
+    if fl and ad and fl["solver"] == "dfsph" and ad["enabled"] and ad["coupling"] == "symmetric":
+        c.add("adaptivity.coupling", "not with fluid.solver = \"dfsph\"", _fmt(ad["coupling"]),
+              "\"variational\" (the implicit solver hands a virtual particle's reaction to its "
+              "owners and takes its velocity from them)")
     phys = d["physics"]
     if phys and _ok(phys["dt_min"], phys["dt_max"]) and phys["dt_min"] >= phys["dt_max"]:
         c.add("physics.dt_min", "not below dt_max", _fmt(phys["dt_min"]),

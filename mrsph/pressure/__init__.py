@@ -19,12 +19,14 @@ step (``solver.py``):
 - ``live_keys`` and ``set_param``: its live-tunable scene keys.
 
 Solvers: ``wcsph`` (``wcsph.py``, METHOD.md §1: equation of state and the symmetric pair
-pressure force).
+pressure force) and ``dfsph`` (``dfsph.py``, divergence-free SPH: implicit, with a time
+step set by the flow speed).
 """
 
+from .dfsph import DFSPH
 from .wcsph import WCSPH
 
-SOLVERS = {"wcsph": WCSPH}
+SOLVERS = {"wcsph": WCSPH, "dfsph": DFSPH}
 
 
 def make(name: str, parts):

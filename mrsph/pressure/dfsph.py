@@ -1,0 +1,416 @@
+"""Divergence-free SPH (Bender & Koschier, "Divergence-Free SPH for Incompressible and
+Viscous Fluids", SCA 2015 / TVCG 2017): an implicit pressure solver whose time step is set
+by the flow speed, not by a sound speed.
+
+Per step (``solver.py`` calls the hooks in this order):
+
+1. ``after_density``: the factor of each real particle,
+   α_i = ρ_i / (|Σ_j m_j ∇W_ij|² + Σ_j |m_j ∇W_ij|²),
+   then the divergence solve (``dfsph.divergence_solve``): Jacobi iterations on the
+   velocities until the density's rate of change, Dρ_i/Dt = Σ_j m_j (u_i − u_j)·∇W_ij
+   (compression only), averaged over the real particles, times the step, is within
+   ``dfsph.divergence_tolerance`` of ρ0: κ_i = Dρ_i/Dt α_i, u_i −= Σ_j m_j (κ_i/ρ_i +
+   κ_j/ρ_j) ∇W_ij;
+2. non-pressure accelerations (``forces.py`` with a zero pressure term, the integrator's
+   gravity and disturbances), the time step dt = λ s_l / |u| (``dfsph.cfl``, s_l the
+   particle's level spacing) with dt_max and the force and viscous bounds, and the kick
+   u* = u + dt a;
+3. ``solve``: the constant-density solve, Jacobi iterations until the average predicted
+   density error, (ρ*_i − ρ0)/ρ0 with ρ*_i = ρ_i + dt Σ_j m_j (u_i − u_j)·∇W_ij (compression
+   only, so that a free surface is not pulled in), is within ``dfsph.density_tolerance``:
+   κ_i = (ρ*_i − ρ0) α_i / dt², u_i −= dt Σ_j m_j (κ_i/ρ_i + κ_j/ρ_j) ∇W_ij; warm-started
+   from the last step's pressure (carried by the sort in the particle's ``p``);
+4. drift, collide and the virtual particles' advection (integrator).
+
+Both solves keep m_j inside every sum (particles of one level may differ in mass after a
+partial merge), visit the walls and obstacles as mirror images (x_i − x_j' = L(xq − x_j),
+u_j' = L u_j, κ_j' = κ_j), as the force pass does, so the response is the same at every
+level, and go through the level coupling: each level's sums include its virtual
+particles, whose velocities follow their owners' after every iteration, whose κ is their
+partner pressure (0 with the variational coupling), and whose reaction is handed back,
+split evenly, to the real particles they stand for. The pressure a particle shows
+(``p``, in dumps) is ρ_i Σ κ_i over the density solve's iterations: the p of
+u −= dt Σ m_j (p_i/ρ_i² + p_j/ρ_j²) ∇W.
+
+Iterations run ``ITERATIONS_PER_LAUNCH`` to a kernel launch, the convergence decided on
+the device; the host reads it once per launch. A solve that stops at its maximum
+iterations is counted (``stats``) and warned about once.
+"""
+
+import math
+import warnings
+
+import taichi as ti
+
+from ..particles import is_real, is_virtual
+
+# Jacobi iterations per kernel launch: the host reads the convergence after each launch.
+# More wastes the iterations past convergence (each a loop over the pool that skips); fewer
+# pays a launch and a read (~15 µs) more often.
+ITERATIONS_PER_LAUNCH = 2
+
+# The share of the last step's pressure a density solve starts from, where the fluid is
+# compressed (see ``_warm``). SPlisHSPlasH takes half as well; the whole (1.0) made the
+# 2D dam break's pressure ratchet up step by step until it blew up within 20 steps.
+WARM_START = 0.5
+
+# state[]: iterations applied, done, hit the maximum, whether this iteration runs
+ITERS, DONE, HIT_MAX, RUNS = range(4)
+
+DENSITY, DIVERGENCE = 0, 1      # which solve an iteration kernel runs (template)
+
+
+@ti.data_oriented
+class DFSPH:
+    live_keys = ()
+    implicit = True
+
+    def __init__(self, parts):
+        cfg = parts.scene["dfsph"]
+        self.dim, self.adaptive = parts.dim, parts.adaptive
+        self.pool, self.lev, self.nb, self.coupling = parts.pool, parts.lev, parts.neighbours, parts.coupling
+        self.rest_density = float(parts.scene["fluid"]["rest_density"])
+        self.cfl = float(cfg["cfl"])
+        self.tolerance = (float(cfg["density_tolerance"]), float(cfg["divergence_tolerance"]))
+        self.min_iterations = (int(cfg["min_iterations"]), int(cfg["divergence_min_iterations"]))
+        self.max_iterations = (int(cfg["max_iterations"]), int(cfg["divergence_max_iterations"]))
+        self.divergence = bool(cfg["divergence_solve"])
+        self.warm_start = bool(cfg["warm_start"])
+        cap = parts.pool.capacity
+        self.alpha = ti.field(float, shape=cap)
+        self.kappa = ti.field(float, shape=cap)      # this iteration's κ_i
+        self.ksum = ti.field(float, shape=cap)       # Σ κ_i over the density solve
+        self.state = ti.field(ti.i32, shape=4)
+        self.err = ti.field(ti.f64, shape=())        # Σ of the real particles' errors
+        self.error = ti.field(ti.f64, shape=())      # the last iteration's average error
+        self.n_real = ti.field(ti.i32, shape=())
+        self.reset_counters()
+
+    # ------------------------------------------------------------------ interface
+    def signal_speed(self) -> float:
+        """No sound speed: the CFL bound is on the flow speed alone."""
+        return 0.0
+
+    def stiffness(self) -> float:
+        """Incompressible: a block at rest starts at ρ0 (no hydrostatic compression)."""
+        return math.inf
+
+    def cfl_number(self, physics: dict) -> float:
+        return self.cfl
+
+    def set_param(self, key: str, value) -> None:
+        raise ValueError(f"{key}: not live-tunable with fluid.solver = dfsph")
+
+    @ti.func
+    def cfl_rate(self, c_sound, speed, l):
+        """|u| / s_l: dt = λ s_l / |u|."""
+        return speed / self.lev.s[l]
+
+    @ti.func
+    def density_done(self, i):
+        pass
+
+    @ti.func
+    def pair_factor(self, i, inv):
+        pass
+
+    @ti.func
+    def pair_term(self, i, j, grad):
+        return 0.0
+
+    # ------------------------------------------------------------------ host
+    def reset_counters(self) -> None:
+        """The solves' figures since the last ``take_stats``."""
+        self.totals = {"density_iterations": 0, "divergence_iterations": 0, "solves": 0,
+                       "unconverged": 0, "density_error": 0.0}
+        self.last_error = 0.0
+        self._warned = False
+
+    def take_stats(self) -> dict:
+        """Mean iterations per step of each solve, the last density error, and the solves
+        that stopped at their maximum, since the last call."""
+        t, steps = self.totals, max(self.totals["solves"], 1)
+        out = {"density_iterations": t["density_iterations"] / steps,
+               "divergence_iterations": t["divergence_iterations"] / steps,
+               "density_error": self.last_error, "unconverged": t["unconverged"]}
+        self.totals = {"density_iterations": 0, "divergence_iterations": 0, "solves": 0,
+                       "unconverged": 0, "density_error": 0.0}
+        return out
+
+    def after_density(self, n: int, dt: float, phase) -> None:
+        """The factors α, then the divergence solve (with the last step's dt)."""
+        phase("pressure", self._factors, n)
+        if self.divergence:
+            its, _err, hit = phase("divergence", self._solve, n, dt, DIVERGENCE)
+            self.totals["divergence_iterations"] += its
+            self._count_unconverged(hit, "divergence")
+
+    def solve(self, n: int, dt: float, phase) -> None:
+        """The constant-density solve on the kicked velocities, then p = ρ Σ κ."""
+        if self.warm_start:
+            phase("pressure", self._warm, n, dt)
+        else:
+            phase("pressure", self._cold, n)
+        its, err, hit = phase("pressure", self._solve, n, dt, DENSITY)
+        phase("pressure", self._pressures, n)
+        self.totals["density_iterations"] += its
+        self.totals["solves"] += 1
+        self.last_error = err
+        self._count_unconverged(hit, "density")
+
+    def _count_unconverged(self, hit: bool, which: str) -> None:
+        if not hit:
+            return
+        self.totals["unconverged"] += 1
+        if not self._warned:
+            self._warned = True
+            k = 0 if which == "density" else 1
+            key = "max_iterations" if k == 0 else "divergence_max_iterations"
+            warnings.warn(f"dfsph: the {which} solve stopped at dfsph.{key} = {self.max_iterations[k]} "
+                          f"before reaching its tolerance {self.tolerance[k]:g} (counted in stats as "
+                          f"unconverged; warned once)", RuntimeWarning, stacklevel=4)
+
+    def _solve(self, n: int, dt: float, which: int):
+        """Jacobi iterations, ``ITERATIONS_PER_LAUNCH`` a launch, until the device says
+        done; returns (iterations, average error, stopped at the maximum)."""
+        self._start(self.tolerance[which], self.min_iterations[which], self.max_iterations[which])
+        while True:
+            self._iterate(n, dt, which, self.tolerance[which], self.min_iterations[which],
+                          self.max_iterations[which])
+            st = self.state.to_numpy()
+            if st[DONE]:
+                return int(st[ITERS]), float(self.error[None]), bool(st[HIT_MAX])
+
+    # ------------------------------------------------------------------ device
+    @ti.func
+    def _grad(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template()):
+        """(does j count, ∇_i W(x_i − x_j')) for candidate j of xq (x_i or an image of it,
+        x_i − x_j' = L (xq − x_j)); ctx: h, the level's spiky constant, i's skip²."""
+        p = ti.static(self.pool.p)
+        h = ctx[0]
+        rq = xq - p[j].x
+        r2 = rq.norm_sqr()
+        ok = 0.0 < r2 < h * h and self.coupling.interacts(j, r2, ctx[2])
+        if ti.static(check):
+            if ok:
+                ok = self.nb.image_in_solid(p[j].x, p0, nrm)
+        g = ti.Vector.zero(float, self.dim)
+        if ok:
+            rn = ti.sqrt(r2)
+            d = h - rn
+            g = (-3.0 * ctx[1] * d * d / rn) * (L @ rq)
+        elif j == i and r2 == 0.0:
+            # i on the wall itself (the collision put it there): its mirror image sits on
+            # it, and the gradient's limit, 3 c h² along the wall's normal, is what lets
+            # the solve push it back into the fluid. Left out, nothing could take its
+            # density excess (the image's W(0)) but its neighbours, and the solve pushed
+            # them without bound (the 2D dam break blew up in a corner at 0.4 s).
+            ok = True
+            g = (-3.0 * ctx[1] * h * h) * self._inward(p[i].x, L, nrm, check)
+        return ok, g
+
+    @ti.func
+    def _inward(self, x, L, nrm, check: ti.template()):
+        """The unit normal into the fluid of the wall(s) a mirror image reflects across:
+        the obstacle's normal, or the sum of the domain walls' inward axes (where
+        L[k, k] = −1: the nearer of lo and hi on that axis)."""
+        n = nrm
+        if ti.static(not check):
+            n = ti.Vector.zero(float, self.dim)
+            b = self.nb.boundary
+            for k in ti.static(range(self.dim)):
+                if L[k, k] < 0.0:
+                    n[k] = 1.0 if x[k] - b.lo[k] < b.hi[k] - x[k] else -1.0
+            n = n.normalized()
+        return n
+
+    @ti.func
+    def _ctx(self, i):
+        p = ti.static(self.pool.p)
+        l = p[i].level
+        return l, self.lev.h[l], ti.Vector([self.lev.h[l], self.lev.spiky[l], self.coupling.skip2(i, l)])
+
+    @ti.func
+    def _factor_pair(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(),
+                     acc: ti.template()):
+        ok, g = self._grad(i, j, xq, L, p0, nrm, check, ctx)
+        if ok:
+            mg = self.pool.p[j].m * g
+            if j == i:
+                # i's own mirror image moves with i (u_i' = L u_i), so it counts twice in
+                # i's response, (I − L)ᵀ ∇W = 2 ∇W along the wall's normal, and is no
+                # other particle to be pushed; counted once, as a neighbour, the factor
+                # was half what a particle at a wall needs and it blew up on impact
+                for k in ti.static(range(self.dim)):
+                    acc[k] += 2.0 * mg[k]
+            else:
+                for k in ti.static(range(self.dim)):
+                    acc[k] += mg[k]
+                acc[self.dim] += mg.norm_sqr()
+
+    @ti.kernel
+    def _factors(self, n: ti.i32):
+        p = ti.static(self.pool.p)
+        self.n_real[None] = 0
+        for i in range(n):
+            if is_real(p[i].kind):
+                l, h, ctx = self._ctx(i)
+                acc = ti.Vector.zero(float, self.dim + 1)
+                self.nb.for_each_neighbour(i, l, h, self.nb.is_listed(i), self._factor_pair,
+                                           self._factor_pair, ctx, acc)
+                s = ti.Vector([acc[k] for k in ti.static(range(self.dim))])
+                den = s.norm_sqr() + acc[self.dim]
+                # an isolated particle has no neighbour to push: no pressure
+                self.alpha[i] = p[i].rho / den if den > 1e-12 * p[i].rho * p[i].rho else 0.0
+                self.n_real[None] += 1
+
+    @ti.func
+    def _rate_pair(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(),
+                   acc: ti.template()):
+        """m_j (u_i − u_j')·∇W_ij, u_j' = L u_j."""
+        ok, g = self._grad(i, j, xq, L, p0, nrm, check, ctx)
+        if ok:
+            p = ti.static(self.pool.p)
+            acc += p[j].m * (p[i].v - L @ p[j].v).dot(g)
+
+    @ti.func
+    def _push(self, i, j, g):
+        """m_j (κ_i/ρ_i + κ'_j/ρ_j) ∇W_ij, κ'_j the pressure j shows (the coupling's)."""
+        p = ti.static(self.pool.p)
+        kj = self.coupling.partner_pressure(p[j].kind, self.kappa[j])
+        return p[j].m * (self.kappa[i] / p[i].rho + kj / p[j].rho) * g
+
+    @ti.func
+    def _push_own(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(),
+                  acc: ti.template()):
+        """Own-level neighbour: its part of the velocity change, and the reaction of a
+        virtual j handed to its owners (as a force, m_i times the velocity change)."""
+        ok, g = self._grad(i, j, xq, L, p0, nrm, check, ctx)
+        if ok:
+            f = self._push(i, j, g)
+            acc += f
+            self.coupling.hand_reaction(j, -self.pool.p[i].m * f)
+
+    @ti.func
+    def _push_image(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(),
+                    acc: ti.template()):
+        """A mirror image: the wall is external, nothing is handed on."""
+        ok, g = self._grad(i, j, xq, L, p0, nrm, check, ctx)
+        if ok:
+            acc += self._push(i, j, g)
+
+    @ti.func
+    def _update(self, n, scale):
+        """u_i −= scale Σ_j m_j (κ_i/ρ_i + κ'_j/ρ_j) ∇W_ij for every real i, then the
+        reactions handed to the owners of virtual neighbours, then the virtual particles'
+        velocities from their owners. Three loops (adaptive) or one."""
+        p = ti.static(self.pool.p)
+        for i in range(n):
+            if self.state[RUNS] and is_real(p[i].kind):
+                l, h, ctx = self._ctx(i)
+                acc = ti.Vector.zero(float, self.dim)
+                self.nb.for_each_neighbour(i, l, h, self.nb.is_listed(i), self._push_own,
+                                           self._push_image, ctx, acc)
+                p[i].v -= scale * acc
+        if ti.static(self.adaptive):
+            for i in range(n):
+                if self.state[RUNS] and is_real(p[i].kind):
+                    r = self.coupling.take_reaction(i, ti.Vector.zero(float, self.dim))
+                    p[i].v += scale * r / p[i].m
+            for j in range(n):
+                if self.state[RUNS] and is_virtual(p[j].kind):
+                    self.coupling.follow_owners(j)
+
+    @ti.kernel
+    def _start(self, tol: ti.f64, min_it: ti.i32, max_it: ti.i32):
+        self.state[ITERS] = 0
+        self.state[DONE] = 0
+        self.state[HIT_MAX] = 0
+        self.state[RUNS] = 0
+        self.error[None] = 0.0
+
+    @ti.kernel
+    def _iterate(self, n: ti.i32, dt: ti.f64, which: ti.template(), tol: ti.f64, min_it: ti.i32,
+                 max_it: ti.i32):
+        """``ITERATIONS_PER_LAUNCH`` Jacobi iterations of one solve: each measures the
+        error of the current velocities and sets κ (one loop), decides on the device
+        whether to stop (converged after at least ``min_it`` updates, or ``max_it``
+        reached), and otherwise updates the velocities (``_update``)."""
+        p = ti.static(self.pool.p)
+        rho0 = ti.static(self.rest_density)
+        h_dt = ti.cast(dt, float)
+        for _ in ti.static(range(ITERATIONS_PER_LAUNCH)):
+            self.err[None] = 0.0
+            self.state[RUNS] = 1 - self.state[DONE]
+            for i in range(n):
+                if self.state[RUNS] and is_real(p[i].kind):
+                    l, h, ctx = self._ctx(i)
+                    rate = 0.0
+                    self.nb.for_each_neighbour(i, l, h, self.nb.is_listed(i), self._rate_pair,
+                                               self._rate_pair, ctx, rate)
+                    if ti.static(which == DENSITY):
+                        e = ti.max(p[i].rho + h_dt * rate - rho0, 0.0)    # ρ* − ρ0, compression only
+                        self.kappa[i] = e * self.alpha[i] / (h_dt * h_dt)
+                        self.err[None] += ti.cast(e, ti.f64)
+                    else:
+                        e = ti.max(rate, 0.0)                              # Dρ/Dt, compression only
+                        self.kappa[i] = e * self.alpha[i]
+                        self.err[None] += ti.cast(e * h_dt, ti.f64)
+            if self.state[RUNS]:
+                avg = self.err[None] / ti.max(self.n_real[None], 1) / rho0
+                self.error[None] = avg
+                its = self.state[ITERS]
+                if avg <= tol and its >= min_it:
+                    self.state[DONE] = 1
+                    self.state[RUNS] = 0
+                elif its >= max_it:
+                    self.state[DONE] = 1
+                    self.state[HIT_MAX] = 1
+                    self.state[RUNS] = 0
+                else:
+                    self.state[ITERS] = its + 1
+            if ti.static(which == DENSITY):
+                for i in range(n):
+                    if self.state[RUNS] and is_real(p[i].kind):
+                        self.ksum[i] += self.kappa[i]
+                self._update(n, h_dt)
+            else:
+                self._update(n, 1.0)
+
+    @ti.kernel
+    def _warm(self, n: ti.i32, dt: ti.f64):
+        """Warm start: where the kicked velocities compress a particle (ρ*_i > ρ0), κ_i
+        starts at ``WARM_START`` times the last step's p_i/ρ_i (0 for a new particle),
+        elsewhere at 0; one velocity update with it. Less than the whole of the last
+        pressure, and none where the fluid is not compressed, since a solve only adds
+        pressure (its errors are compressions): a warm start past the solution is not
+        taken back within the step, and the next step starts from it again."""
+        p = ti.static(self.pool.p)
+        rho0 = ti.static(self.rest_density)
+        h_dt = ti.cast(dt, float)
+        self.state[RUNS] = 1
+        for i in range(n):
+            k = 0.0
+            if is_real(p[i].kind):
+                l, h, ctx = self._ctx(i)
+                rate = 0.0
+                self.nb.for_each_neighbour(i, l, h, self.nb.is_listed(i), self._rate_pair,
+                                           self._rate_pair, ctx, rate)
+                if p[i].rho + h_dt * rate > rho0:
+                    k = ti.static(WARM_START) * p[i].p / p[i].rho
+            self.kappa[i] = k
+            self.ksum[i] = k
+        self._update(n, h_dt)
+
+    @ti.kernel
+    def _cold(self, n: ti.i32):
+        for i in range(n):
+            self.ksum[i] = 0.0
+            self.kappa[i] = 0.0
+
+    @ti.kernel
+    def _pressures(self, n: ti.i32):
+        p = ti.static(self.pool.p)
+        for i in range(n):
+            if is_real(p[i].kind):
+                p[i].p = self.ksum[i] * p[i].rho
