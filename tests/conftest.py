@@ -12,6 +12,12 @@ Nothing here touches Taichi at import time.
   The Simulation itself picks the precision its scene asks for
   (:func:`mrsph.runtime.ensure`), so tests that need f64 say so in the scene; they are
   kept together at the end of their module so that precision switches are rare.
+- ``slow`` tests (the long validation: adaptive against uniform flows, the 3D dam
+  breaks, the real window) are deselected by pytest.ini's ``-m "not slow"``, so that the
+  default ``python3 -m pytest -q`` stays under ten minutes on 2 cores; they run with
+  ``python3 -m pytest -q -m slow`` (a ``-m`` on the command line replaces the default).
+  Mark only the long run: where a test is parametrised over dimension and only 3D is
+  long, mark that parameter (``pytest.param(3, marks=pytest.mark.slow)``).
 - ``soak`` tests (long robustness runs, tools/soak.py) are skipped unless ``--soak`` is
   given or the ``-m`` expression names them: ``python3 -m pytest -q --soak -m soak``.
 """
@@ -28,7 +34,7 @@ def pytest_addoption(parser):
 
 def pytest_configure(config):
     config.addinivalue_line(
-        "markers", "slow: long physics runs, deselect with -m 'not slow'")
+        "markers", "slow: long validation runs, left out by default; run them with -m slow")
     config.addinivalue_line(
         "markers", "soak: robustness runs of 10^5 steps; skipped unless --soak (or -m soak)")
 
