@@ -382,17 +382,17 @@ def run_cases(cases, repeats, arch, threads="auto", log=None) -> tuple[list, lis
 
 
 def main(argv=None) -> int:
-    from .cli import _file_problem, _Formatter, _Parser, _positive_float, _positive_int, threads_arg
-    ap = _Parser(prog="python3 main.py bench", description=__doc__.splitlines()[0],
-                 formatter_class=_Formatter)
+    from .options import HelpFormatter, Parser, file_problem, positive_float, positive_int, threads_arg
+    ap = Parser(prog="python3 main.py bench", description=__doc__.splitlines()[0],
+                formatter_class=HelpFormatter)
     ap.add_argument("--full", action="store_true",
                     help="the long set: adds 50k 2D and 100k 3D dam breaks and finer pairs")
-    ap.add_argument("--repeats", type=_positive_int, default=3, help="timed runs per case (median)")
+    ap.add_argument("--repeats", type=positive_int, default=3, help="timed runs per case (median)")
     ap.add_argument("--arch", default="cpu", choices=("auto", "cpu", "gpu"), help="Taichi backend")
     ap.add_argument("--threads", type=threads_arg, default="auto",
                     help="CPU threads for the cpu backend (default auto: as the app, one pinned "
                          "thread for scenes that start under 12k particles in 2D, 4k in 3D, else all cores)")
-    ap.add_argument("--interval-scale", type=_positive_float, default=1.0, metavar="F",
+    ap.add_argument("--interval-scale", type=positive_float, default=1.0, metavar="F",
                     help="multiply every warm-up and timed interval by F (0.05: a smoke run)")
     ap.add_argument("--json", metavar="FILE", help="also write the results as JSON (default: no file)")
     ap.add_argument("--case", action="append", default=None,
@@ -408,7 +408,7 @@ def main(argv=None) -> int:
         print(f"python3 main.py bench: no case matches {args.case} (see --list"
               f"{'' if args.full else ' and --full'})", file=sys.stderr)
         return 2
-    problem = _file_problem("--json", Path(args.json)) if args.json else None
+    problem = file_problem("--json", Path(args.json)) if args.json else None
     if problem:     # before the cases run, not after
         print(f"python3 main.py bench: {problem}", file=sys.stderr)
         return 2

@@ -12,27 +12,21 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
-import math
-import os
 import sys
 import time
 import warnings
 from pathlib import Path
 
-EXIT_OK = 0
-EXIT_FAILED = 1
-EXIT_USAGE = 2
-EXIT_INTERRUPTED = 130
+from .options import (EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE,
+                      WINDOW_FRAME_BUDGET_MS, HelpFormatter, Parser, dir_problem, file_problem,
+                      fps_arg, frame_budget_arg, pixels_arg, positive_int, threads_arg)
+
 #: Frames recorded when no window can open and no --frames was given (2 s at 30 fps:
 #: about a minute on a 2-core CPU, long enough to see the fluid move and refine).
 FALLBACK_FRAMES = 60
 #: Where that fallback recording goes, relative to the working directory.
 FALLBACK_DIR = Path("out")
 WINDOW_SIZE = (1280, 720)
-#: Simulation per window frame, ms (a string: argparse converts it): with ~30 ms to draw a
-#: frame on a CPU (lavapipe), the window stays near 15 frames/s wherever a step takes less
-#: than the budget
-WINDOW_FRAME_BUDGET_MS = "40"
 PREFERRED_DEFAULT_SCENES = ("demo_2d", "dam_break_2d")
 NO_END = "error: a headless run needs an end: pass --frames N (or set run.frames in the scene)"
 
@@ -45,86 +39,9 @@ def _default_scene() -> str:
     return PREFERRED_DEFAULT_SCENES[-1]
 
 
-def threads_arg(text: str):
-    """--threads: "auto" or a positive integer."""
-    if text == "auto":
-        return text
-    try:
-        return _positive_int(text)
-    except argparse.ArgumentTypeError:
-        raise argparse.ArgumentTypeError(f"expected auto or a positive integer (got {text!r})") from None
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer (got {text!r})") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer (got {value})")
-    return value
-
-
-#: --width/--height: the range of the scene keys render.width/height
-PIXELS = (64, 8192)
-
-
-def _pixels(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        value = None
-    if value is None or not PIXELS[0] <= value <= PIXELS[1]:
-        raise argparse.ArgumentTypeError(f"expected an integer number of pixels in "
-                                         f"[{PIXELS[0]}, {PIXELS[1]}] (got {text!r})")
-    return value
-
-
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number (got {text!r})") from None
-    if not 0 < value < math.inf:
-        raise argparse.ArgumentTypeError(f"expected a finite positive number (got {text})")
-    return value
-
-
-def fps_arg(text: str) -> float:
-    """--fps: a number of frames per second within config.FPS_RANGE."""
-    from .config import FPS_RANGE
-    lo, hi = FPS_RANGE
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not lo <= value <= hi:     # NaN fails too
-        raise argparse.ArgumentTypeError(f"expected a number in [{lo:g}, {hi:g}] (got {text})")
-    return value
-
-
-def frame_budget_arg(text: str) -> float | None:
-    """--frame-budget: milliseconds >= 0 -> seconds, or None (whole frames) for 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (value >= 0 and math.isfinite(value)):
-        raise argparse.ArgumentTypeError(f"expected a finite number of milliseconds >= 0 "
-                                         f"(got {text!r})")
-    return value / 1000.0 if value > 0 else None
-
-
-class _Parser(argparse.ArgumentParser):
-    """Reports a bad argument in one line (argparse prints the whole usage block first)."""
-
-    def error(self, message):
-        self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
-
-
 def build_parser() -> argparse.ArgumentParser:
     from .output import FORMATS
-    parser = _Parser(
+    parser = Parser(
         prog="python3 main.py",
         description="mrsph: adaptive-resolution SPH fluids in Taichi.\n"
                     "Opens an interactive window on SCENE (or, with no display, records a\n"
@@ -139,7 +56,7 @@ def build_parser() -> argparse.ArgumentParser:
                "  python3 main.py dam_break_obstacle_2d --set fluid.viscosity=2.0 --set adaptivity.enabled=false\n"
                "\nexit status: 0 done, 1 the simulation failed, 2 usage or scene error, "
                "130 interrupted",
-        formatter_class=_Formatter)
+        formatter_class=HelpFormatter)
     parser.add_argument("scene", nargs="?", metavar="SCENE", default=_default_scene(),
                         help="scene name from scenes/ or a path to a .toml file")
     parser.add_argument("--arch", choices=("auto", "cpu", "gpu"), default="auto",
@@ -151,7 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
                              "there), else all cores (default: auto)")
     parser.add_argument("--headless", action="store_true",
                         help="no window: run --frames frames (or run.frames), then stop")
-    parser.add_argument("--frames", type=_positive_int, default=None, metavar="N",
+    parser.add_argument("--frames", type=positive_int, default=None, metavar="N",
                         help="frames to run (headless: N frames simulated, N + 1 states "
                              "dumped with t = 0) or record (N video frames, the first at t = 0) "
                              "(default: the scene's run.frames; "
@@ -160,10 +77,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="record a video instead: .mp4, .gif, or a directory of PNGs "
                              "(its frame_*.png of an earlier run are removed first) "
                              "(default: no recording)")
-    parser.add_argument("--width", type=_pixels, default=None, metavar="PX",
+    parser.add_argument("--width", type=pixels_arg, default=None, metavar="PX",
                         help=f"image width (default: the scene's render.width; the window "
                              f"{WINDOW_SIZE[0]})")
-    parser.add_argument("--height", type=_pixels, default=None, metavar="PX",
+    parser.add_argument("--height", type=pixels_arg, default=None, metavar="PX",
                         help=f"image height (default: the scene's render.height; the window "
                              f"{WINDOW_SIZE[1]})")
     parser.add_argument("--fps", type=fps_arg, default=None,
@@ -187,18 +104,6 @@ def build_parser() -> argparse.ArgumentParser:
                         help="no progress bar and no summary line; errors, warnings and "
                              "notices still show")
     return parser
-
-
-class _Formatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
-    """Keeps the epilog's line breaks; appends "(default: X)" where the help has none."""
-
-    def _get_help_string(self, action):
-        text = action.help or ""
-        if "(default" in text or action.default in (None, argparse.SUPPRESS):
-            return text
-        if action.default is False:
-            return text + " (default: off)"
-        return text + " (default: %(default)s)"
 
 
 # ----------------------------------------------------------------------------- messages
@@ -251,42 +156,11 @@ def _cmd_bench(argv) -> int:
 def _out_kind_problem(out: str) -> str | None:
     path = Path(out)
     if path.suffix.lower() in (".mp4", ".gif"):
-        return _file_problem("--out", path)
+        return file_problem("--out", path)
     if path.suffix == "" or path.is_dir():
-        return _dir_problem("--out", path)
+        return dir_problem("--out", path)
     return (f"error: --out {out}: cannot tell what to write (expected a path ending in .mp4 "
             f"or .gif, or a directory for PNG frames)")
-
-
-def _dir_problem(flag: str, path: Path) -> str | None:
-    """Why files cannot be written into directory ``path`` (made if missing), or None."""
-    if path.exists() and not path.is_dir():
-        return f"error: {flag} {path}: exists and is not a directory"
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        return f"error: {flag} {path}: cannot make the directory ({e.strerror or e})"
-    if not os.access(path, os.W_OK | os.X_OK):
-        return f"error: {flag} {path}: the directory is not writable"
-    return None
-
-
-def _file_problem(flag: str, path: Path) -> str | None:
-    """Why file ``path`` cannot be written (its directory made if missing), or None."""
-    if path.is_dir():
-        return f"error: {flag} {path}: is a directory (expected a file name)"
-    problem = _dir_problem(flag, path.parent) if str(path.parent) not in ("", ".") else None
-    if problem:
-        return problem
-    existed = path.exists()
-    try:
-        with open(path, "ab"):
-            pass
-        if not existed:
-            path.unlink()
-    except OSError as e:
-        return f"error: {flag} {path}: cannot write the file ({e.strerror or e})"
-    return None
 
 
 class _Dumper:
@@ -417,7 +291,7 @@ def _run_window_or_video(scene, args) -> int:
         return EXIT_OK
     frames = args.frames or FALLBACK_FRAMES
     out = FALLBACK_DIR / f"{scene.name}.mp4"
-    problem = args.dump and _dir_problem("--dump", Path(args.dump))
+    problem = args.dump and dir_problem("--dump", Path(args.dump))
     if problem:
         _err(problem)
         return EXIT_USAGE
@@ -443,7 +317,7 @@ def _run(args) -> int:
     # a window does not dump: its --dump folder is made only once no window opens
     dumps = args.dump and (args.headless or args.out)
     for problem in (args.out and _out_kind_problem(args.out),
-                    dumps and _dir_problem("--dump", Path(args.dump))):
+                    dumps and dir_problem("--dump", Path(args.dump))):
         if problem:
             _err(problem)
             return EXIT_USAGE

@@ -137,7 +137,7 @@ class ParticlePool:
         """Claim ``count`` consecutive slots; returns the first, or -1 if they do not fit.
 
         A refused claim leaves its slots DEAD (every slot past ``n`` is DEAD), so the
-        host only has to clamp ``n`` after the kernel (:meth:`settle`).
+        caller's kernel only has to clamp ``n`` once the claims are done (:meth:`clamp_n`).
         """
         base = ti.atomic_add(self.n[None], count)
         result = base
@@ -145,10 +145,6 @@ class ParticlePool:
             ti.atomic_add(self.refused[None], 1)
             result = -1
         return result
-
-    @ti.kernel
-    def settle(self):
-        self.clamp_n()
 
     @ti.func
     def clamp_n(self):

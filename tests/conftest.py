@@ -12,6 +12,14 @@ Nothing here touches Taichi at import time.
   The Simulation itself picks the precision its scene asks for
   (:func:`mrsph.runtime.ensure`), so tests that need f64 say so in the scene; they are
   kept together at the end of their module so that precision switches are rare.
+- ``slow`` tests (the long validation: adaptive against uniform flows, the 3D dam
+  breaks, the real window) are deselected by pytest.ini's ``-m "not slow"``, so that the
+  default ``python3 -m pytest -q`` stays under ten minutes on 2 cores; they run with
+  ``python3 -m pytest -q -m slow`` (a ``-m`` on the command line replaces the default).
+  Mark only the long run: where a test is parametrised (over dimension, say) and only
+  some of its cases are long, name those cases' ids with
+  ``@pytest.mark.slow_params("3d", ...)`` (or ``pytest.param(3, marks=pytest.mark.slow)``
+  where the test owns the parameter), so the short cases stay in the default run.
 - ``soak`` tests (long robustness runs, tools/soak.py) are skipped unless ``--soak`` is
   given or the ``-m`` expression names them: ``python3 -m pytest -q --soak -m soak``.
 """
@@ -28,12 +36,20 @@ def pytest_addoption(parser):
 
 def pytest_configure(config):
     config.addinivalue_line(
-        "markers", "slow: long physics runs, deselect with -m 'not slow'")
+        "markers", "slow: long validation runs, left out by default; run them with -m slow")
+    config.addinivalue_line(
+        "markers", "slow_params(*ids): mark slow only the parametrised cases with these ids")
     config.addinivalue_line(
         "markers", "soak: robustness runs of 10^5 steps; skipped unless --soak (or -m soak)")
 
 
+@pytest.hookimpl(tryfirst=True)     # before -m deselects: the slow marks must be on by then
 def pytest_collection_modifyitems(config, items):
+    for item in items:
+        chosen = item.get_closest_marker("slow_params")
+        callspec = getattr(item, "callspec", None)
+        if chosen and callspec is not None and callspec.id in chosen.args:
+            item.add_marker(pytest.mark.slow)
     if config.getoption("--soak") or "soak" in (config.getoption("-m") or ""):
         return
     skip = pytest.mark.skip(reason="soak test: run with --soak (python3 -m pytest --soak -m soak)")

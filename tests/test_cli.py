@@ -328,3 +328,32 @@ def test_simulation_error_exits_1(tmp_path):
     errors = [line for line in proc.stderr.splitlines() if line.startswith("error: ")]
     assert len(errors) == 1 and "dt_min" in errors[0], proc.stderr
     assert "the sound speed sqrt(fluid.stiffness) = 31.6 m/s" in errors[0], errors[0]
+
+
+def _imported_modules(path: Path) -> set[str]:
+    """Every module ``path`` imports, at the top or inside a function, as absolute names."""
+    import ast
+    package = ".".join(path.relative_to(REPO).with_suffix("").parts[:-1])
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            names.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = package.rsplit(".", node.level - 1)[0] if node.level else ""
+            mod = ".".join(p for p in (base, node.module) if p)
+            names.add(mod)
+            names.update(f"{mod}.{a.name}" for a in node.names)   # from . import bench
+    return names
+
+
+def test_command_line_helpers_form_no_import_circle():
+    """cli -> bench -> options and app -> options: bench and the app never import cli,
+    and options, the bottom floor, imports neither cli nor bench."""
+    floor = {"mrsph.cli", "mrsph.bench"}
+    for path in [REPO / "mrsph" / "bench.py", *sorted((REPO / "mrsph" / "app").glob("*.py"))]:
+        assert "mrsph.cli" not in _imported_modules(path), f"{path.name} imports mrsph.cli"
+    assert not floor & _imported_modules(REPO / "mrsph" / "options.py")
+    code = "import sys, mrsph.options; print(sorted({'mrsph.cli', 'mrsph.bench', 'taichi'} & set(sys.modules)))"
+    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True,
+                          timeout=TIMEOUT_S)
+    assert proc.returncode == 0 and proc.stdout.strip() == "[]", proc.stdout + proc.stderr

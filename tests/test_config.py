@@ -1,7 +1,7 @@
 """Scene schema, validation messages, overrides and loading (mrsph.config; no Taichi).
 
-Run ``python -m tests.test_config`` to print the key tables of docs/scenes.md, generated
-from the schema; ``test_docs_tables_match_schema`` keeps the two in sync.
+``test_docs_tables_match_schema`` keeps the key tables of docs/scenes.md in step with the
+schema; ``python3 tools/scene_docs.py`` regenerates them.
 """
 from __future__ import annotations
 
@@ -17,8 +17,8 @@ from pathlib import Path
 import pytest
 
 from mrsph import config
-from mrsph.config import (REQUIRED, SCHEMA, Array, Key, SceneError, Table, list_scenes,
-                          load_scene, resolve_scene_path)
+from mrsph.config import SCHEMA, SceneError, Table, list_scenes, load_scene, resolve_scene_path
+from toolload import load_tool
 
 REPO = Path(__file__).resolve().parent.parent
 DIMS = [2, 3]
@@ -960,65 +960,27 @@ def test_import_is_light():
 
 
 # --------------------------------------------------------------------------------- docs
-def markdown_tables() -> str:
-    """The key tables of docs/scenes.md, generated from SCHEMA."""
-    out: list[str] = []
-
-    def cell(text: str) -> str:
-        return text.replace("|", "\\|")
-
-    def value(v) -> str:
-        if isinstance(v, bool):
-            return "true" if v else "false"
-        if isinstance(v, float):
-            return f"{v:g}".replace("e+0", "e").replace("e-0", "e-")
-        if isinstance(v, str):
-            return f'"{v}"'
-        if isinstance(v, tuple):
-            return "(" + ", ".join(value(x) for x in v) + ")"
-        return str(v)
-
-    def type_of(k: Key) -> str:
-        if k.kind == "choice":
-            return " or ".join(f'"{c}"' for c in k.choices)
-        base = {"float": "number", "int": "integer", "bool": "bool", "str": "string", "vec": "vec",
-                "vec3": "vec3", "path": f"path, >= {k.min_items} waypoints"}[k.kind]
-        if not k.range:
-            return base
-        return f"{base} in {k.range}" if k.range[0] in "[(" else f"{base} {k.range}"
-
-    def default_of(k: Key) -> str:
-        if k.default is REQUIRED:
-            return "**required**"
-        if k.default_doc:
-            return k.default_doc
-        return "none" if k.default is None else value(k.default)
-
-    def emit(title: str, table: Table, doc: str, dotted: str):
-        rows = [(name, k) for name, k in table.keys.items() if isinstance(k, Key)]
-        out.extend([f"### {title}", ""] + ([doc or table.doc, ""] if doc or table.doc else []))
-        if rows:
-            out.extend(["| key | type | unit | default | meaning |", "|---|---|---|---|---|"])
-            out.extend(f"| `{name}` | {cell(type_of(k))} | {k.unit or '-'} | {cell(default_of(k))} "
-                       f"| {cell(k.doc)} |" for name, k in rows)
-            out.append("")
-        for name, sub in table.keys.items():
-            key = f"{dotted}.{name}" if dotted else name
-            if isinstance(sub, Table):
-                emit(f"`[{key}]`", sub, sub.doc, key)
-            elif isinstance(sub, Array):
-                emit(f"`[[{key}]]`", sub.item, sub.doc, key)
-        for choice, variant in table.variants.items():
-            joiner = ", " if " with " in title else " with "
-            emit(f"{title}{joiner}{table.switch} = \"{choice}\"", variant, variant.doc, dotted)
-
-    emit("Top level", SCHEMA, "", "")
-    return "\n".join(out).rstrip() + "\n"
+@pytest.fixture(scope="module")
+def scene_docs():
+    return load_tool("scene_docs")
 
 
-def test_docs_tables_match_schema():
+def test_docs_tables_match_schema(scene_docs):
     text = (REPO / "docs" / "scenes.md").read_text(encoding="utf-8")
-    assert markdown_tables() in text, "regenerate with: python -m tests.test_config"
+    assert scene_docs.render(text) == text, "docs/scenes.md is out of date: run python3 tools/scene_docs.py"
+
+
+def test_docs_generator_restores_a_stale_table(scene_docs):
+    """The check can fail: a row edited by hand, or a schema key missing from the page, is
+    put back by the generator, and the prose outside the markers is kept."""
+    text = (REPO / "docs" / "scenes.md").read_text(encoding="utf-8")
+    row = "| `viscosity` |"
+    assert row in text
+    stale = text.replace(row, "| `viscosityy` |", 1)
+    assert stale != text and scene_docs.render(stale) == text
+    assert scene_docs.markdown_tables() in text
+    with pytest.raises(ValueError, match="markers"):
+        scene_docs.render(text.replace(scene_docs.END, ""))
 
 
 def test_docs_example_scene_is_valid():
@@ -1027,7 +989,3 @@ def test_docs_example_scene_is_valid():
     assert examples
     for example in examples:
         load_scene(tomllib.loads(example))
-
-
-if __name__ == "__main__":
-    print(markdown_tables(), end="")

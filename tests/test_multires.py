@@ -403,6 +403,7 @@ def refined_blob_scene(dim: int) -> dict:
     }
 
 
+@pytest.mark.slow_params("3d-symmetric")
 @pytest.mark.parametrize("coupling", ["variational", "symmetric"])
 def test_virtual_coupling_conserves_momentum(dim, coupling):
     """METHOD.md §4, §8: the reaction of every force between a real and a virtual particle
@@ -461,6 +462,7 @@ def test_virtual_coupling_conserves_momentum(dim, coupling):
 
 
 # ================================================================== 5. merging into the coarsest level
+@pytest.mark.slow
 def test_refined_fluid_merges_back_into_the_coarsest_level(dim):
     """METHOD.md §6: particles merge wherever the merged particle would not meet the split
     criterion. With two levels, the fluid the refined box has left behind wants level 1
@@ -500,6 +502,7 @@ def stirred_slab_scene(dim: int, **adaptivity) -> dict:
                       "path": [[0.0, 0.25] + mid, [0.1, 0.75] + mid, [0.12, 0.95] + [0.05] * (dim - 1)]}]}
 
 
+@pytest.mark.slow_params("2d-default", "3d-default", "3d-merge-remnants")
 @pytest.mark.parametrize("remnants", [False, True], ids=["default", "merge-remnants"])
 def test_fine_fluid_a_stirrer_left_merges_back(dim, remnants):
     """METHOD.md §6: particles merge wherever the merged particle would not meet the split
@@ -606,6 +609,7 @@ def test_adaptive_seed_holds_the_uniform_runs_fluid(dim):
 
 
 # ================================================================== profiled steps
+@pytest.mark.slow_params("2d-adaptive", "3d-adaptive", "3d-uniform")
 @pytest.mark.parametrize("adaptive", [True, False], ids=["adaptive", "uniform"])
 def test_profiled_steps_take_the_same_physics_as_fused_ones(dim, adaptive):
     """``bench`` times each phase by calling the fused end of the step (accelerations, dt,
@@ -652,6 +656,7 @@ def test_profiled_steps_take_the_same_physics_as_fused_ones(dim, adaptive):
 
 
 # ================================================================== save and restore
+@pytest.mark.slow_params("3d")
 def test_a_restored_state_steps_exactly_as_the_original(dim):
     """``save_state``/``restore_state`` (what ``bench`` uses to time a pair's two runs
     turn about): a second Simulation of the scene, given the first one's state in the

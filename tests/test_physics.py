@@ -282,10 +282,11 @@ def dam_scene(dim):
     }
 
 
-@pytest.fixture(scope="module", params=DIMS, ids=[f"{d}d" for d in DIMS])
+@pytest.fixture(scope="module", params=[2, pytest.param(3, marks=pytest.mark.slow)], ids=["2d", "3d"])
 def dam_run(request):
     """One dam break per dimension to t = 1.5 s, checked every frame for NaN and for its
     mass at the end; returns the front history. Shared by the dam-break tests below.
+    The 3D run is long validation, marked ``slow`` (``python3 -m pytest -q -m slow``).
     (Particles cannot leave the domain: the boundary pass clamps them into it.)"""
     from mrsph import runtime
     runtime.reset()

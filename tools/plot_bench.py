@@ -115,7 +115,7 @@ def plot(result: dict, path: Path) -> Path:
 
 
 def main(argv=None) -> int:
-    from mrsph.cli import threads_arg
+    from mrsph.options import threads_arg
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0],
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     ap.add_argument("json", nargs="?", help="a bench result (python3 main.py bench --json FILE)")

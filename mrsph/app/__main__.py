@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from mrsph.cli import WINDOW_FRAME_BUDGET_MS, frame_budget_arg
+from mrsph.options import WINDOW_FRAME_BUDGET_MS, frame_budget_arg
 
 
 def main(argv=None) -> int:
