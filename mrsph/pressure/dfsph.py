@@ -78,6 +78,10 @@ class DFSPH:
         self.warm_start = bool(cfg["warm_start"])
         cap = parts.pool.capacity
         self.alpha = ti.field(float, shape=cap)
+        # m_j ∇W_ij of each listed neighbour, taken once a step with the factors: every
+        # iteration then reads them instead of recomputing a square root and a division
+        # per pair (SPlisHSPlasH's precomputed values do the same)
+        self.gw = ti.Vector.field(self.dim, float, shape=(cap, parts.neighbours.max_neighbours))
         self.kappa = ti.field(float, shape=cap)      # this iteration's κ_i
         self.ksum = ti.field(float, shape=cap)       # Σ κ_i over the density solve
         self.state = ti.field(ti.i32, shape=4)
@@ -248,6 +252,22 @@ class DFSPH:
                     acc[k] += mg[k]
                 acc[self.dim] += mg.norm_sqr()
 
+    @ti.func
+    def _store_pair(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(),
+                    acc: ti.template()):
+        """``_factor_pair`` for the q-th listed neighbour (q counted in acc's last slot),
+        keeping m_j ∇W_ij in ``gw``."""
+        ok, g = self._grad(i, j, xq, L, p0, nrm, check, ctx)
+        q = ti.cast(acc[self.dim + 1], ti.i32)
+        mg = ti.Vector.zero(float, self.dim)
+        if ok:
+            mg = self.pool.p[j].m * g
+            for k in ti.static(range(self.dim)):
+                acc[k] += mg[k]
+            acc[self.dim] += mg.norm_sqr()
+        self.gw[i, q] = mg
+        acc[self.dim + 1] += 1.0
+
     @ti.kernel
     def _factors(self, n: ti.i32):
         p = ti.static(self.pool.p)
@@ -255,14 +275,87 @@ class DFSPH:
         for i in range(n):
             if is_real(p[i].kind):
                 l, h, ctx = self._ctx(i)
-                acc = ti.Vector.zero(float, self.dim + 1)
-                self.nb.for_each_neighbour(i, l, h, self.nb.is_listed(i), self._factor_pair,
-                                           self._factor_pair, ctx, acc)
+                acc = ti.Vector.zero(float, self.dim + 2)
+                listed = self.nb.is_listed(i)
+                xi = p[i].x
+                eye = ti.Matrix.identity(float, self.dim)
+                if listed:
+                    self.nb.candidates(i, xi, eye, xi, xi, False, l, True, False, self._store_pair, ctx, acc)
+                else:
+                    self.nb.candidates(i, xi, eye, xi, xi, False, l, False, False, self._factor_pair, ctx, acc)
+                self.nb.images(i, h, self._factor_image, ctx, acc)
                 s = ti.Vector([acc[k] for k in ti.static(range(self.dim))])
                 den = s.norm_sqr() + acc[self.dim]
                 # an isolated particle has no neighbour to push: no pressure
                 self.alpha[i] = p[i].rho / den if den > 1e-12 * p[i].rho * p[i].rho else 0.0
                 self.n_real[None] += 1
+
+    @ti.func
+    def _factor_image(self, i, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(),
+                      acc: ti.template()):
+        listed = self.nb.is_listed(i)
+        if ti.static(check):
+            listed = False
+        self.nb.candidates(i, xq, L, p0, nrm, check, self.pool.p[i].level, listed, True,
+                           self._factor_pair, ctx, acc)
+
+    @ti.func
+    def _rate_image(self, i, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(),
+                    acc: ti.template()):
+        listed = self.nb.is_listed(i)
+        if ti.static(check):
+            listed = False
+        self.nb.candidates(i, xq, L, p0, nrm, check, self.pool.p[i].level, listed, True,
+                           self._rate_pair, ctx, acc)
+
+    @ti.func
+    def _push_image_visit(self, i, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(),
+                          acc: ti.template()):
+        listed = self.nb.is_listed(i)
+        if ti.static(check):
+            listed = False
+        self.nb.candidates(i, xq, L, p0, nrm, check, self.pool.p[i].level, listed, True,
+                           self._push_image, ctx, acc)
+
+    @ti.func
+    def _rate(self, i):
+        """Σ_j m_j (u_i − u_j')·∇W_ij over i's neighbourhood: the listed neighbours from
+        ``gw``, the images (and an overflowed list) on the fly."""
+        p = ti.static(self.pool.p)
+        l, h, ctx = self._ctx(i)
+        rate = 0.0
+        if self.nb.is_listed(i):
+            vi = p[i].v
+            for q in range(self.nb.count[i]):
+                rate += (vi - p[self.nb.lists[i, q]].v).dot(self.gw[i, q])
+        else:
+            xi = p[i].x
+            eye = ti.Matrix.identity(float, self.dim)
+            self.nb.candidates(i, xi, eye, xi, xi, False, l, False, False, self._rate_pair, ctx, rate)
+        self.nb.images(i, h, self._rate_image, ctx, rate)
+        return rate
+
+    @ti.func
+    def _push_all(self, i):
+        """Σ_j m_j (κ_i/ρ_i + κ'_j/ρ_j) ∇W_ij over i's neighbourhood (listed neighbours from
+        ``gw``), the reactions of virtual neighbours handed on."""
+        p = ti.static(self.pool.p)
+        l, h, ctx = self._ctx(i)
+        acc = ti.Vector.zero(float, self.dim)
+        if self.nb.is_listed(i):
+            ki = self.kappa[i] / p[i].rho
+            mi = p[i].m
+            for q in range(self.nb.count[i]):
+                j = self.nb.lists[i, q]
+                f = (ki + self.coupling.partner_pressure(p[j].kind, self.kappa[j]) / p[j].rho) * self.gw[i, q]
+                acc += f
+                self.coupling.hand_reaction(j, -mi * f)
+        else:
+            xi = p[i].x
+            eye = ti.Matrix.identity(float, self.dim)
+            self.nb.candidates(i, xi, eye, xi, xi, False, l, False, False, self._push_own, ctx, acc)
+        self.nb.images(i, h, self._push_image_visit, ctx, acc)
+        return acc
 
     @ti.func
     def _rate_pair(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(),
@@ -307,11 +400,7 @@ class DFSPH:
         p = ti.static(self.pool.p)
         for i in range(n):
             if self.state[RUNS] and is_real(p[i].kind):
-                l, h, ctx = self._ctx(i)
-                acc = ti.Vector.zero(float, self.dim)
-                self.nb.for_each_neighbour(i, l, h, self.nb.is_listed(i), self._push_own,
-                                           self._push_image, ctx, acc)
-                p[i].v -= scale * acc
+                p[i].v -= scale * self._push_all(i)
         if ti.static(self.adaptive):
             for i in range(n):
                 if self.state[RUNS] and is_real(p[i].kind):
@@ -344,10 +433,7 @@ class DFSPH:
             self.state[RUNS] = 1 - self.state[DONE]
             for i in range(n):
                 if self.state[RUNS] and is_real(p[i].kind):
-                    l, h, ctx = self._ctx(i)
-                    rate = 0.0
-                    self.nb.for_each_neighbour(i, l, h, self.nb.is_listed(i), self._rate_pair,
-                                               self._rate_pair, ctx, rate)
+                    rate = self._rate(i)
                     if ti.static(which == DENSITY):
                         e = ti.max(p[i].rho + h_dt * rate - rho0, 0.0)    # ρ* − ρ0, compression only
                         self.kappa[i] = e * self.alpha[i] / (h_dt * h_dt)
@@ -392,11 +478,7 @@ class DFSPH:
         for i in range(n):
             k = 0.0
             if is_real(p[i].kind):
-                l, h, ctx = self._ctx(i)
-                rate = 0.0
-                self.nb.for_each_neighbour(i, l, h, self.nb.is_listed(i), self._rate_pair,
-                                           self._rate_pair, ctx, rate)
-                if p[i].rho + h_dt * rate > rho0:
+                if p[i].rho + h_dt * self._rate(i) > rho0:
                     k = ti.static(WARM_START) * p[i].p / p[i].rho
             self.kappa[i] = k
             self.ksum[i] = k
