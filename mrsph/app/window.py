@@ -50,7 +50,7 @@ import numpy as np
 
 from . import palette
 from .probe import run_probe
-from .mouse import LEFT, RIGHT, SHIFT, MouseDisturbance, pick_point, ray_plane
+from .mouse import LEFT, RIGHT, SHIFT, MouseDisturbance, pick_point, ray_plane, safe_speed
 from .view import scene_setting
 
 STATS_ENV = "MRSPH_WINDOW_STATS"
@@ -230,7 +230,8 @@ class _App:
         scene = self.sim.scene
         snap = self.sim.snapshot()
         self.snap, self.dirty = snap, False
-        self.mouse = MouseDisturbance.for_domain(snap.domain_min, snap.domain_max)
+        stiffness = float(scene_setting(scene, "fluid.stiffness", 1000.0))
+        self.mouse = MouseDisturbance.for_domain(snap.domain_min, snap.domain_max, stiffness)
         g = scene_setting(scene, "physics.gravity", None)
         self.params = {
             "fluid.viscosity": float(scene_setting(scene, "fluid.viscosity", 0.05)),
@@ -304,6 +305,9 @@ class _App:
             self.params[key] = value
         except Exception as e:
             self.message = f"{key}: {str(e).splitlines()[0][:160]}"
+            return
+        if key == "fluid.stiffness":   # the sound speed, and so the mouse's cap, follow it
+            self.mouse.max_speed = safe_speed(float(value), self.snap.domain_min, self.snap.domain_max)
 
     def _set_gravity_y(self, gy: float) -> None:
         g = list(self.gravity)
@@ -329,10 +333,10 @@ class _App:
             free = self._hud_rect_px()[0] / w if self.show_hud else 1.0
             self.renderer.viewport = (0.0, 0.0, max(free, 0.3), 1.0)
             self._held_keys(min(dt_wall, 0.1))  # no camera jump after a slow frame
-            # The drag velocity is measured in simulated time: the cursor moves so far
-            # per frame and the fluid should follow it on screen, however fast the
-            # simulation runs compared to the wall clock.
-            d = self._mouse(dt_wall if self.paused else self.frame_sim)
+            # The drag velocity is the hand's, in metres per wall second, capped to the
+            # safe speed (mrsph.app.mouse): per simulated second, a swipe in slow motion
+            # became a blow as many times faster as the slow-down.
+            d = self._mouse(dt_wall)
             self.sim.set_disturbance(d)
             if self.paused or self.step_once:
                 self.speed.clear()
