@@ -302,7 +302,10 @@ SCHEMA = Table(required=True, keys={
         "background": Key("vec3", (0.07, 0.08, 0.1), "[0, 1]", doc="RGB background colour"),
         "camera_position": Key("vec3", None, unit="m", doc="3D only; omitted = automatic"),
         "camera_lookat": Key("vec3", None, unit="m", doc="3D only; omitted = automatic"),
-        "point_scale": Key("float", 1.0, "> 0", doc="scale of drawn particle radii")}),
+        "point_scale": Key("float", 1.0, "> 0", doc="scale of drawn particle radii"),
+        "surface": Key("bool", False, doc="water view: the fluid drawn as a surface (2D: a "
+                       "filled area tinted by the particles' colours; 3D: a lit mesh) in the "
+                       "window (key w toggles it) and in recordings")}),
 })
 
 

@@ -12,7 +12,11 @@ compile and a memory block Taichi never returns), and draws
 * 3D: ``scene.particles`` with per-vertex colour and radius, obstacle shells as small
   spheres, domain and box-obstacle wireframes with ``scene.lines``, seen through an
   :class:`~mrsph.app.view.OrbitCamera` (y up, framed on the domain at first);
-* a legend sub-window (level colours, or the colormap range) and the simulated time.
+* a legend sub-window (level colours, or the colormap range) and the simulated time;
+* marks of what acts on the water (the mouse's reach, the scene's stirrers) as circles
+  (3D: rings facing the camera), and, in the water view (``surface=True``), the fluid
+  as a filled, level-tinted area with its outline (2D) or a lit mesh (3D) from
+  :mod:`mrsph.surface` instead of the particles.
 
 ``canvas.circles`` / ``canvas.lines`` / ``canvas.triangles`` always draw their whole
 field, so unused slots are parked far outside the view (``_PARK``) with radius 0.
@@ -108,6 +112,12 @@ class Renderer:
         self._line3 = _Buffer(3, _PARK)
         self._line_col = _Buffer(3, 0.0)
         self._shell_pos = _Buffer(3, _PARK)
+        self._mesh_v = _Buffer(3, _PARK)
+        self._mesh_n = _Buffer(3, 0.0)
+        self._mesh_c = _Buffer(3, 0.0)
+        self._area_v = _Buffer(2, _PARK)
+        #: wall seconds the last frame spent on the water view's surface (bench reads it)
+        self.surface_s = 0.0
         self._shell_key = None
         self._shell_r = 0.0
 
@@ -153,8 +163,12 @@ class Renderer:
 
     # -- drawing -----------------------------------------------------------------------
     def draw(self, snapshot, color_mode: str = "level", show_virtual: bool = False,
-             legend: bool = True, rest_density: float | None = None) -> None:
-        """Draw one frame (call ``window.show()`` or read the image buffer afterwards)."""
+             legend: bool = True, rest_density: float | None = None, marks=(),
+             surface: bool = False) -> None:
+        """Draw one frame (call ``window.show()`` or read the image buffer afterwards).
+        ``marks``: :class:`~mrsph.app.geometry.Mark` circles to draw over the fluid;
+        ``surface``: the water view."""
+        self.marks, self.surface = list(marks or ()), bool(surface)
         self.canvas.set_background_color(tuple(float(c) for c in self.style.background))
         rgb = palette.colours(snapshot, color_mode, rest_density=rest_density)
         keep = np.ones(len(rgb), dtype=bool) if show_virtual else ~palette.is_virtual(snapshot.kind)
@@ -181,6 +195,14 @@ class Renderer:
             self.canvas.triangles(self._tri.upload(tri), color=palette.OBSTACLE_FILL)
         level = np.asarray(snap.level)
         virt = palette.is_virtual(snap.kind)
+        water = self._water(snap, rgb)
+        if water is not None:
+            tri, tri_rgb, edge = water[1], water[2], water[3]
+            if len(tri):
+                self.canvas.triangles(self._area_v.upload(view.world_to_canvas(tri)),
+                                      per_vertex_color=self._mesh_c.upload(tri_rgb))
+            keep = keep & virt      # the surface stands for the real particles
+            self._water_edge = edge
         idx = np.nonzero(keep)[0]
         # Painter's order: virtual first, then coarse to fine, so fine detail is on top.
         idx = idx[np.lexsort((-level[idx], ~virt[idx]))]
@@ -195,12 +217,30 @@ class Renderer:
         self.canvas.lines(self._line2.upload(view.world_to_canvas(segs)), width=LINE_WIDTH_FRACTION,
                           per_vertex_color=self._line_col.upload(cols))
 
+    def _water(self, snap, rgb):
+        """The water view's surface, or None when it is off (timed: surface_s)."""
+        import time
+        self._water_edge = None
+        if not self.surface:
+            self.surface_s = 0.0
+            return None
+        t0 = time.perf_counter()
+        out = geometry.water(snap, rgb)
+        self.surface_s = time.perf_counter() - t0
+        return out
+
     def _outline_segments(self, snap, dim):
-        """Domain outline and obstacle outlines (2D) or box wireframes (3D), with colours."""
+        """Domain outline and obstacle outlines (2D) or box wireframes (3D), the water's
+        outline (2D water view) and the marks, with colours."""
         parts = [(geometry.domain_segments(snap.domain_min, snap.domain_max), palette.DOMAIN_COLOUR)]
         for o in snap.obstacles:
             if dim == 2 or o.get("shape") == "box":
                 parts.append((geometry.obstacle_segments(o, dim), palette.OBSTACLE_EDGE))
+        if getattr(self, "_water_edge", None) is not None and len(self._water_edge):
+            parts.append((self._water_edge, palette.WATER_EDGE))
+        facing = self.camera.basis()[0] if dim == 3 and self.camera is not None else None
+        for mark in getattr(self, "marks", ()):
+            parts.append((geometry.mark_segments(mark, dim, facing), palette.MARK_COLOURS[mark.kind]))
         segs = np.concatenate([p for p, _ in parts])
         cols = np.concatenate([np.tile(np.asarray(c, np.float32), (len(p), 1)) for p, c in parts])
         return segs, cols
@@ -224,6 +264,14 @@ class Renderer:
         scene.ambient_light((AMBIENT,) * 3)
         scene.point_light(tuple(light), (DIFFUSE,) * 3)
 
+        water = self._water(snap, rgb)
+        if water is not None:
+            verts, normals, vrgb = water[1], water[2], water[3]
+            if len(verts):
+                scene.mesh(self._mesh_v.upload(verts), normals=self._mesh_n.upload(normals),
+                           per_vertex_color=self._mesh_c.upload(vrgb), two_sided=True,
+                           vertex_count=len(verts))
+            keep = keep & palette.is_virtual(snap.kind)
         n = int(keep.sum())
         if n:
             rad = np.asarray(snap.radius, np.float64)[np.asarray(snap.level)[keep]] * self.style.point_scale

@@ -18,31 +18,37 @@ c / v / h / u          colour mode / show virtual particles / help / HUD panel
 left drag              push the fluid along the drag
 right drag (2D),       pull the fluid toward the cursor
 shift + left drag
-q / e                  smaller / larger mouse radius
+q / e                  smaller / larger mouse radius (drawn as a white circle)
+w                      water view (surface) on / off
 3D: right drag,        orbit the camera
 arrows
 3D: middle drag        pan
 3D: z / x              zoom in / out;  f: frame the domain again
-p                      screenshot (PNG)
+p                      screenshot (PNG, into out/screenshots/)
 Esc                    quit
 =====================  =================================================
+
+The mouse acts in wall-clock time, capped (``mrsph.app.mouse.safe_speed``). Key taps
+are latched: a press seen between two frames acts once even when the key is up again
+when the next frame reads the keys (z / x / arrows at a few frames per second).
+A scene that loads or compiles shows "loading SCENE (compiling ...)"; Taichi compiles
+on the main thread only, so an Esc pressed during one compile is answered when it ends.
 
 Test hooks (environment variables)
 ----------------------------------
 ``MRSPH_WINDOW_STATS=path``: append one JSON line per frame: frame, time,
 kinetic_energy, n_real, n_virtual, disturbance_active, paused, scene, wall_s, fps,
-speed (simulated seconds per wall second).
+speed (simulated seconds per wall second), camera_distance (3D, else null), surface,
+loading (the frame shows the loading message).
 ``MRSPH_WINDOW_SCREENSHOT=path``: write the screenshot there (frame 10, and on ``p``).
 """
 from __future__ import annotations
 
-import collections
 import inspect
 import json
 import math
 import os
 import sys
-import textwrap
 import time
 from pathlib import Path
 
@@ -50,7 +56,8 @@ import numpy as np
 
 from . import palette
 from .probe import run_probe
-from .mouse import LEFT, RIGHT, SHIFT, MouseDisturbance, pick_point, ray_plane, safe_speed
+from .mouse import LEFT, RIGHT, SHIFT, MouseDisturbance, pick_point, ray_box, ray_plane, safe_speed
+from .hud import Rates, Speed, draw_hud, hud_rect_px
 from .view import scene_setting
 
 STATS_ENV = "MRSPH_WINDOW_STATS"
@@ -58,33 +65,22 @@ SCREENSHOT_ENV = "MRSPH_WINDOW_SCREENSHOT"
 #: Frame at which the automatic screenshot of MRSPH_WINDOW_SCREENSHOT is taken: late
 #: enough that ImGui has laid out its windows (they appear from the second frame).
 AUTO_SCREENSHOT_FRAME = 10
-#: HUD panel on the right: width in pixels (fits the slider labels of ImGui's default
-#: 13 px font) and height in pixels (cut to the window, less the margins).
-HUD_WIDTH_PX = 330
-HUD_TEXT_CHARS = 40     # characters a line of the panel holds (ImGui's 7 px wide glyphs)
-HUD_HEIGHT_PX = 600
-HUD_MARGIN_PX = 8
 #: Camera speeds: arrows orbit at this many rad/s; z/x zoom by e^(rate dt); a drag over
 #: the whole window orbits by half a turn horizontally.
 ORBIT_KEY_RATE = 1.5
 ZOOM_KEY_RATE = 1.2
 ORBIT_DRAG_GAIN = math.pi
-#: Window over which splits/s and merges/s are counted (simulated seconds).
-RATE_WINDOW_S = 1.0
 #: Keys that change the mouse radius: one press = this many wheel notches.
 RADIUS_KEY_NOTCHES = 1.0
 PROBE_TIMEOUT_S = 60.0
-
-_HELP = """\
-space     pause / run          n   step one frame
-r         reset                tab next scene (list below)
-c         colour mode          v   show virtual particles
-h         this help            p   screenshot
-left drag push the fluid       right drag / shift+left: pull
-q / e     mouse radius - / +   u   hide / show the HUD
-Esc       quit
-3D: right drag or arrows orbit, middle drag pan,
-    z / x zoom in / out, f frame the domain"""
+#: A tapped camera key (seen pressed and released between two frames) acts as if held
+#: this long: one tap of z zooms by e^(-ZOOM_KEY_RATE * TAP_S), 17 %.
+TAP_S = 0.15
+#: Keys whose action lasts while they are held (3D camera): taps of them are latched.
+CAMERA_KEYS = ("z", "x")
+#: Where ``p`` writes screenshots, relative to the working directory (.gitignore covers
+#: /out/ at the repository root).
+SCREENSHOT_DIR = Path("out") / "screenshots"
 
 _display_cache: dict = {}
 _PROBE_SCRIPT = r"""
@@ -122,58 +118,6 @@ def _accepts_overrides(make_sim) -> bool:
         or any(p.name == "overrides" for p in params)
 
 
-class _Rates:
-    """Splits and merges per simulated second. The stats row counts events since the
-    previous snapshot, so the rate is the sum over the last RATE_WINDOW_S divided by
-    the time covered."""
-
-    def __init__(self):
-        self.samples = collections.deque()
-
-    def add(self, t: float, splits: float, merges: float) -> None:
-        if self.samples and t < self.samples[-1][0]:
-            self.samples.clear()  # reset or new scene: time went back
-        if self.samples and t == self.samples[-1][0]:
-            return  # paused: the same frame again
-        self.samples.append((t, splits, merges))
-        while self.samples and self.samples[0][0] < t - RATE_WINDOW_S:
-            self.samples.popleft()
-
-    def rates(self) -> tuple[float, float]:
-        if len(self.samples) < 2:
-            return 0.0, 0.0
-        span = self.samples[-1][0] - self.samples[0][0]
-        if span <= 0:
-            return 0.0, 0.0
-        s = sum(x[1] for x in list(self.samples)[1:])
-        m = sum(x[2] for x in list(self.samples)[1:])
-        return s / span, m / span
-
-
-class _Speed:
-    """Simulated seconds per wall second over the frames of the last RATE_WINDOW_S of
-    wall time while the simulation runs (cleared on pause, single steps and resets)."""
-
-    def __init__(self):
-        self.samples = collections.deque()
-
-    def add(self, wall: float, sim_time: float) -> None:
-        if self.samples and sim_time < self.samples[-1][1]:
-            self.samples.clear()  # reset or new scene: time went back
-        self.samples.append((wall, sim_time))
-        while len(self.samples) > 2 and self.samples[0][0] < wall - RATE_WINDOW_S:
-            self.samples.popleft()
-
-    def clear(self) -> None:
-        self.samples.clear()
-
-    def value(self) -> float | None:
-        if len(self.samples) < 2:
-            return None
-        (w0, t0), (w1, t1) = self.samples[0], self.samples[-1]
-        return (t1 - t0) / (w1 - w0) if w1 > w0 else None
-
-
 class _App:
     """State of the running window; :func:`run_window` is its only user."""
 
@@ -201,10 +145,10 @@ class _App:
         self.message = ""
         self.snap = None
         self.dirty = True
-        self.rates = _Rates()
+        self.rates = Rates()
         self.fps = 0.0
         self.frame_budget = frame_budget
-        self.speed = _Speed()
+        self.speed = Speed()
         self.start = time.perf_counter()
         self.last = self.start
         self.cursor_prev = None
@@ -217,6 +161,10 @@ class _App:
         self.screenshot_path = os.environ.get(SCREENSHOT_ENV)
         self.frames_drawn = 0
         self.want_screenshot = False
+        self.taps: set = set()        # camera keys pressed since the last frame
+        self.loading = None           # the loading message while a scene loads or compiles
+        self.surface = False
+        self.pending = None           # an action of the HUD (scene switch) for the next frame
         self._on_new_sim()
 
     # -- simulation lifecycle ----------------------------------------------------------
@@ -245,7 +193,11 @@ class _App:
         self.frame_dt = 1.0 / float(scene_setting(scene, "run.fps", 30.0))
         self.frame_sim = self.frame_dt  # simulated time the last frame advanced
         self.renderer.reset_view(scene, palette.Style.from_scene(scene))
-        self.rates, self.speed = _Rates(), _Speed()
+        self.surface = bool(scene_setting(scene, "render.surface", False))
+        self.rates, self.speed = Rates(), Speed()
+        # The first frame shows the particles and says the step is compiling; the next
+        # frame's first advance compiles it (tens of seconds for a 3D scene on a CPU).
+        self.fresh = True
         self.drag_owner, self.drag_plane = None, None
 
     def switch_scene(self, name: str, overrides=None) -> bool:
@@ -253,6 +205,8 @@ class _App:
         keep the running scene and say why in the HUD."""
         if not self._same_precision(name):
             return False
+        if not self._show_loading(f"loading {name} (compiling the particles' setup ...)"):
+            return False   # Esc: quitting
         try:
             sim = self._build(name, overrides)
         except Exception as e:  # a bad scene file must not close the window
@@ -281,12 +235,13 @@ class _App:
         return True
 
     def set_refinement(self, enabled: bool) -> None:
-        try:
-            self.sim.set_param("adaptivity.enabled", bool(enabled))
+        """Refinement on / off: live where the simulation lists ``adaptivity.enabled`` in
+        its ``LIVE_KEYS``, else by rebuilding the scene with the override (the solver's
+        levels are fixed when it is built)."""
+        if "adaptivity.enabled" in getattr(self.sim, "LIVE_KEYS", ()):
+            self._set_param("adaptivity.enabled", bool(enabled))
             self.refinement = bool(enabled)
             return
-        except (ValueError, KeyError, TypeError, AttributeError):
-            pass  # not live-tunable: rebuild the scene with the override
         if not self.can_override:
             self.message = "refinement toggle needs make_sim(scene_name, overrides)"
             return
@@ -327,6 +282,11 @@ class _App:
             self.fps = 1.0 / dt_wall if self.fps == 0 else 0.9 * self.fps + 0.1 / dt_wall
             if not self._keys():
                 break
+            if self.pending is not None:   # before anything of this frame is drawn
+                action, self.pending = self.pending, None
+                action()
+                if not self.window.running:
+                    break
             # fit the domain into the area left of the HUD panel, so nothing hides (3D:
             # when the camera is framed, at the start or on f); before any camera use
             w, _ = self.renderer.size
@@ -340,7 +300,12 @@ class _App:
             self.sim.set_disturbance(d)
             if self.paused or self.step_once:
                 self.speed.clear()
-            if not self.paused or self.step_once:
+            compiling = self.fresh and not self.paused
+            if compiling:
+                self.loading = f"loading {self.scene_name} (compiling the step ...)"
+            elif self.loading and not self.fresh:
+                self.loading = None
+            if (not self.paused or self.step_once) and not compiling:
                 t0 = float(self.sim.time)
                 try:
                     # a frame cut to the budget keeps the window responsive where the
@@ -359,6 +324,10 @@ class _App:
                     self.speed.add(time.perf_counter(), float(self.sim.time))
                 self.step_once = False
                 self.dirty = True
+            if compiling:
+                self.fresh = False     # the next frame advances (and compiles)
+            elif self.fresh and self.paused:
+                self.fresh = False
             if self.dirty:
                 self.snap = self.sim.snapshot()
                 self.dirty = False
@@ -366,8 +335,10 @@ class _App:
             st = snap.stats or {}
             self.rates.add(float(snap.time), float(st.get("splits", 0)), float(st.get("merges", 0)))
             self.renderer.draw(snap, self.color_mode, self.show_virtual,
-                               rest_density=getattr(self.sim, "rest_density", None))
-            self._hud(snap)
+                               rest_density=getattr(self.sim, "rest_density", None),
+                               marks=self._marks(snap), surface=self.surface)
+            draw_hud(self, snap)
+            self._loading_panel()
             self._write_stats(snap, d)
             self.frames_drawn += 1
             if self.want_screenshot or (self.screenshot_path and self.frames_drawn == AUTO_SCREENSHOT_FRAME):
@@ -410,25 +381,33 @@ class _App:
                 self.mouse.scroll(RADIUS_KEY_NOTCHES)
             elif k == "f":
                 self.renderer.reset_view()
+            elif k == "w":
+                self.surface = not self.surface
+            elif k in CAMERA_KEYS or k in (ti.ui.LEFT, ti.ui.RIGHT, ti.ui.UP, ti.ui.DOWN):
+                self.taps.add(k)     # latched: acts this frame even if already released
             elif k == "p":
                 self.want_screenshot = True  # taken after this frame is drawn
         return True
 
     def _held_keys(self, dt: float) -> None:
         """Camera keys act while held (3D only)."""
+        taps, self.taps = self.taps, set()
         if self.snap is None or self.snap.dim != 3:
             return
         cam = self.renderer.ensure_camera(self.snap)
-        w = self.window
-        ti = self.ti
-        yaw = (w.is_pressed(ti.ui.LEFT) - w.is_pressed(ti.ui.RIGHT)) * ORBIT_KEY_RATE * dt
-        pitch = (w.is_pressed(ti.ui.UP) - w.is_pressed(ti.ui.DOWN)) * ORBIT_KEY_RATE * dt
+        w, ti = self.window, self.ti
+
+        def held(key) -> float:
+            """Seconds the key acted this frame: the frame while held, TAP_S for a tap
+            that was released before this frame could see it held."""
+            return dt if w.is_pressed(key) else (TAP_S if key in taps else 0.0)
+        yaw = (held(ti.ui.LEFT) - held(ti.ui.RIGHT)) * ORBIT_KEY_RATE
+        pitch = (held(ti.ui.UP) - held(ti.ui.DOWN)) * ORBIT_KEY_RATE
         if yaw or pitch:
             cam.orbit(yaw, pitch)
-        zoom_in = w.is_pressed("z")
-        zoom_out = w.is_pressed("x")
-        if zoom_in != zoom_out:
-            cam.zoom(math.exp((ZOOM_KEY_RATE if zoom_out else -ZOOM_KEY_RATE) * dt))
+        zoom = (held("x") - held("z")) * ZOOM_KEY_RATE
+        if zoom:
+            cam.zoom(math.exp(zoom))
 
     def _reset(self) -> None:
         try:
@@ -439,6 +418,62 @@ class _App:
         self.mouse.reset()
         self.dirty = True
 
+    def later(self, action) -> None:
+        """Run ``action`` at the start of the next frame: a HUD button is read in the
+        middle of a frame, and a scene switch draws loading frames of its own."""
+        self.pending = action
+
+    def _show_loading(self, text: str) -> bool:
+        """Draw one frame that says ``text`` (nothing else: no Taichi kernel runs while a
+        scene is half built); False when Esc was pressed (the window then quits)."""
+        self.loading = text
+        self.renderer.canvas.set_background_color(tuple(float(c) for c in self.renderer.style.background))
+        self._loading_panel()
+        self.window.show()
+        for e in self.window.get_events(self.ti.ui.PRESS):
+            if e.key == self.ti.ui.ESCAPE:
+                self.window.running = False
+                return False
+        return True
+
+    def _loading_panel(self) -> None:
+        if not self.loading:
+            return
+        w, h = self.renderer.size
+        gui = self.window.get_gui()
+        with gui.sub_window("Loading", 0.3, 0.42, min(420 / w, 0.6), min(70 / h, 0.3)):
+            gui.text(self.loading, color=(1.0, 0.85, 0.4))
+            gui.text("Esc quits (answered when this compile ends)")
+
+    def _marks(self, snap) -> list:
+        """What acts on the water, to draw: the scene's stirrers where they are now, and
+        the mouse's reach while the cursor is over the fluid (or a drag is on)."""
+        from .geometry import Mark, stirrer_marks
+        marks = stirrer_marks(self.sim.scene, float(snap.time))
+        d = self.mouse.current
+        if d is not None:
+            marks.append(Mark(np.asarray(d.center, float), float(d.radius), "mouse"))
+            return marks
+        u, v = self.window.get_cursor_pos()
+        if self.drag_owner is not None or self._over_hud(u, v) or not (0 <= u <= 1 and 0 <= v <= 1):
+            return marks
+        if snap.dim == 2:
+            p = self.renderer.view2d(snap).canvas_to_world((u, v))
+            if np.all(p >= snap.domain_min) and np.all(p <= snap.domain_max):
+                marks.append(Mark(p, float(self.mouse.radius), "mouse"))
+            return marks
+        real = ~palette.is_virtual(snap.kind)
+        if not real.any():
+            return marks
+        x = np.asarray(snap.x)[real]
+        cam = self.renderer.ensure_camera(snap)
+        width, height = self.renderer.size
+        origin, direction = cam.ray(u, v, width / height)
+        hit = ray_box(origin, direction, x.min(axis=0), x.max(axis=0))
+        if hit is not None and hit[0] >= 0:
+            marks.append(Mark(origin + hit[0] * direction, float(self.mouse.radius), "mouse"))
+        return marks
+
     def _next_scene(self) -> None:
         if self.scene_name in self.scene_names:
             i = (self.scene_names.index(self.scene_name) + 1) % len(self.scene_names)
@@ -448,9 +483,7 @@ class _App:
 
     # -- mouse -------------------------------------------------------------------------
     def _hud_rect_px(self):
-        w, h = self.renderer.size
-        x0 = w - HUD_WIDTH_PX - HUD_MARGIN_PX
-        return x0, HUD_MARGIN_PX, w - HUD_MARGIN_PX, min(HUD_MARGIN_PX + HUD_HEIGHT_PX, h - HUD_MARGIN_PX)
+        return hud_rect_px(self.renderer.size)
 
     def _over_hud(self, u: float, v: float) -> bool:
         """Whether the cursor (canvas coords, y up) is over a HUD panel, where clicks
@@ -523,77 +556,6 @@ class _App:
         p = ray_plane(origin, direction, self.drag_plane[0], self.drag_plane[1])
         return p if p is not None else self.drag_plane[0]
 
-    # -- HUD ---------------------------------------------------------------------------
-    def _hud(self, snap) -> None:
-        gui = self.window.get_gui()
-        w, h = self.renderer.size
-        x0, y0, x1, y1 = self._hud_rect_px()
-        st = snap.stats or {}
-        if self.show_help:
-            rows = len(_HELP.splitlines()) + 2 + len(self.scene_names)
-            with gui.sub_window("Help", 0.2, 0.15, min(440 / w, 0.9), min((40 + 23 * rows) / h, 0.9)):
-                for line in _HELP.splitlines():
-                    gui.text(line)
-                gui.text("scenes:")
-                for name in self.scene_names:
-                    if name != self.scene_name and gui.button(name):
-                        self.switch_scene(name)
-        if not self.show_hud:
-            return
-        with gui.sub_window("mrsph", x0 / w, y0 / h, (x1 - x0) / w, (y1 - y0) / h):
-            gui.text(f"scene {self.scene_name} ({snap.dim}D)")
-            gui.text("h: help   u: hide this panel")
-            gui.text(f"{self.fps:5.1f} fps   frame {snap.frame}" + ("   PAUSED" if self.paused else ""))
-            gui.text(f"t = {float(snap.time):.3f} s   dt = {float(st.get('dt', 0.0)):.2e} s")
-            speed = self.speed.value()
-            if speed is None:
-                gui.text("speed: paused" if self.paused else "speed: measuring")
-            else:
-                slow = "   (slow motion)" if self.frame_sim < 0.999 * self.frame_dt else ""
-                gui.text(f"speed {speed:.3g}x real time{slow}")
-            gui.text(f"real {st.get('n_real', '?')}   virtual {st.get('n_virtual', '?')}"
-                     f"   transient {st.get('n_transient', '?')}")
-            for lvl in range(int(snap.levels)):
-                gui.text(f"  level {lvl}: {st.get(f'n_level_{lvl}', '?')} real, "
-                         f"{st.get(f'n_virtual_level_{lvl}', '?')} virtual",
-                         color=tuple(float(c) for c in palette.level_colour(lvl)))
-            splits, merges = self.rates.rates()
-            gui.text(f"splits {splits:.0f}/s   merges {merges:.0f}/s")
-            unit = "kg" if snap.dim == 3 else "kg/m"
-            gui.text(f"mass {float(st.get('total_mass', 0.0)):.4g} {unit}   "
-                     f"max rho/rho0 {float(st.get('max_density_ratio', 0.0)):.3f}")
-            if gui.button("Run" if self.paused else "Pause"):
-                self.paused = not self.paused
-            if gui.button("Step"):
-                self.paused, self.step_once = True, True
-            if gui.button("Reset"):
-                self._reset()
-            if gui.button("Next scene (tab)"):
-                self._next_scene()
-            if gui.button("Scenes and keys (h)"):
-                self.show_help = not self.show_help
-            gui.text("fluid")
-            for key, label in (("fluid.viscosity", "viscosity"), ("fluid.stiffness", "stiffness")):
-                lo = 0.0 if key == "fluid.viscosity" else 0.1 * self.slider_max[key] / 4.0
-                new = gui.slider_float(label, self.params[key], lo, self.slider_max[key])
-                if not math.isclose(new, self.params[key], rel_tol=1e-6, abs_tol=1e-12):
-                    self._set_param(key, float(new))
-            new = gui.slider_float("gravity y", self.params["gravity_y"], -20.0, 5.0)
-            if not math.isclose(new, self.params["gravity_y"], abs_tol=1e-9):
-                self._set_gravity_y(new)
-            gui.text("mouse (q / e: radius)")
-            self.mouse.radius = gui.slider_float("radius", self.mouse.radius, self.mouse.radius_min,
-                                                 self.mouse.radius_max)
-            self.mouse.strength = gui.slider_float("strength", self.mouse.strength, 0.0, 100.0)
-            new = gui.checkbox("refinement", self.refinement)
-            if new != self.refinement:
-                self.set_refinement(new)
-            self.show_virtual = gui.checkbox("show virtual (v)", self.show_virtual)
-            if gui.button(f"colour: {self.color_mode} (c)"):
-                self.color_mode = palette.next_mode(self.color_mode)
-            for line in textwrap.wrap(self.message, HUD_TEXT_CHARS):
-                gui.text(line, color=(1.0, 0.75, 0.3))
-
     # -- hooks -------------------------------------------------------------------------
     def _write_stats(self, snap, d) -> None:
         if not self.stats_file:
@@ -604,15 +566,19 @@ class _App:
                "n_real": int(st.get("n_real", 0)), "n_virtual": int(st.get("n_virtual", 0)),
                "disturbance_active": d is not None, "paused": self.paused,
                "scene": self.scene_name, "wall_s": round(time.perf_counter() - self.start, 4),
-               "fps": round(self.fps, 2), "speed": round(self.speed.value() or 0.0, 4)}
+               "fps": round(self.fps, 2), "speed": round(self.speed.value() or 0.0, 4),
+               "camera_distance": (round(float(self.renderer.camera.distance), 6)
+                                   if snap.dim == 3 and self.renderer.camera is not None else None),
+               "surface": self.surface, "loading": self.loading is not None}
         self.stats_file.write(json.dumps(row) + "\n")
         self.stats_file.flush()
 
     def _screenshot(self) -> None:
         import imageio.v3 as iio
         from .render import image_from_window
-        path = Path(self.screenshot_path or time.strftime("mrsph_%Y%m%d_%H%M%S.png"))
+        path = Path(self.screenshot_path or SCREENSHOT_DIR / time.strftime("mrsph_%Y%m%d_%H%M%S.png"))
         try:
+            path.parent.mkdir(parents=True, exist_ok=True)
             iio.imwrite(path, image_from_window(self.window))
             self.message = f"screenshot {path}"
         except Exception as e:
