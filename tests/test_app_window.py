@@ -339,3 +339,30 @@ def test_window_blow_up_pauses_and_prints_one_line(xdisplay, tmp_path):
         assert app.quit() == 0, app.output()
     finally:
         app.close()
+
+
+def test_window_latches_a_tapped_key_and_toggles_the_water_view(xdisplay, tmp_path):
+    """A tap of z (pressed and released between two frames: xdotool's key) zooms the 3D
+    camera in once, by e^(-1.2 x 0.15) (window.TAP_S); w turns the water view on. Without
+    the latch, the held-key check never sees a tap's key down."""
+    app = App(["-m", "mrsph.app", "--fake", "3", "--width", WIDTH, "--height", HEIGHT,
+               "--frame-budget", "0"], xdisplay, tmp_path)
+    try:
+        app.wait_window(120)
+        rows = app.wait_frames(5, 120)
+        assert rows[0]["loading"], "the first frame did not say that the step is compiling"
+        before = rows[-1]["camera_distance"]
+        app.xdo("key", "z")
+        app.xdo("key", "w")
+        deadline = time.time() + 60
+        while True:
+            app.alive()
+            last = app.stats()[-1]
+            if last["camera_distance"] < before and last["surface"]:
+                break
+            assert time.time() < deadline, f"camera {before} -> {last['camera_distance']}, water view {last['surface']}"
+            time.sleep(0.3)
+        assert last["camera_distance"] == pytest.approx(before * np.exp(-1.2 * 0.15), rel=1e-3)
+        assert app.quit() == 0, app.output()
+    finally:
+        app.close()
