@@ -75,6 +75,7 @@ def _cases(full: bool) -> list[Case]:
         Case("dam_break_obstacle_3d s=15mm", "dam_break_obstacle_3d",
              ("particles.spacing=0.015",), 0.2, 0.01, "pair"),
         Case("demo_2d rendered", "demo_2d", (), 1.0 / 30.0, 0.1, "demo"),
+        Case("pool_3d rendered", "pool_3d", (), 1.0 / 30.0, 0.1, "demo"),
     ]
     if not full:
         return quick
@@ -301,6 +302,7 @@ def run_demo(name, scene_name, overrides, warm, interval, repeats, arch, threads
             steps_l.append(sum(s for s, _ in done))
             renders.append(sum(r for _, r in done))
             reals.append(sim.stats()["n_real"])
+        surface_s = _surface_cost(source, sim, repeats)
         _start_profile(sim)
         render = sum(frame()[1] for _ in range(n_frames))
         timers = {**sim.timers, "render": render}
@@ -317,10 +319,26 @@ def run_demo(name, scene_name, overrides, warm, interval, repeats, arch, threads
         "render_ms": 1e3 * statistics.median(renders) / n_frames,
         "render_share": statistics.median(renders) / wall,
         "render_compile_s": render_compile_s,
+        "surface_ms": 1e3 * surface_s, "surface_share": surface_s / (wall / n_frames),
         "fluid_volume": volume, "reference_particles": DEMO_REFERENCE_PARTICLES,
         "reference_spacing": reference, "spacing_ratio": reference / sim.s0,
     })
     return row
+
+
+def _surface_cost(source, sim, repeats) -> float:
+    """Wall seconds the water view adds to drawing one frame (median over repeats of the
+    same snapshot drawn with and without it); the simulation is not advanced."""
+    snap = sim.snapshot()
+    source.render(snap, "level", False, sim.rest_density, (), True)    # first use: allocations
+    extra = []
+    for _ in range(max(repeats, 3)):
+        t0 = time.perf_counter()
+        source.render(snap, "level", False, sim.rest_density, (), False)
+        t1 = time.perf_counter()
+        source.render(snap, "level", False, sim.rest_density, (), True)
+        extra.append(max(time.perf_counter() - t1 - (t1 - t0), 0.0))
+    return statistics.median(extra)
 
 
 # ----------------------------------------------------------------------------- report
@@ -352,6 +370,8 @@ def _table(rows, pairs=()) -> str:
                        f"{r['reference_particles'] // 1000}k uniform particles "
                        f"({r['spacing_ratio']:.2f}x finer; uniform at the finest spacing: "
                        f"{r['uniform_equivalent']} particles)")
+            out.append(f"    => water view (w): +{r['surface_ms']:.0f} ms a frame, "
+                       f"{100 * r['surface_share']:.0f}% of a frame")
         p = by_uniform.get(r["case"])
         if p:
             out.append(f"    => adaptive vs uniform: {p['speedup']:.2f}x faster, "
