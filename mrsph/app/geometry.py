@@ -122,8 +122,9 @@ def stirrer_marks(scene, t: float) -> list[Mark]:
 
 def mark_segments(mark: Mark, dim: int, facing=None) -> np.ndarray:
     """A mark's outline as segment end points (2k, dim): a circle in 2D; in 3D a ring
-    in the plane facing the camera (``facing``: the view direction) plus a smaller
-    ring at half the radius, so it reads as a sphere's outline with its centre."""
+    in the plane facing the camera (``facing``: the view direction), moved toward the
+    camera by the radius, plus a smaller ring at half the radius, so it reads as a
+    sphere's outline with its centre."""
     c, r = np.asarray(mark.center, float)[:dim], float(mark.radius)
     if dim == 2:
         return circle_loop(c, r, CIRCLE_SEGMENTS)
@@ -132,6 +133,7 @@ def mark_segments(mark: Mark, dim: int, facing=None) -> np.ndarray:
     a = np.cross(f, (0.0, 1.0, 0.0) if abs(f[1]) < 0.9 else (1.0, 0.0, 0.0))
     a /= np.linalg.norm(a)
     b = np.cross(f, a)
+    c = c - r * f     # on the near side of the reach, so the surface it acts on hides none of it
     t = np.linspace(0.0, 2.0 * math.pi, CIRCLE_SEGMENTS + 1)
     rings = []
     for rr in (r, 0.5 * r):

@@ -29,7 +29,7 @@ MARK_COLOURS = {"mouse": (1.0, 1.0, 1.0), "stirrer": (1.0, 0.2, 1.0)}
 #: Water view: the fluid's colour, and how much of the particles' colour (level, speed...)
 #: tints it, so the levels stay visible under the surface.
 WATER_COLOUR = (0.16, 0.42, 0.78)
-WATER_TINT = 0.45
+WATER_TINT = 0.3
 WATER_EDGE = (0.75, 0.88, 1.0)
 
 # Okabe-Ito, reordered so that consecutive levels differ in both hue and lightness.
