@@ -52,11 +52,13 @@ _VIRTUAL_KIND = 4
 @dataclass
 class Grid:
     """A scalar field on a regular grid: ``phi[i, j(, k)]`` at ``origin + (i, j, k) * cell``;
-    ``rgb`` (same shape + (3,)) the volume-weighted mean colour, or None."""
+    ``rgb`` (same shape + (3,)) the volume-weighted mean colour, or None; ``colour`` (3,)
+    the one colour of every particle when they all have the same (then ``rgb`` is None)."""
     origin: np.ndarray
     cell: float
     phi: np.ndarray
     rgb: np.ndarray | None = None
+    colour: np.ndarray | None = None
 
 
 def _spacing(volume: np.ndarray, dim: int) -> float:
@@ -66,7 +68,12 @@ def _spacing(volume: np.ndarray, dim: int) -> float:
 def volume_fraction(x, m, rho, level, kind=None, rgb=None) -> Grid | None:
     """The smoothed volume fraction φ of the real particles (kind < 4) on a grid that
     covers them with room for the smoothing; None when there are none. ``rgb`` (N, 3):
-    a colour per particle, averaged into ``Grid.rgb`` with the same weights."""
+    a colour per particle, averaged into ``Grid.rgb`` with the same weights.
+
+    Each level is deposited and smoothed on the part of the grid its particles reach
+    only (a few fine particles near an obstacle do not cost a pass over the whole
+    grid), and the colour channels ride along with φ in one array, so that a frame costs
+    few numpy passes (the window computes this every frame)."""
     x = np.asarray(x, np.float64)
     n, dim = x.shape if x.ndim == 2 else (0, 2)
     real = np.ones(n, bool) if kind is None else np.asarray(kind) < _VIRTUAL_KIND
@@ -77,77 +84,90 @@ def volume_fraction(x, m, rho, level, kind=None, rgb=None) -> Grid | None:
     x = x[real]
     vol = np.asarray(m, np.float64)[real] / rho[real]
     level = np.asarray(level)[real]
-    col = None if rgb is None else np.asarray(rgb, np.float64)[real]
+    col = uniform = None
+    if rgb is not None:
+        col = np.asarray(rgb, np.float64)[real]
+        if np.all(col == col[0]):          # one colour (one level, or a flat colour mode)
+            col, uniform = None, col[0].copy()
     levels = np.unique(level)
-    spacing = {int(l): _spacing(vol[level == l], dim) for l in levels}
-    cell = CELL_SPACINGS[dim] * min(spacing.values())
-    reach = TRUNCATE_SIGMAS * SIGMA_SPACINGS * max(spacing.values()) + 2.0 * cell
+    by_level = [level == l for l in levels] if len(levels) > 1 else [slice(None)]
+    spacing = [_spacing(vol[sel], dim) for sel in by_level]
+    cell = CELL_SPACINGS[dim] * min(spacing)
+    reach = TRUNCATE_SIGMAS * SIGMA_SPACINGS * max(spacing) + 2.0 * cell
     lo, hi = x.min(axis=0) - reach, x.max(axis=0) + reach
     while np.prod(np.ceil((hi - lo) / cell) + 1) > MAX_NODES[dim]:
         cell *= 1.25
     shape = tuple(int(c) for c in np.ceil((hi - lo) / cell) + 1)
-    phi = np.zeros(shape)
-    acc = np.zeros(shape + (3,)) if col is not None else None
-    for l in levels:
-        sel = level == l
+    channels = 1 if col is None else 4                       # volume, then volume x colour
+    acc = np.zeros(shape + (channels,))
+    for sel, s_l in zip(by_level, spacing):
         w = vol[sel, None] / cell ** dim
         if col is not None:
-            w = np.concatenate([w, w * col[sel]], axis=1)      # volume, then volume x colour
-        sigma = SIGMA_SPACINGS * spacing[int(l)] / cell
-        dep = _deposit(x[sel], w, lo, cell, shape)
-        phi += _blur(dep[0], sigma)
-        if acc is not None:
-            for c in range(3):
-                acc[..., c] += _blur(dep[1 + c], sigma)
+            w = np.concatenate([w, w * col[sel]], axis=1)
+        sigma = SIGMA_SPACINGS * s_l / cell
+        r = _blur_radius(sigma)
+        u = (x[sel] - lo) / cell
+        # the box of nodes this level's particles reach, after smoothing
+        b0 = np.maximum(np.floor(u.min(axis=0)).astype(np.int64) - r, 0)
+        b1 = np.minimum(np.floor(u.max(axis=0)).astype(np.int64) + 2 + r, shape)
+        box = tuple(slice(a, b) for a, b in zip(b0, b1))
+        sub = tuple(int(c) for c in b1 - b0)
+        acc[box] += _blur(_deposit(u - b0, w, sub), sigma)
+    phi = np.ascontiguousarray(acc[..., 0])
     grid_rgb = None
-    if acc is not None:
-        grid_rgb = acc / np.maximum(phi, 1e-6)[..., None]
-    return Grid(lo, cell, phi, grid_rgb)
+    if col is not None:
+        grid_rgb = acc[..., 1:] / np.maximum(phi, 1e-6)[..., None]
+    return Grid(lo, cell, phi, grid_rgb, uniform)
 
 
-def _deposit(x, w, origin, cell, shape) -> list[np.ndarray]:
-    """Cloud-in-cell: each particle's weights w (N, k) shared among its 2^d nearest
-    nodes, linearly; one grid per column of w."""
-    dim = len(shape)
-    u = (x - origin) / cell
+def _deposit(u, w, shape) -> np.ndarray:
+    """Cloud-in-cell: each particle's weights w (N, k), at u (N, d) in cells from the
+    grid's first node, shared among its 2^d nearest nodes, linearly: (*shape, k)."""
+    dim, k = len(shape), w.shape[1]
     i0 = np.floor(u).astype(np.int64)
     f = u - i0
-    size = int(np.prod(shape))
-    strides = np.array([int(np.prod(shape[k + 1:])) for k in range(dim)])
+    strides = np.array([int(np.prod(shape[a + 1:])) for a in range(dim)])
     base = np.clip(i0, 0, np.array(shape) - 2) @ strides
-    idx, frac = [], []
-    for corner in range(2 ** dim):
-        fr = np.ones(len(x))
+    corners = 2 ** dim
+    idx = np.empty((corners, len(u)), np.int64)
+    frac = np.empty((corners, len(u)))
+    for corner in range(corners):
+        fr = np.ones(len(u))
         off = 0
-        for k in range(dim):
-            bit = (corner >> k) & 1
-            fr = fr * (f[:, k] if bit else 1.0 - f[:, k])
-            off += bit * strides[k]
-        idx.append(base + off)
-        frac.append(fr)
-    idx, frac = np.concatenate(idx), np.concatenate(frac)
-    out = [np.bincount(idx, weights=np.tile(w[:, j], 2 ** dim) * frac, minlength=size)
-           for j in range(w.shape[1])]
-    return [o.reshape(shape) for o in out]
+        for a in range(dim):
+            bit = (corner >> a) & 1
+            fr *= f[:, a] if bit else 1.0 - f[:, a]
+            off += bit * strides[a]
+        idx[corner] = base + off
+        frac[corner] = fr
+    idx, size = idx.ravel(), int(np.prod(shape))
+    out = np.empty((size, k))
+    for j in range(k):
+        out[:, j] = np.bincount(idx, weights=(frac * w[:, j]).ravel(), minlength=size)
+    return out.reshape(shape + (k,))
+
+
+def _blur_radius(sigma: float) -> int:
+    return max(int(np.ceil(TRUNCATE_SIGMAS * sigma)), 1)
 
 
 def _blur(a: np.ndarray, sigma: float) -> np.ndarray:
-    """Separable Gaussian smoothing (normalised taps, zero outside the grid)."""
-    r = max(int(np.ceil(TRUNCATE_SIGMAS * sigma)), 1)
+    """Separable Gaussian smoothing over the grid axes of ``a`` (*grid, k) (normalised
+    taps, zero outside the grid)."""
+    r = _blur_radius(sigma)
     t = np.arange(-r, r + 1, dtype=np.float64)
     taps = np.exp(-0.5 * (t / max(sigma, 1e-9)) ** 2)
     taps /= taps.sum()
-    for axis in range(a.ndim):
-        out = np.zeros_like(a)
+    for axis in range(a.ndim - 1):
+        out = a * taps[r]
         n = a.shape[axis]
-        for k, w in zip(range(-r, r + 1), taps):
-            if abs(k) >= n:
-                continue
-            src = [slice(None)] * a.ndim
-            dst = [slice(None)] * a.ndim
-            src[axis] = slice(max(0, -k), n - max(0, k))
-            dst[axis] = slice(max(0, k), n - max(0, -k))
-            out[tuple(dst)] += w * a[tuple(src)]
+        for k in range(1, min(r, n - 1) + 1):
+            lo = [slice(None)] * a.ndim
+            hi = [slice(None)] * a.ndim
+            lo[axis], hi[axis] = slice(0, n - k), slice(k, n)
+            lo, hi = tuple(lo), tuple(hi)
+            out[hi] += taps[r + k] * a[lo]       # taps are symmetric
+            out[lo] += taps[r + k] * a[hi]
         a = out
     return a
 
@@ -171,26 +191,69 @@ def marching_squares(grid: Grid, iso: float = ISO):
     outline segments (2S, 2)) in world coordinates."""
     phi = grid.phi
     c = np.stack([phi[:-1, :-1], phi[1:, :-1], phi[1:, 1:], phi[:-1, 1:]], axis=-1)   # corners 0..3
-    case = sum((c[..., k] >= iso).astype(np.int64) << k for k in range(4))
-    centre = c.mean(axis=-1) >= iso
-    case = np.where((case == 5) & centre, 16, np.where((case == 10) & centre, 17, case))
-    tris, cols, segs = [], [], []
-    for code, polys in _SQUARE_POLYS.items():
-        ij = np.argwhere(case == code)
-        if len(ij) == 0:
+    inside = c >= iso
+    case = inside[..., 0] | (inside[..., 1] << 1) | (inside[..., 2] << 2) | (inside[..., 3] << 3)
+    case = case.astype(np.int8)
+    # cells the contour crosses: one pass finds them all, grouped by case below
+    mixed = np.flatnonzero((case != 0) & (case != 15))
+    ij = np.stack(np.unravel_index(mixed, case.shape), axis=1)
+    code = case.ravel()[mixed]
+    cm = c.reshape(-1, 4)[mixed]
+    saddle = ((code == 5) | (code == 10)) & (cm.mean(axis=1) >= iso)
+    code = np.where(saddle, code + np.where(code == 5, 11, 7), code)         # 5 -> 16, 10 -> 17
+    pts = _square_points(grid, cm, ij, iso)                                  # (n, 8, 2)
+    order = np.argsort(code, kind="stable")
+    bounds = np.searchsorted(code[order], np.arange(19))
+    tris, segs = [], []
+    for k, polys in _SQUARE_POLYS.items():
+        if k == 15:
             continue
-        pts = _square_points(grid, c[ij[:, 0], ij[:, 1]], ij, iso)      # (n, 8, 2)
+        rows = order[bounds[k]:bounds[k + 1]]
+        if len(rows) == 0:
+            continue
+        p = pts[rows]
         for poly in polys:
-            for k in range(1, len(poly) - 1):
-                tris.append(pts[:, [poly[0], poly[k], poly[k + 1]]])
-            for a, b in zip(poly, poly[1:] + poly[:1]):
-                if a >= 4 and b >= 4:
-                    segs.append(pts[:, [a, b]])
+            fan = [(poly[0], poly[t], poly[t + 1]) for t in range(1, len(poly) - 1)]
+            tris.append(p[:, fan].reshape(-1, 2))
+            edges = [(a, b) for a, b in zip(poly, poly[1:] + poly[:1]) if a >= 4 and b >= 4]
+            if edges:
+                segs.append(p[:, edges].reshape(-1, 2))
+    tris.extend(_inside_quads(grid, case == 15))
     if not tris:
         return np.zeros((0, 2)), None, np.zeros((0, 2))
-    tri = np.concatenate(tris).reshape(-1, 2)
-    seg = np.concatenate(segs).reshape(-1, 2) if segs else np.zeros((0, 2))
+    tri = np.concatenate(tris)
+    seg = np.concatenate(segs) if segs else np.zeros((0, 2))
     return tri, sample_colour(grid, tri), seg
+
+
+def _inside_quads(grid: Grid, inside) -> list[np.ndarray]:
+    """Triangles (2 a quad) covering the cells wholly inside: consecutive cells of a row
+    whose colours do not change along it (to the 8 bits a screen shows) as one strip,
+    the others one quad each. Most of a pool is one colour, so this draws a few
+    thousand triangles where a quad per cell drew tens of thousands (and the
+    colours, sampled at the strips' ends, are the same)."""
+    if grid.rgb is not None:
+        q = np.rint(np.clip(grid.rgb, 0.0, 1.0) * 255.0).astype(np.int16)
+        along = np.all(q[:-1] == q[1:], axis=-1)                 # node i, i+1 of a row alike
+        flat = along[:, :-1] & along[:, 1:]                      # both rows of the cell
+    else:
+        flat = np.ones_like(inside)
+    strip = inside & flat
+    padded = np.zeros((strip.shape[1], strip.shape[0] + 2), np.int8)     # rows (y), cells (x)
+    padded[:, 1:-1] = strip.T
+    step = np.diff(padded, axis=1)
+    j0, i0 = np.nonzero(step == 1)          # first cell of each run
+    _, i1 = np.nonzero(step == -1)          # one past its last cell (row-major: paired)
+    single = np.stack(np.nonzero(inside & ~flat), axis=1)
+    lo = np.concatenate([np.stack([i0, j0], axis=1), single]).astype(np.float64)
+    width = np.concatenate([i1 - i0, np.ones(len(single))])
+    if len(lo) == 0:
+        return []
+    x0, y0 = grid.origin + lo * grid.cell, grid.origin[1] + (lo[:, 1] + 1) * grid.cell
+    x1 = x0[:, 0] + width * grid.cell
+    a, b = x0, np.stack([x1, x0[:, 1]], axis=1)
+    c, d = np.stack([x1, y0], axis=1), np.stack([x0[:, 0], y0], axis=1)
+    return [np.stack([a, b, c, a, c, d], axis=1).reshape(-1, 2)]
 
 
 def _square_points(grid: Grid, c, ij, iso):
@@ -199,19 +262,19 @@ def _square_points(grid: Grid, c, ij, iso):
     corner = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float) * grid.cell
     pts = np.empty((len(ij), 8, 2))
     pts[:, :4] = base[:, None, :] + corner[None]
-
-    def t(a, b):
-        d = c[:, b] - c[:, a]
-        return np.clip(np.where(np.abs(d) > 1e-12, (iso - c[:, a]) / np.where(d == 0, 1, d), 0.5), 0, 1)
-    for k, (a, b) in zip(range(4, 8), ((0, 1), (1, 2), (3, 2), (0, 3))):
-        pts[:, k] = pts[:, a] + t(a, b)[:, None] * (pts[:, b] - pts[:, a])
+    a = np.array([0, 1, 3, 0])
+    b = np.array([1, 2, 2, 3])
+    d = c[:, b] - c[:, a]
+    t = np.clip((iso - c[:, a]) / np.where(np.abs(d) > 1e-12, d, 1.0), 0.0, 1.0)
+    t = np.where(np.abs(d) > 1e-12, t, 0.5)
+    pts[:, 4:] = pts[:, a] + t[..., None] * (pts[:, b] - pts[:, a])
     return pts
 
 
 def sample_colour(grid: Grid, p) -> np.ndarray | None:
     """The grid's colour at points p (nearest node), or None without colours."""
     if grid.rgb is None:
-        return None
+        return None if grid.colour is None else np.broadcast_to(grid.colour, (len(p), 3)).copy()
     idx = np.rint((np.asarray(p) - grid.origin) / grid.cell).astype(np.int64)
     idx = np.clip(idx, 0, np.array(grid.phi.shape) - 1)
     return grid.rgb[tuple(idx.T)]
@@ -237,12 +300,24 @@ def marching_tetrahedra(grid: Grid, iso: float = ISO):
     vals = phi[corner_idx[..., 0], corner_idx[..., 1], corner_idx[..., 2]]        # (C, 8)
     if len(vals) == 0:
         return np.zeros((0, 3)), np.zeros((0, 3)), None
-    # every (cell, tetrahedron) pair: corners (M, 4, 3) and values (M, 4)
-    tc = corner_idx[:, _TETS].reshape(-1, 4, 3)
+    # ∇φ at the crossed cubes' corners only (central differences, one-sided at the edges)
+    shape = np.array(phi.shape)
+    grad = np.empty(corner_idx.shape)
+    for a in range(3):
+        step = np.zeros(3, np.int64)
+        step[a] = 1
+        up = np.minimum(corner_idx + step, shape - 1)
+        down = np.maximum(corner_idx - step, 0)
+        grad[..., a] = (phi[up[..., 0], up[..., 1], up[..., 2]] - phi[down[..., 0], down[..., 1], down[..., 2]]) \
+            / ((up[..., a] - down[..., a]) * grid.cell)
+    # the crossed (cell, tetrahedron) pairs: corners (M, 4, 3), values (M, 4), ∇φ (M, 4, 3)
     tv = vals[:, _TETS].reshape(-1, 4)
     tin = tv >= iso
     count = tin.sum(axis=1)
-    grad = np.stack(np.gradient(phi, grid.cell), axis=-1)
+    crossed = (count > 0) & (count < 4)
+    tv, tin, count = tv[crossed], tin[crossed], count[crossed]
+    tc = corner_idx[:, _TETS].reshape(-1, 4, 3)[crossed]
+    tg = grad[:, _TETS].reshape(-1, 4, 3)[crossed]
 
     def edge_points(sel, a, b):
         """Crossing points and interpolated −∇φ on edges (a, b) (index arrays) of the
@@ -252,8 +327,7 @@ def marching_tetrahedra(grid: Grid, iso: float = ISO):
         d = vb - va
         t = np.clip((iso - va) / np.where(np.abs(d) > 1e-12, d, 1.0), 0.0, 1.0)[:, None]
         pa, pb = grid.origin + ca * grid.cell, grid.origin + cb * grid.cell
-        ga = grad[ca[:, 0], ca[:, 1], ca[:, 2]]
-        gb = grad[cb[:, 0], cb[:, 1], cb[:, 2]]
+        ga, gb = tg[sel, a], tg[sel, b]
         return pa + t * (pb - pa), -(ga + t * (gb - ga))
 
     rows = np.arange(4)
