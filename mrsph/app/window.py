@@ -34,13 +34,7 @@ when the next frame reads the keys (z / x / arrows at a few frames per second).
 A scene that loads or compiles shows "loading SCENE (compiling ...)"; Taichi compiles
 on the main thread only, so an Esc pressed during one compile is answered when it ends.
 
-Test hooks (environment variables)
-----------------------------------
-``MRSPH_WINDOW_STATS=path``: append one JSON line per frame: frame, time,
-kinetic_energy, n_real, n_virtual, disturbance_active, paused, scene, wall_s, fps,
-speed (simulated seconds per wall second), camera_distance (3D, else null), surface,
-loading (the frame shows the loading message).
-``MRSPH_WINDOW_SCREENSHOT=path``: write the screenshot there (frame 10, and on ``p``).
+Test hooks: ``MRSPH_WINDOW_STATS`` and ``MRSPH_WINDOW_SCREENSHOT`` (mrsph.app.hooks).
 """
 from __future__ import annotations
 
@@ -50,62 +44,28 @@ import math
 import os
 import sys
 import time
-from pathlib import Path
-
-import numpy as np
 
 from . import palette
-from .probe import run_probe
-from .mouse import LEFT, RIGHT, SHIFT, MouseDisturbance, pick_point, ray_box, ray_plane, safe_speed
+from .probe import display_available  # noqa: F401  (mrsph.cli imports it from here)
+from .mouse import MouseDisturbance, safe_speed
+from .pointer import Pointer
 from .hud import Rates, Speed, draw_hud, hud_rect_px
+from .hooks import AUTO_SCREENSHOT_FRAME, SCREENSHOT_ENV, STATS_ENV, stats_row, write_screenshot
+from .loading import loading_panel, show_loading_frame
+from .marks import frame_marks
 from .view import scene_setting
 
-STATS_ENV = "MRSPH_WINDOW_STATS"
-SCREENSHOT_ENV = "MRSPH_WINDOW_SCREENSHOT"
-#: Frame at which the automatic screenshot of MRSPH_WINDOW_SCREENSHOT is taken: late
-#: enough that ImGui has laid out its windows (they appear from the second frame).
-AUTO_SCREENSHOT_FRAME = 10
-#: Camera speeds: arrows orbit at this many rad/s; z/x zoom by e^(rate dt); a drag over
-#: the whole window orbits by half a turn horizontally.
+#: Camera speeds: arrows orbit at this many rad/s; z/x zoom by e^(rate dt) (drags:
+#: mrsph.app.pointer).
 ORBIT_KEY_RATE = 1.5
 ZOOM_KEY_RATE = 1.2
-ORBIT_DRAG_GAIN = math.pi
 #: Keys that change the mouse radius: one press = this many wheel notches.
 RADIUS_KEY_NOTCHES = 1.0
-PROBE_TIMEOUT_S = 60.0
 #: A tapped camera key (seen pressed and released between two frames) acts as if held
 #: this long: one tap of z zooms by e^(-ZOOM_KEY_RATE * TAP_S), 17 %.
 TAP_S = 0.15
 #: Keys whose action lasts while they are held (3D camera): taps of them are latched.
 CAMERA_KEYS = ("z", "x")
-#: Where ``p`` writes screenshots, relative to the working directory (.gitignore covers
-#: /out/ at the repository root).
-SCREENSHOT_DIR = Path("out") / "screenshots"
-
-_display_cache: dict = {}
-_PROBE_SCRIPT = r"""
-w = ti.ui.Window("mrsph display probe", (64, 48), show_window=True)
-w.get_canvas().set_background_color((0.1, 0.1, 0.1))
-w.show()
-w.destroy()
-print("MRSPH_DISPLAY_OK", flush=True)
-"""
-
-
-def display_available() -> tuple[bool, str]:
-    """(True, description) when an interactive GGUI window can open here, else (False,
-    why). Needs DISPLAY or WAYLAND_DISPLAY; the window itself is tried in a subprocess
-    (a broken Vulkan/GLFW setup can crash instead of raising); cached per process."""
-    if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
-        return False, "no display: neither DISPLAY nor WAYLAND_DISPLAY is set"
-    key = (os.environ.get("DISPLAY"), os.environ.get("WAYLAND_DISPLAY"))
-    if key in _display_cache:
-        return _display_cache[key]
-    ok, why = run_probe(_PROBE_SCRIPT, "MRSPH_DISPLAY_OK", "opening a test window", PROBE_TIMEOUT_S)
-    result = (True, f"a GGUI window opens on {key[0] or key[1]}") if ok else (False, why)
-    _display_cache[key] = result
-    return result
-
 
 def _accepts_overrides(make_sim) -> bool:
     """Whether make_sim takes a second argument (the scene overrides)."""
@@ -151,9 +111,7 @@ class _App:
         self.speed = Speed()
         self.start = time.perf_counter()
         self.last = self.start
-        self.cursor_prev = None
-        self.drag_owner = None        # "fluid" / "camera" / "pan" / "hud" while a button is held
-        self.drag_plane = None        # 3D: (point, normal) of the plane the push drag moves in
+        self.pointer = Pointer()      # who owns a drag (fluid, camera, HUD)
         self.stats_file = None
         path = os.environ.get(STATS_ENV)
         if path:
@@ -198,7 +156,7 @@ class _App:
         # The first frame shows the particles and says the step is compiling; the next
         # frame's first advance compiles it (tens of seconds for a 3D scene on a CPU).
         self.fresh = True
-        self.drag_owner, self.drag_plane = None, None
+        self.pointer.reset()
 
     def switch_scene(self, name: str, overrides=None) -> bool:
         """Build ``name`` (optionally with overrides) and make it current; on failure
@@ -300,34 +258,7 @@ class _App:
             self.sim.set_disturbance(d)
             if self.paused or self.step_once:
                 self.speed.clear()
-            compiling = self.fresh and not self.paused
-            if compiling:
-                self.loading = f"loading {self.scene_name} (compiling the step ...)"
-            elif self.loading and not self.fresh:
-                self.loading = None
-            if (not self.paused or self.step_once) and not compiling:
-                t0 = float(self.sim.time)
-                try:
-                    # a frame cut to the budget keeps the window responsive where the
-                    # machine is too slow for the scene (slow motion); a single step
-                    # (n) is a whole frame
-                    self.sim.advance_frame(None if self.step_once else self.frame_budget)
-                except Exception as e:  # blow-up: stop and say so, keep the window
-                    self.paused = True
-                    line = (str(e).splitlines() or [type(e).__name__])[0]
-                    print(f"error: {line}", file=sys.stderr, flush=True)   # as headless runs say it
-                    self.message = f"simulation stopped: {line[:240]} (r: reset)"
-                advanced = float(self.sim.time) - t0
-                if advanced > 0.0:
-                    self.frame_sim = advanced
-                if not (self.paused or self.step_once):
-                    self.speed.add(time.perf_counter(), float(self.sim.time))
-                self.step_once = False
-                self.dirty = True
-            if compiling:
-                self.fresh = False     # the next frame advances (and compiles)
-            elif self.fresh and self.paused:
-                self.fresh = False
+            self._advance()
             if self.dirty:
                 self.snap = self.sim.snapshot()
                 self.dirty = False
@@ -338,7 +269,7 @@ class _App:
                                rest_density=getattr(self.sim, "rest_density", None),
                                marks=self._marks(snap), surface=self.surface)
             draw_hud(self, snap)
-            self._loading_panel()
+            loading_panel(self.window, self.renderer.size, self.loading)
             self._write_stats(snap, d)
             self.frames_drawn += 1
             if self.want_screenshot or (self.screenshot_path and self.frames_drawn == AUTO_SCREENSHOT_FRAME):
@@ -350,6 +281,38 @@ class _App:
             self.stats_file.close()
         self.window.destroy()
         self.ini.cleanup()
+
+    def _advance(self) -> None:
+        """This frame's simulation: none on a scene's first frame (it says the step is
+        compiling, and the next frame's advance compiles it), or while paused."""
+        compiling = self.fresh and not self.paused
+        if compiling:
+            self.loading = f"loading {self.scene_name} (compiling the step ...)"
+        elif self.loading and not self.fresh:
+            self.loading = None
+        if (not self.paused or self.step_once) and not compiling:
+            t0 = float(self.sim.time)
+            try:
+                # a frame cut to the budget keeps the window responsive where the
+                # machine is too slow for the scene (slow motion); a single step
+                # (n) is a whole frame
+                self.sim.advance_frame(None if self.step_once else self.frame_budget)
+            except Exception as e:  # blow-up: stop and say so, keep the window
+                self.paused = True
+                line = (str(e).splitlines() or [type(e).__name__])[0]
+                print(f"error: {line}", file=sys.stderr, flush=True)   # as headless runs say it
+                self.message = f"simulation stopped: {line[:240]} (r: reset)"
+            advanced = float(self.sim.time) - t0
+            if advanced > 0.0:
+                self.frame_sim = advanced
+            if not (self.paused or self.step_once):
+                self.speed.add(time.perf_counter(), float(self.sim.time))
+            self.step_once = False
+            self.dirty = True
+        if compiling:
+            self.fresh = False     # the next frame advances (and compiles)
+        elif self.fresh and self.paused:
+            self.fresh = False
 
     def _keys(self) -> bool:
         """Pressed-key events; False when the app should quit."""
@@ -424,55 +387,18 @@ class _App:
         self.pending = action
 
     def _show_loading(self, text: str) -> bool:
-        """Draw one frame that says ``text`` (nothing else: no Taichi kernel runs while a
-        scene is half built); False when Esc was pressed (the window then quits)."""
+        """Draw one frame that says ``text``; False when Esc was pressed (quitting)."""
         self.loading = text
-        self.renderer.canvas.set_background_color(tuple(float(c) for c in self.renderer.style.background))
-        self._loading_panel()
-        self.window.show()
-        for e in self.window.get_events(self.ti.ui.PRESS):
-            if e.key == self.ti.ui.ESCAPE:
-                self.window.running = False
-                return False
-        return True
-
-    def _loading_panel(self) -> None:
-        if not self.loading:
-            return
-        w, h = self.renderer.size
-        gui = self.window.get_gui()
-        with gui.sub_window("Loading", 0.3, 0.42, min(420 / w, 0.6), min(70 / h, 0.3)):
-            gui.text(self.loading, color=(1.0, 0.85, 0.4))
-            gui.text("Esc quits (answered when this compile ends)")
+        if show_loading_frame(self.window, self.renderer, text, self.ti.ui.ESCAPE):
+            return True
+        self.window.running = False
+        return False
 
     def _marks(self, snap) -> list:
-        """What acts on the water, to draw: the scene's stirrers where they are now, and
-        the mouse's reach while the cursor is over the fluid (or a drag is on)."""
-        from .geometry import Mark, stirrer_marks
-        marks = stirrer_marks(self.sim.scene, float(snap.time))
-        d = self.mouse.current
-        if d is not None:
-            marks.append(Mark(np.asarray(d.center, float), float(d.radius), "mouse"))
-            return marks
+        """What acts on the water, to draw (mrsph.app.marks)."""
         u, v = self.window.get_cursor_pos()
-        if self.drag_owner is not None or self._over_hud(u, v) or not (0 <= u <= 1 and 0 <= v <= 1):
-            return marks
-        if snap.dim == 2:
-            p = self.renderer.view2d(snap).canvas_to_world((u, v))
-            if np.all(p >= snap.domain_min) and np.all(p <= snap.domain_max):
-                marks.append(Mark(p, float(self.mouse.radius), "mouse"))
-            return marks
-        real = ~palette.is_virtual(snap.kind)
-        if not real.any():
-            return marks
-        x = np.asarray(snap.x)[real]
-        cam = self.renderer.ensure_camera(snap)
-        width, height = self.renderer.size
-        origin, direction = cam.ray(u, v, width / height)
-        hit = ray_box(origin, direction, x.min(axis=0), x.max(axis=0))
-        if hit is not None and hit[0] >= 0:
-            marks.append(Mark(origin + hit[0] * direction, float(self.mouse.radius), "mouse"))
-        return marks
+        hovering = self.pointer.owner is None and not self._over_hud(u, v)
+        return frame_marks(self.sim.scene, snap, self.mouse, (u, v), self.renderer, hovering)
 
     def _next_scene(self) -> None:
         if self.scene_name in self.scene_names:
@@ -498,92 +424,21 @@ class _App:
         return lx * w <= x <= (lx + lw) * w and ly * h <= y <= (ly + lh) * h
 
     def _mouse(self, dt: float):
-        """Cursor and buttons -> camera motion (3D) or a disturbance."""
-        ti, w, snap = self.ti, self.window, self.snap
+        """Cursor and buttons -> camera motion (3D) or a disturbance (mrsph.app.pointer)."""
+        ti, w = self.ti, self.window
         u, v = w.get_cursor_pos()
-        lmb, rmb, mmb = w.is_pressed(ti.ui.LMB), w.is_pressed(ti.ui.RMB), w.is_pressed(ti.ui.MMB)
-        shift = w.is_pressed(ti.ui.SHIFT)
-        prev = self.cursor_prev
-        self.cursor_prev = (u, v)
-        if not (lmb or rmb or mmb):
-            self.drag_owner, self.drag_plane = None, None
-            return self.mouse.update(None, set(), dt)
-        if self.drag_owner is None:  # a press: decide once who owns this drag
-            if self._over_hud(u, v):
-                self.drag_owner = "hud"
-            elif snap.dim == 3 and rmb:
-                self.drag_owner = "camera"
-            elif snap.dim == 3 and mmb:
-                self.drag_owner = "pan"
-            else:
-                self.drag_owner = "fluid"
-        if self.drag_owner in ("camera", "pan"):
-            if prev is not None:
-                du, dv = u - prev[0], v - prev[1]
-                cam = self.renderer.ensure_camera(snap)
-                if self.drag_owner == "camera":
-                    cam.orbit(-du * ORBIT_DRAG_GAIN, -dv * ORBIT_DRAG_GAIN * 0.5)
-                else:
-                    width, height = self.renderer.size
-                    cam.pan(du * width / height, dv)
-            return self.mouse.update(None, set(), dt)
-        if self.drag_owner != "fluid":
-            return self.mouse.update(None, set(), dt)
-        buttons = {b for b, held in ((LEFT, lmb), (RIGHT, rmb and snap.dim == 2), (SHIFT, shift)) if held}
-        return self.mouse.update(self._cursor_world(u, v), buttons, dt)
-
-    def _cursor_world(self, u: float, v: float):
-        snap = self.snap
-        if snap.dim == 2:
-            return self.renderer.view2d(snap).canvas_to_world((u, v))
-        cam = self.renderer.ensure_camera(snap)
-        width, height = self.renderer.size
-        origin, direction = cam.ray(u, v, width / height)
-        forward = cam.basis()[0]
-        if self.drag_plane is None:
-            # Start of a drag: grab the fluid where the ray enters its bounding box (or
-            # the plane through the domain centre), then move in the plane through that
-            # point facing the camera, so the drag velocity is the cursor's velocity.
-            real = ~palette.is_virtual(snap.kind)
-            x = np.asarray(snap.x)[real] if real.any() else np.asarray(snap.x)
-            centre = (np.asarray(snap.domain_min) + np.asarray(snap.domain_max)) / 2.0
-            if len(x):
-                p = pick_point(origin, direction, x.min(axis=0), x.max(axis=0), centre, forward)
-            else:
-                p = pick_point(origin, direction, snap.domain_min, snap.domain_max, centre, forward)
-            self.drag_plane = (p, forward)
-            return p
-        p = ray_plane(origin, direction, self.drag_plane[0], self.drag_plane[1])
-        return p if p is not None else self.drag_plane[0]
+        return self.pointer.update((u, v), w.is_pressed(ti.ui.LMB), w.is_pressed(ti.ui.RMB),
+                                   w.is_pressed(ti.ui.MMB), w.is_pressed(ti.ui.SHIFT), self.snap,
+                                   self.renderer, self.mouse, self._over_hud(u, v), dt)
 
     # -- hooks -------------------------------------------------------------------------
     def _write_stats(self, snap, d) -> None:
-        if not self.stats_file:
-            return
-        st = snap.stats or {}
-        row = {"frame": int(snap.frame), "time": float(snap.time),
-               "kinetic_energy": float(st.get("kinetic_energy", 0.0)),
-               "n_real": int(st.get("n_real", 0)), "n_virtual": int(st.get("n_virtual", 0)),
-               "disturbance_active": d is not None, "paused": self.paused,
-               "scene": self.scene_name, "wall_s": round(time.perf_counter() - self.start, 4),
-               "fps": round(self.fps, 2), "speed": round(self.speed.value() or 0.0, 4),
-               "camera_distance": (round(float(self.renderer.camera.distance), 6)
-                                   if snap.dim == 3 and self.renderer.camera is not None else None),
-               "surface": self.surface, "loading": self.loading is not None}
-        self.stats_file.write(json.dumps(row) + "\n")
-        self.stats_file.flush()
+        if self.stats_file:
+            self.stats_file.write(json.dumps(stats_row(self, snap, d)) + "\n")
+            self.stats_file.flush()
 
     def _screenshot(self) -> None:
-        import imageio.v3 as iio
-        from .render import image_from_window
-        path = Path(self.screenshot_path or SCREENSHOT_DIR / time.strftime("mrsph_%Y%m%d_%H%M%S.png"))
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            iio.imwrite(path, image_from_window(self.window))
-            self.message = f"screenshot {path}"
-        except Exception as e:
-            self.message = f"screenshot failed: {e}"
-
+        self.message = write_screenshot(self.window, self.screenshot_path)
 
 def run_window(make_sim, scene_name: str, scene_names: list[str], width: int = 1280,
                height: int = 720, frame_budget: float | None = None) -> None:
