@@ -18,13 +18,15 @@ by ``--dump-format obj``; it reads particles and never changes the simulation.
 2. 2D: marching squares, filled. Each cell's corners inside (φ ≥ ISO) pick one of 16
    polygons over its corners and its edge crossings (linear interpolation of φ along
    the edge); the polygons are fanned into triangles, and their edges that lie on the
-   contour make the outline. The two saddle cases take the mean of the corners.
-3. 3D: marching tetrahedra. Each cube is cut into six tetrahedra around its main
-   diagonal (every face is cut along the diagonal its two cubes share, so the mesh is
-   watertight and no case is ambiguous); a tetrahedron crossed by the level set gives
-   one triangle (one corner apart) or two (two and two). Normals are −∇φ
-   (central differences), interpolated like the vertices; triangles are wound so that
-   they face along them (outward), which the OBJ volume check relies on.
+   contour make the outline. The two saddle cases take the mean of the corners. Cells
+   wholly inside are drawn as row strips where their colour does not change along the row.
+3. 3D: surface nets (Gibson 1998). One vertex in each cube the level set crosses, at
+   the mean of the crossings on the cube's edges; each crossed grid edge gives a quad
+   joining the four cubes around it (two triangles), so the mesh is closed. Normals are
+   −∇φ (central differences) averaged like the vertices; each quad turns so that it
+   faces outward (the OBJ volume check relies on it). Marching tetrahedra, used first,
+   gave the same surface to within a cell with ~4x the triangles, too slow for the
+   window's every frame (pool_3d: 25 200 triangles, ~50 ms; surface nets 6 650, ~8 ms).
 """
 from __future__ import annotations
 
@@ -281,87 +283,87 @@ def sample_colour(grid: Grid, p) -> np.ndarray | None:
 
 
 # ----------------------------------------------------------------------------- 3D
-#: Cube corner c sits at (c & 1, c >> 1 & 1, c >> 2 & 1); six tetrahedra around the
-#: diagonal 0-7, each a path 0 -> ... -> 7 changing one coordinate per step.
-_CUBE_CORNERS = np.array([[c & 1, (c >> 1) & 1, (c >> 2) & 1] for c in range(8)])
-_TETS = np.array([[0, 1, 3, 7], [0, 3, 2, 7], [0, 2, 6, 7], [0, 6, 4, 7], [0, 4, 5, 7], [0, 5, 1, 7]])
+#: For each axis a, the two other axes (b, c) in right-handed order (b × c = a): a quad
+#: around an edge along a, its cubes taken in this order, turns counter-clockwise seen
+#: from +a.
+_AROUND = ((1, 2), (2, 0), (0, 1))
 
 
-def marching_tetrahedra(grid: Grid, iso: float = ISO):
-    """The surface ``grid.phi = iso`` as triangles: (vertices (3T, 3), normals (3T, 3),
-    colours (3T, 3) or None), wound counter-clockwise seen from outside (φ < iso)."""
+def surface_nets(grid: Grid, iso: float = ISO):
+    """The surface ``grid.phi = iso`` as triangles, by surface nets (Gibson 1998,
+    "Constrained elastic surface nets", without the relaxation): one vertex in each cube
+    the level set crosses, at the mean of the crossings on its edges, and for each grid
+    edge it crosses a quad joining the four cubes around that edge. Same vertices'
+    places as marching tetrahedra to within a cell, about four times fewer triangles
+    (two per crossed edge instead of ~7.6 per crossed cube), so the window draws it
+    every frame. Returns (vertices (3T, 3), normals (3T, 3), colours (3T, 3) or None),
+    wound counter-clockwise seen from outside; normals −∇φ averaged like the vertices."""
     phi = grid.phi
-    above = phi >= iso
-    views = [above[cx:above.shape[0] - 1 + cx, cy:above.shape[1] - 1 + cy, cz:above.shape[2] - 1 + cz]
-             for cx, cy, cz in _CUBE_CORNERS]
-    n_in = sum(v.astype(np.int8) for v in views)
-    cells = np.argwhere((n_in > 0) & (n_in < 8))                                  # crossed cubes
-    corner_idx = cells[:, None, :] + _CUBE_CORNERS[None]                          # (C, 8, 3)
-    vals = phi[corner_idx[..., 0], corner_idx[..., 1], corner_idx[..., 2]]        # (C, 8)
-    if len(vals) == 0:
-        return np.zeros((0, 3)), np.zeros((0, 3)), None
-    # ∇φ at the crossed cubes' corners only (central differences, one-sided at the edges)
     shape = np.array(phi.shape)
-    grad = np.empty(corner_idx.shape)
+    cubes = shape - 1
+    inside = phi >= iso
+    n_cubes = int(np.prod(cubes))
+    acc = np.zeros((n_cubes, 7))            # position (3), −∇φ (3), crossings (1)
+    quads = []
     for a in range(3):
-        step = np.zeros(3, np.int64)
-        step[a] = 1
-        up = np.minimum(corner_idx + step, shape - 1)
-        down = np.maximum(corner_idx - step, 0)
-        grad[..., a] = (phi[up[..., 0], up[..., 1], up[..., 2]] - phi[down[..., 0], down[..., 1], down[..., 2]]) \
-            / ((up[..., a] - down[..., a]) * grid.cell)
-    # the crossed (cell, tetrahedron) pairs: corners (M, 4, 3), values (M, 4), ∇φ (M, 4, 3)
-    tv = vals[:, _TETS].reshape(-1, 4)
-    tin = tv >= iso
-    count = tin.sum(axis=1)
-    crossed = (count > 0) & (count < 4)
-    tv, tin, count = tv[crossed], tin[crossed], count[crossed]
-    tc = corner_idx[:, _TETS].reshape(-1, 4, 3)[crossed]
-    tg = grad[:, _TETS].reshape(-1, 4, 3)[crossed]
-
-    def edge_points(sel, a, b):
-        """Crossing points and interpolated −∇φ on edges (a, b) (index arrays) of the
-        tetrahedra ``sel``."""
-        ca, cb = tc[sel, a], tc[sel, b]
-        va, vb = tv[sel, a], tv[sel, b]
-        d = vb - va
-        t = np.clip((iso - va) / np.where(np.abs(d) > 1e-12, d, 1.0), 0.0, 1.0)[:, None]
-        pa, pb = grid.origin + ca * grid.cell, grid.origin + cb * grid.cell
-        ga, gb = tg[sel, a], tg[sel, b]
-        return pa + t * (pb - pa), -(ga + t * (gb - ga))
-
-    rows = np.arange(4)
-    tris_p, tris_n = [], []
-    # one corner apart (1 inside, or 3 inside): a triangle around that corner
-    for n_in, odd_is_in in ((1, True), (3, False)):
-        sel = np.nonzero(count == n_in)[0]
-        if len(sel) == 0:
+        lo = [slice(None)] * 3
+        hi = [slice(None)] * 3
+        lo[a], hi[a] = slice(0, -1), slice(1, None)
+        crossed = inside[tuple(lo)] != inside[tuple(hi)]
+        e = np.stack(np.nonzero(crossed), axis=1)                                # edge starts
+        if len(e) == 0:
             continue
-        odd_mask = tin[sel] if odd_is_in else ~tin[sel]
-        odd = np.argmax(odd_mask, axis=1)
-        others = np.array([rows[rows != o] for o in range(4)])[odd]                # (n, 3)
-        pts = [edge_points(sel, odd, others[:, k]) for k in range(3)]
-        tris_p.append(np.stack([p for p, _ in pts], axis=1))
-        tris_n.append(np.stack([g for _, g in pts], axis=1))
-    # two and two: a quad between the inside pair (a, b) and the outside pair (c, d)
-    sel = np.nonzero(count == 2)[0]
-    if len(sel):
-        order = np.argsort(~tin[sel], axis=1, kind="stable")     # inside corners first
-        a, b, c, d = (order[:, k] for k in range(4))
-        q = [edge_points(sel, a, c), edge_points(sel, a, d), edge_points(sel, b, d), edge_points(sel, b, c)]
-        for i0, i1, i2 in ((0, 1, 2), (0, 2, 3)):
-            tris_p.append(np.stack([q[i0][0], q[i1][0], q[i2][0]], axis=1))
-            tris_n.append(np.stack([q[i0][1], q[i1][1], q[i2][1]], axis=1))
-    p = np.concatenate(tris_p)                                                    # (T, 3, 3)
-    nrm = np.concatenate(tris_n)
-    # wind each triangle to face along the outward normal −∇φ
-    face = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    flip = np.einsum("ij,ij->i", face, nrm.sum(axis=1)) < 0
-    p[flip] = p[flip][:, [0, 2, 1]]
-    nrm[flip] = nrm[flip][:, [0, 2, 1]]
-    nrm /= np.maximum(np.linalg.norm(nrm, axis=2, keepdims=True), 1e-12)
-    verts = p.reshape(-1, 3)
-    return verts, nrm.reshape(-1, 3), sample_colour(grid, verts)
+        f = e.copy()
+        f[:, a] += 1
+        v0, v1 = phi[tuple(e.T)], phi[tuple(f.T)]
+        t = (iso - v0) / (v1 - v0)                  # crossed: v1 != v0
+        p = grid.origin + (e + 0.0) * grid.cell
+        p[:, a] += t * grid.cell
+        g0, g1 = _grad_at(phi, e, grid.cell), _grad_at(phi, f, grid.cell)
+        g = -(g0 + t[:, None] * (g1 - g0))
+        b, c = _AROUND[a]
+        # the four cubes around the edge, in turning order; edges on the grid's faces
+        # have fewer (never crossed: the grid has room around the fluid)
+        ring = []
+        for db, dc in ((1, 1), (0, 1), (0, 0), (1, 0)):
+            cube = e.copy()
+            cube[:, b] -= db
+            cube[:, c] -= dc
+            ring.append(cube)
+        ok = np.all([np.all((q >= 0) & (q < cubes), axis=1) for q in ring], axis=0)
+        ids = np.stack([np.ravel_multi_index(tuple(q[ok].T), tuple(cubes)) for q in ring], axis=1)
+        w = np.concatenate([p, g, np.ones((len(p), 1))], axis=1)[ok]
+        for k in range(4):
+            for col in range(7):
+                acc[:, col] += np.bincount(ids[:, k], weights=w[:, col], minlength=n_cubes)
+        # counter-clockwise seen from +a: outward when the inside is at the edge's start
+        flip = ~inside[tuple(e[ok].T)]
+        ids[flip] = ids[flip][:, ::-1]
+        quads.append(ids)
+    if not quads:
+        return np.zeros((0, 3)), np.zeros((0, 3)), None
+    quads = np.concatenate(quads)
+    used = acc[:, 6] > 0
+    vert = np.zeros((n_cubes, 3))
+    nrm = np.zeros((n_cubes, 3))
+    vert[used] = acc[used, :3] / acc[used, 6:7]
+    nrm[used] = acc[used, 3:6]
+    nrm[used] /= np.maximum(np.linalg.norm(nrm[used], axis=1, keepdims=True), 1e-12)
+    tri = quads[:, [0, 1, 2, 0, 2, 3]].reshape(-1)
+    verts = vert[tri]
+    return verts, nrm[tri], sample_colour(grid, verts)
+
+
+def _grad_at(phi, idx, cell):
+    """∇φ at nodes idx (n, 3): central differences, one-sided on the grid's faces."""
+    shape = np.array(phi.shape)
+    out = np.empty(idx.shape)
+    for a in range(3):
+        up, down = idx.copy(), idx.copy()
+        up[:, a] = np.minimum(up[:, a] + 1, shape[a] - 1)
+        down[:, a] = np.maximum(down[:, a] - 1, 0)
+        out[:, a] = (phi[tuple(up.T)] - phi[tuple(down.T)]) / ((up[:, a] - down[:, a]) * cell)
+    return out
 
 
 def mesh_volume(vertices) -> float:
@@ -385,4 +387,4 @@ def surface(x, m, rho, level, kind, dim: int, rgb=None):
         return None
     if dim == 2:
         return ("area",) + marching_squares(grid)
-    return ("mesh",) + marching_tetrahedra(grid)
+    return ("mesh",) + surface_nets(grid)

@@ -39,6 +39,10 @@ _PARK = -1.0e6
 #: Smallest capacity of a particle buffer, and how much it grows when it must: growing
 #: by half again keeps reallocations rare while a refining fluid gains particles.
 _MIN_CAPACITY = 1024
+#: Vertices per scene.mesh field: GGUI 1.7.4 (lavapipe) draws nothing of a mesh whose
+#: field holds more than 65535 vertices (pool_3d's first water view, 75 600, was
+#: invisible); larger meshes are drawn in parts. A multiple of 3: whole triangles.
+MESH_CHUNK = 65535
 _GROWTH = 1.5
 #: 3D line width handed to scene.lines (pixels where the driver supports wide lines).
 LINE_WIDTH_3D = 2.0
@@ -57,14 +61,16 @@ class _Buffer:
     a persistent numpy staging array so a frame allocates nothing on the Taichi side.
     """
 
-    def __init__(self, components: int, park: float):
-        self.components, self.park = components, park
+    def __init__(self, components: int, park: float, max_capacity: int | None = None):
+        self.components, self.park, self.max_capacity = components, park, max_capacity
         self.capacity = 0
         self.field = None
         self._staging = None
 
     def _allocate(self, n: int) -> None:
         cap = max(_MIN_CAPACITY, int(n * _GROWTH) if self.capacity else n)
+        if self.max_capacity:
+            cap = max(min(cap, self.max_capacity), n)
         shape = (cap, self.components) if self.components else (cap,)
         if self.components:
             self.field = ti.Vector.field(self.components, ti.f32, shape=cap)
@@ -112,8 +118,7 @@ class Renderer:
         self._line3 = _Buffer(3, _PARK)
         self._line_col = _Buffer(3, 0.0)
         self._shell_pos = _Buffer(3, _PARK)
-        self._mesh_v = _Buffer(3, _PARK)
-        self._mesh_n = _Buffer(3, 0.0)
+        self._mesh: list = []            # 3D water: (vertices, normals, colours) per chunk
         self._mesh_c = _Buffer(3, 0.0)
         self._area_v = _Buffer(2, _PARK)
         #: wall seconds the last frame spent on the water view's surface (bench reads it)
@@ -268,9 +273,14 @@ class Renderer:
         if water is not None:
             verts, normals, vrgb = water[1], water[2], water[3]
             if len(verts):
-                scene.mesh(self._mesh_v.upload(verts), normals=self._mesh_n.upload(normals),
-                           per_vertex_color=self._mesh_c.upload(vrgb), two_sided=True,
-                           vertex_count=len(verts))
+                for k, start in enumerate(range(0, len(verts), MESH_CHUNK)):
+                    if k == len(self._mesh):
+                        self._mesh.append(tuple(_Buffer(3, p, MESH_CHUNK) for p in (_PARK, 0.0, 0.0)))
+                    part = slice(start, start + MESH_CHUNK)
+                    bv, bn, bc = self._mesh[k]
+                    scene.mesh(bv.upload(verts[part]), normals=bn.upload(normals[part]),
+                               per_vertex_color=bc.upload(vrgb[part]), two_sided=True,
+                               vertex_count=len(verts[part]))
             keep = keep & palette.is_virtual(snap.kind)
         n = int(keep.sum())
         if n:
