@@ -39,9 +39,21 @@ def render(request):
     runtime.reset()
     runtime.ensure("cpu")
     frames = _GguiFrames(W, H, Style(), None)
-    yield lambda snap, marks, surface: frames.render(snap, "level", False, None, marks, surface)
+
+    def draw(snap, marks, surface):
+        return frames.render(snap, "level", False, None, marks, surface)
+    draw.renderer = frames.renderer
+    yield draw
     frames.close()
     runtime.reset()
+
+
+def _ggui(render):
+    """The GGUI renderer behind ``render``; skips the rasteriser's turn."""
+    renderer = getattr(render, "renderer", None)
+    if renderer is None:
+        pytest.skip("GGUI renderer only")
+    return renderer
 
 
 def _project(snap, p):
@@ -130,3 +142,48 @@ def test_obj_dump_reads_back_with_the_fluid_volume(tmp_path):
         else:
             got = polygon_area(tri[:, :, :2])
         assert abs(got / want - 1.0) < 0.03, f"{dim}D: OBJ encloses {got:.5f}, the block {want:.5f}"
+
+
+def _filled_top(render, snap) -> float:
+    """Share of a patch in the middle of the 3D fluid's top face that is not background."""
+    x = np.asarray(snap.x)[~palette.is_virtual(snap.kind)]
+    lo, hi = x.min(axis=0), x.max(axis=0)
+    c, r = _project(snap, np.array([(lo[0] + hi[0]) / 2, hi[1], (lo[2] + hi[2]) / 2]))
+    patch = render(snap, [], True).astype(float)[r + 2:r + 12, c - 8:c + 8]
+    bg = np.asarray(palette.Style().background) * 255.0
+    return float((np.abs(patch - bg).max(axis=-1) > 20).mean())
+
+
+def test_a_3d_water_mesh_of_200k_vertices_is_drawn(render, monkeypatch):
+    """GGUI 1.7.4 on lavapipe draws nothing of a large scene.mesh field (pool_3d's
+    marching-tetrahedra mesh, 75 600 vertices, was invisible): the renderer draws a mesh
+    in parts of 65 535 vertices. The fake pool's own mesh, repeated to 200 000 vertices,
+    covers the top face as the mesh once does (drawn whole: 13 %)."""
+    from mrsph.app import geometry
+    _ggui(render)
+    snap = _snap(3)
+    once = geometry.water(snap, palette.colours(snap, "level"))
+    reps = 3 * 65535 // len(once[1]) + 1
+    monkeypatch.setattr(geometry, "water", lambda s, rgb: ("mesh",) + tuple(np.tile(a, (reps, 1)) for a in once[1:]))
+    assert reps * len(once[1]) > 3 * 65535
+    frac = _filled_top(render, snap)
+    assert frac > 0.98, f"a mesh of {reps * len(once[1])} vertices fills {frac:.1%} of the top face"
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_water_view_is_not_recomputed_for_the_same_snapshot(render, monkeypatch, dim):
+    """Paused (the window draws the same snapshot again), the surface is reused; a new
+    snapshot, or other colours, computes it again."""
+    from mrsph.app import geometry
+    renderer = _ggui(render)
+    calls = []
+    real = geometry.water
+    monkeypatch.setattr(geometry, "water", lambda s, rgb: calls.append(1) or real(s, rgb))
+    snap = _snap(dim)
+    render(snap, [], True)
+    render(snap, [], True)
+    assert len(calls) == 1 and renderer.surface_s == 0.0, f"{len(calls)} surfaces for one snapshot"
+    renderer.draw(snap, "speed", surface=True)
+    assert len(calls) == 2, "other colours did not recompute the surface"
+    render(_snap(dim), [], True)
+    assert len(calls) == 3, "a new snapshot did not recompute the surface"

@@ -39,9 +39,9 @@ _PARK = -1.0e6
 #: Smallest capacity of a particle buffer, and how much it grows when it must: growing
 #: by half again keeps reallocations rare while a refining fluid gains particles.
 _MIN_CAPACITY = 1024
-#: Vertices per scene.mesh field: GGUI 1.7.4 (lavapipe) draws nothing of a mesh whose
-#: field holds more than 65535 vertices (pool_3d's first water view, 75 600, was
-#: invisible); larger meshes are drawn in parts. A multiple of 3: whole triangles.
+#: Vertices per scene.mesh field: GGUI 1.7.4 on lavapipe drew nothing of a mesh of
+#: 75 600 vertices (pool_3d's first water view was invisible; 60 000 and 66 000 drew),
+#: so larger meshes are drawn in parts of this many. A multiple of 3: whole triangles.
 MESH_CHUNK = 65535
 _GROWTH = 1.5
 #: 3D line width handed to scene.lines (pixels where the driver supports wide lines).
@@ -123,6 +123,7 @@ class Renderer:
         self._area_v = _Buffer(2, _PARK)
         #: wall seconds the last frame spent on the water view's surface (bench reads it)
         self.surface_s = 0.0
+        self._water_cache = None        # (snapshot, colours, surface) of the last frame
         self._shell_key = None
         self._shell_r = 0.0
 
@@ -228,10 +229,18 @@ class Renderer:
         self._water_edge = None
         if not self.surface:
             self.surface_s = 0.0
+            self._water_cache = None
             return None
+        cached = self._water_cache
+        if cached is not None and cached[0] is snap and np.array_equal(cached[1], rgb):
+            # the same snapshot and colours (paused, or the simulation did not advance):
+            # the same surface, at no cost
+            self.surface_s = 0.0
+            return cached[2]
         t0 = time.perf_counter()
         out = geometry.water(snap, rgb)
         self.surface_s = time.perf_counter() - t0
+        self._water_cache = (snap, np.array(rgb), out)
         return out
 
     def _outline_segments(self, snap, dim):
