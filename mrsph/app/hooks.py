@@ -5,7 +5,9 @@ kinetic_energy, n_real, n_virtual, disturbance_active, paused, scene, wall_s, fp
 speed (simulated seconds per wall second), camera_distance (3D, else null), surface,
 loading (the frame shows the loading message).
 ``MRSPH_WINDOW_SCREENSHOT=path``: write the screenshot there (frame
-AUTO_SCREENSHOT_FRAME, and on ``p``); without it ``p`` writes into SCREENSHOT_DIR.
+AUTO_SCREENSHOT_FRAME, and on ``p``), and every frame that shows the loading message
+beside it, as ``<stem>_loading_<scene>_<n><suffix>`` (n counts them from 0); without it
+``p`` writes into SCREENSHOT_DIR.
 """
 from __future__ import annotations
 
@@ -20,6 +22,14 @@ AUTO_SCREENSHOT_FRAME = 10
 #: Where ``p`` writes screenshots, relative to the working directory (.gitignore covers
 #: /out/ at the repository root).
 SCREENSHOT_DIR = Path("out") / "screenshots"
+
+
+def loading_shot_path(screenshot_path: str | None, scene: str, n: int) -> Path | None:
+    """Where the n-th loading frame's screenshot goes, or None without the hook."""
+    if not screenshot_path:
+        return None
+    p = Path(screenshot_path)
+    return p.with_name(f"{p.stem}_loading_{scene}_{n:03d}{p.suffix}")
 
 
 def stats_row(app, snap, disturbance) -> dict:

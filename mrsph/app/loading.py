@@ -26,12 +26,15 @@ def loading_panel(window, size, text: str | None) -> None:
         gui.text(ESC_LINE)
 
 
-def show_loading_frame(window, renderer, text: str, escape) -> bool:
+def show_loading_frame(window, renderer, text: str, escape, drawn=None) -> bool:
     """Show one frame that says ``text`` on the background (nothing else: no Taichi
     kernel runs while a scene is half built); False when ``escape`` was pressed since
-    the last frame (the caller quits)."""
+    the last frame (the caller quits). ``drawn()`` is called between drawing and
+    showing (the test hook's screenshot)."""
     import taichi as ti
     renderer.canvas.set_background_color(tuple(float(c) for c in renderer.style.background))
     loading_panel(window, renderer.size, text)
+    if drawn is not None:
+        drawn()
     window.show()
     return not any(e.key == escape for e in window.get_events(ti.ui.PRESS))

@@ -50,7 +50,8 @@ from .probe import display_available  # noqa: F401  (mrsph.cli imports it from h
 from .mouse import MouseDisturbance, safe_speed
 from .pointer import Pointer
 from .hud import Rates, Speed, draw_hud, hud_rect_px
-from .hooks import AUTO_SCREENSHOT_FRAME, SCREENSHOT_ENV, STATS_ENV, stats_row, write_screenshot
+from .hooks import (AUTO_SCREENSHOT_FRAME, SCREENSHOT_ENV, STATS_ENV, loading_shot_path, stats_row,
+                    write_screenshot)
 from .loading import loading_panel, show_loading_frame
 from .marks import frame_marks
 from .view import scene_setting
@@ -64,6 +65,11 @@ RADIUS_KEY_NOTCHES = 1.0
 #: A tapped camera key (seen pressed and released between two frames) acts as if held
 #: this long: one tap of z zooms by e^(-ZOOM_KEY_RATE * TAP_S), 17 %.
 TAP_S = 0.15
+#: Frames that say "loading SCENE (compiling the step ...)" before the first advance
+#: compiles it: ImGui lays out a new window on its first frame and draws it from the
+#: second, so with one frame the app's first message was never seen (a test's
+#: screenshot of it had no text).
+LOADING_FRAMES = 2
 #: Keys whose action lasts while they are held (3D camera): taps of them are latched.
 CAMERA_KEYS = ("z", "x")
 
@@ -118,6 +124,7 @@ class _App:
             self.stats_file = open(path, "a", encoding="utf-8")
         self.screenshot_path = os.environ.get(SCREENSHOT_ENV)
         self.frames_drawn = 0
+        self.loading_shots = 0        # loading frames saved by the test hook
         self.want_screenshot = False
         self.taps: set = set()        # camera keys pressed since the last frame
         self.loading = None           # the loading message while a scene loads or compiles
@@ -153,9 +160,9 @@ class _App:
         self.renderer.reset_view(scene, palette.Style.from_scene(scene))
         self.surface = bool(scene_setting(scene, "render.surface", False))
         self.rates, self.speed = Rates(), Speed()
-        # The first frame shows the particles and says the step is compiling; the next
+        # The first frames show the particles and say the step is compiling; the next
         # frame's first advance compiles it (tens of seconds for a 3D scene on a CPU).
-        self.fresh = True
+        self.fresh = LOADING_FRAMES
         self.pointer.reset()
 
     def switch_scene(self, name: str, overrides=None) -> bool:
@@ -163,7 +170,7 @@ class _App:
         keep the running scene and say why in the HUD."""
         if not self._same_precision(name):
             return False
-        if not self._show_loading(f"loading {name} (compiling the particles' setup ...)"):
+        if not self._show_loading(name, f"loading {name} (compiling the particles' setup ...)"):
             return False   # Esc: quitting
         try:
             sim = self._build(name, overrides)
@@ -271,6 +278,8 @@ class _App:
             draw_hud(self, snap)
             loading_panel(self.window, self.renderer.size, self.loading)
             self._write_stats(snap, d)
+            if self.loading:
+                self._loading_shot(self.scene_name)
             self.frames_drawn += 1
             if self.want_screenshot or (self.screenshot_path and self.frames_drawn == AUTO_SCREENSHOT_FRAME):
                 # Between drawing and show(): the image buffer holds this frame.
@@ -283,9 +292,10 @@ class _App:
         self.ini.cleanup()
 
     def _advance(self) -> None:
-        """This frame's simulation: none on a scene's first frame (it says the step is
-        compiling, and the next frame's advance compiles it), or while paused."""
-        compiling = self.fresh and not self.paused
+        """This frame's simulation: none on a scene's first LOADING_FRAMES frames (they
+        say the step is compiling; the next frame's advance compiles it), or while
+        paused."""
+        compiling = self.fresh > 0 and not self.paused
         if compiling:
             self.loading = f"loading {self.scene_name} (compiling the step ...)"
         elif self.loading and not self.fresh:
@@ -310,9 +320,9 @@ class _App:
             self.step_once = False
             self.dirty = True
         if compiling:
-            self.fresh = False     # the next frame advances (and compiles)
+            self.fresh -= 1        # then a frame advances (and compiles)
         elif self.fresh and self.paused:
-            self.fresh = False
+            self.fresh = 0
 
     def _keys(self) -> bool:
         """Pressed-key events; False when the app should quit."""
@@ -386,10 +396,11 @@ class _App:
         middle of a frame, and a scene switch draws loading frames of its own."""
         self.pending = action
 
-    def _show_loading(self, text: str) -> bool:
+    def _show_loading(self, name: str, text: str) -> bool:
         """Draw one frame that says ``text``; False when Esc was pressed (quitting)."""
         self.loading = text
-        if show_loading_frame(self.window, self.renderer, text, self.ti.ui.ESCAPE):
+        if show_loading_frame(self.window, self.renderer, text, self.ti.ui.ESCAPE,
+                              lambda: self._loading_shot(name)):
             return True
         self.window.running = False
         return False
@@ -436,6 +447,14 @@ class _App:
         if self.stats_file:
             self.stats_file.write(json.dumps(stats_row(self, snap, d)) + "\n")
             self.stats_file.flush()
+
+    def _loading_shot(self, scene: str) -> None:
+        """Test hook: every loading frame's screenshot beside MRSPH_WINDOW_SCREENSHOT's
+        (``scene``: the scene it loads)."""
+        path = loading_shot_path(self.screenshot_path, scene, self.loading_shots)
+        if path is not None:
+            write_screenshot(self.window, str(path))
+            self.loading_shots += 1
 
     def _screenshot(self) -> None:
         self.message = write_screenshot(self.window, self.screenshot_path)
