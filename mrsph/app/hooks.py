@@ -3,7 +3,8 @@
 ``MRSPH_WINDOW_STATS=path``: append one JSON line per frame: frame, time,
 kinetic_energy, n_real, n_virtual, disturbance_active, paused, scene, wall_s, fps,
 speed (simulated seconds per wall second), camera_distance (3D, else null), surface,
-loading (the frame shows the loading message).
+surface_ms (what computing the water view's surface took this frame; 0 when off or
+reused), loading (the frame shows the loading message).
 ``MRSPH_WINDOW_SCREENSHOT=path``: write the screenshot there (frame
 AUTO_SCREENSHOT_FRAME, and on ``p``), and every frame that shows the loading message
 beside it, as ``<stem>_loading_<scene>_<n><suffix>`` (n counts them from 0); without it
@@ -44,7 +45,8 @@ def stats_row(app, snap, disturbance) -> dict:
             "fps": round(app.fps, 2), "speed": round(app.speed.value() or 0.0, 4),
             "camera_distance": (round(float(camera.distance), 6)
                                 if snap.dim == 3 and camera is not None else None),
-            "surface": app.surface, "loading": app.loading is not None}
+            "surface": app.surface, "surface_ms": round(1e3 * app.renderer.surface_s, 3),
+            "loading": app.loading is not None}
 
 
 def write_screenshot(window, path: str | None) -> str:
