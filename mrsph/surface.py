@@ -26,7 +26,7 @@ by ``--dump-format obj``; it reads particles and never changes the simulation.
    −∇φ (central differences) averaged like the vertices; each quad turns so that it
    faces outward (the OBJ volume check relies on it). Marching tetrahedra, used first,
    gave the same surface to within a cell with ~4x the triangles, too slow for the
-   window's every frame (pool_3d: 25 200 triangles, ~50 ms; surface nets 6 650, ~8 ms).
+   window's every frame (pool_3d: 25 200 triangles in 67 ms; surface nets 6 650 in 8 ms).
 """
 from __future__ import annotations
 
