@@ -99,7 +99,8 @@ def build_parser() -> argparse.ArgumentParser:
                              "(frame files of an earlier run there are removed first) "
                              "(default: no dump)")
     parser.add_argument("--dump-format", choices=FORMATS, default="npz",
-                        help="format of the frame files: npz, ply (binary point cloud) or vtk (.vtu)")
+                        help="format of the frame files: npz, ply (binary point cloud), vtk (.vtu) "
+                             "or obj (the water's surface mesh)")
     parser.add_argument("--quiet", action="store_true",
                         help="no progress bar and no summary line; errors, warnings and "
                              "notices still show")

@@ -219,7 +219,7 @@ SCHEMA = Table(required=True, keys={
                         "(each particle's pressure acts once, on its own level; energy-"
                         "consistent); symmetric = the thesis's same-level symmetric pair "
                         "force with virtual particles' own summed density and interpolated "
-                        "velocity (see the README)"),
+                        "velocity (see docs/research-log.md)"),
         "spring_rate": Key("float", 100000.0, ">= 0", "1/s", "rate at which the Hooke springs "
                            "return virtual particles to their anchors, integrated implicitly "
                            "(rate * dt >= 1 puts them on the anchor: the default does so for "
@@ -270,14 +270,14 @@ SCHEMA = Table(required=True, keys={
                            "reads no more than its parent's (rho0 at least). With two "
                            "levels density stops the splits of a thin sheet from throwing "
                            "fluid; with a third, coarser level it threw more (see the "
-                           "README's table of choices)"),
+                           "table of choices in docs/research-log.md)"),
         "split_density_tolerance": Key("float", 0.01, "[0, 0.1]", doc="with split_relax = "
                                        "density: how far above its parent's density (and "
                                        "rho0), as a fraction, a new child may read before it "
                                        "is moved; 0 = not at all, which also moves the "
                                        "children of splits in a resting pool and stirs it; "
                                        "larger lets more of the split's compression through "
-                                       "(see the README)"),
+                                       "(see docs/research-log.md)"),
         "split_relax_iterations": Key("int", 8, ">= 0", doc="iterations of split_relax; "
                                       "0 = children stay on the lattice"),
         "split_min_distance": Key("float", 1.0, "(0, 2]", doc="with split_relax = spacing: "
@@ -326,7 +326,10 @@ SCHEMA = Table(required=True, keys={
         "background": Key("vec3", (0.07, 0.08, 0.1), "[0, 1]", doc="RGB background colour"),
         "camera_position": Key("vec3", None, unit="m", doc="3D only; omitted = automatic"),
         "camera_lookat": Key("vec3", None, unit="m", doc="3D only; omitted = automatic"),
-        "point_scale": Key("float", 1.0, "> 0", doc="scale of drawn particle radii")}),
+        "point_scale": Key("float", 1.0, "> 0", doc="scale of drawn particle radii"),
+        "surface": Key("bool", False, doc="water view: the fluid drawn as a surface (2D: a "
+                       "filled area tinted by the particles' colours; 3D: a lit mesh) in the "
+                       "window (key w toggles it) and in recordings")}),
 })
 
 

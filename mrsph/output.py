@@ -1,4 +1,4 @@
-"""Frame dumps (npz, PLY, VTU) and ``stats.csv``; numpy only, no Taichi.
+"""Frame dumps (npz, PLY, VTU, OBJ surface) and ``stats.csv``; numpy only, no Taichi.
 
 A frame dump holds every alive particle, virtual ones included, with the arrays
 
@@ -16,6 +16,10 @@ little-endian point cloud (ParaView, MeshLab, Blender) with the properties
 ``x y z vx vy vz m rho level kind``; 2D positions and velocities get z = 0.
 ``frame_00000.vtu`` is a VTK unstructured grid of vertex cells (ParaView) with ``v``,
 ``m``, ``rho``, ``level`` and ``kind`` as point data, written by meshio.
+``frame_00000.obj`` is not the particles but the fluid's surface (:mod:`mrsph.surface`,
+the window's water view) as a Wavefront OBJ triangle mesh for Blender and the like:
+3D, a closed mesh with vertex normals, wound outward; 2D, the filled area as triangles
+in the plane z = 0. Vertices are shared between triangles (merged to 1e-9 m).
 """
 from __future__ import annotations
 
@@ -27,11 +31,11 @@ from pathlib import Path
 
 import numpy as np
 
-FORMATS = ("npz", "ply", "vtk")
+FORMATS = ("npz", "ply", "vtk", "obj")
 FRAME_ARRAYS = ("x", "v", "m", "rho", "level", "kind")
 #: File name of frame i: frame_00000.npz; five digits keep frames sorted by name.
 FRAME_NAME = "frame_{:05d}.{}"
-_SUFFIX = {"npz": "npz", "ply": "ply", "vtk": "vtu"}
+_SUFFIX = {"npz": "npz", "ply": "ply", "vtk": "vtu", "obj": "obj"}
 DUMP_SUFFIXES = tuple(_SUFFIX.values())
 _PLY_TYPES = {np.dtype("<f4"): "float", np.dtype("<f8"): "double", np.dtype("<i4"): "int"}
 
@@ -99,6 +103,8 @@ def write_frame(directory, frame_index: int, parts: dict, dim: int, fmt: str = "
         np.savez(path, **a)
     elif fmt == "ply":
         _write_ply(path, a)
+    elif fmt == "obj":
+        _write_obj(path, a, int(dim))
     else:
         _write_vtu(path, a)
     return path
@@ -148,6 +154,30 @@ def read_ply(path) -> dict:
                 fields.append((words[2], names[words[1]]))
         rec = np.frombuffer(f.read(), dtype=np.dtype(fields), count=n)
     return {name: rec[name].copy() for name, _ in fields}
+
+
+def _write_obj(path: Path, a: dict, dim: int) -> None:
+    from .surface import surface
+    found = surface(a["x"], a["m"], a["rho"], a["level"], a["kind"], dim)
+    lines = ["# fluid surface written by mrsph (mrsph/surface.py)", "o fluid"]
+    if found is not None and len(found[1]):
+        corners = _pad3(np.asarray(found[1], np.float64))
+        normals = _pad3(np.asarray(found[2], np.float64)) if dim == 3 else None
+        key = np.round(corners / 1e-9).astype(np.int64)
+        _, first, index = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        index = index.reshape(-1)
+        verts = corners[first]
+        lines += [f"v {x!r} {y!r} {z!r}" for x, y, z in verts.tolist()]
+        faces = index.reshape(-1, 3) + 1
+        if normals is not None:
+            vn = np.zeros_like(verts)
+            np.add.at(vn, index, normals)
+            vn /= np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-12)
+            lines += [f"vn {x:.6f} {y:.6f} {z:.6f}" for x, y, z in vn.tolist()]
+            lines += [f"f {i}//{i} {j}//{j} {k}//{k}" for i, j, k in faces.tolist()]
+        else:
+            lines += [f"f {i} {j} {k}" for i, j, k in faces.tolist()]
+    path.write_text("\n".join(lines) + "\n", encoding="ascii")
 
 
 def _write_vtu(path: Path, a: dict) -> None:

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import taichi as ti
 
-# Kind codes (also written to dumps; documented in the README).
+# Kind codes (also written to dumps; documented in docs/output.md).
 REGULAR = 0           # real, no virtual partner
 TRANSIENT_PARENT = 1  # real level n+1 particle carrying 2^d virtual children of level n
 TRANSIENT_CHILD = 2   # real level n particle linked to a virtual parent of level n+1

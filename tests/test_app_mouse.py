@@ -147,3 +147,17 @@ def test_ray_helpers():
     assert ray_box((2, 2, 2), (1, 0, 0), (0, 0, 0), (1, 1, 1)) is None
     assert ray_box((-1, 0.5, 0.5), (1, 0, 0), (0, 0, 0), (1, 1, 1)) == pytest.approx((1.0, 2.0))
     assert ray_plane((0, 0, 0), (1, 0, 0), (0, 0, 1), (0, 0, 1)) is None  # parallel
+
+
+def test_safe_speed_is_mach_0_1_and_the_pull_is_capped_too():
+    from mrsph.app.mouse import safe_speed
+    # c0 = sqrt(400) = 20 m/s -> 2 m/s; no stiffness: 8 domain sizes per second
+    assert safe_speed(400.0, (0, 0), (1, 0.5)) == pytest.approx(2.0)
+    assert safe_speed(None, (0, 0), (1, 0.5)) == pytest.approx(8.0)
+    m = MouseDisturbance.for_domain((0, 0), (1, 0.5), 400.0, factory=Disturbance)
+    assert m.max_speed == pytest.approx(2.0)
+    m.strength, m.radius = 100.0, 0.4
+    d = m.update((0.5, 0.25), {"right"}, DT)
+    # the pull's target speed is strength x distance, at most strength x radius at the rim
+    assert d.mode == "pull" and d.strength * d.radius == pytest.approx(2.0), \
+        f"pull strength {d.strength} x radius {d.radius} = {d.strength * d.radius} m/s, cap 2 m/s"

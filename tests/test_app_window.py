@@ -204,6 +204,20 @@ def fluid_box(img: np.ndarray, levels: int):
     return (np.percentile(rows, 5), np.percentile(rows, 95), np.percentile(cols, 5), np.percentile(cols, 95))
 
 
+def loading_text_pixels(img: np.ndarray) -> int:
+    """Pixels of the loading message's colour inside its panel (mrsph.app.loading)."""
+    from mrsph.app import loading
+    h, w = img.shape[:2]
+    x0, y0 = int(loading.PANEL_POS[0] * w), int(loading.PANEL_POS[1] * h)
+    patch = img[y0:y0 + loading.PANEL_SIZE_PX[1], x0:x0 + loading.PANEL_SIZE_PX[0], :3] / 255.0
+    return int((np.abs(patch - np.asarray(loading.TEXT_COLOUR)).max(axis=-1) < 0.1).sum())
+
+
+def loading_shots(app: App, scene: str) -> list[Path]:
+    """The loading frames' screenshots of ``scene`` (the hook's), in order."""
+    return sorted(app.tmp.glob(f"shot_loading_{scene}_*.png"))
+
+
 def stir_and_check(app: App, levels: int, first_timeout: float, min_frames: int = 10):
     app.wait_window(first_timeout)
     rows = app.wait_frames(min_frames, first_timeout)
@@ -254,7 +268,7 @@ def test_window_frame_budget_cuts_frames_into_slow_motion(xdisplay, tmp_path):
     app = App(["-m", "mrsph.app", "--fake", "2", "--width", WIDTH, "--height", HEIGHT,
                "--frame-budget", "1e-6"], xdisplay, tmp_path)
     try:
-        rows = app.wait_frames(20, 120)
+        rows = [r for r in app.wait_frames(24, 120) if not r["loading"]]  # loading: no advance
         advances = np.diff([r["time"] for r in rows[:20]])
         assert np.allclose(advances, step, rtol=1e-6), (
             f"frames advanced the stand-in by {np.unique(advances.round(6))} s; one step is "
@@ -314,6 +328,17 @@ def test_window_switches_to_a_scene_that_auto_runs_on_more_threads(xdisplay, tmp
             app.alive()
             assert time.time() < deadline, f"no 3 frames of pool_3d after Tab:\n{app.output()}"
             time.sleep(0.5)
+        # Tab draws "loading pool_3d" at once, then the first frame of pool_3d shows its
+        # particles (and says the step is compiling) before the step compiles
+        first = next(r for r in app.stats() if r["scene"] == "pool_3d")
+        assert first["loading"] and first["n_real"] > 0, first
+        shots = loading_shots(app, "pool_3d")
+        assert len(shots) >= 2, f"loading frames of pool_3d saved: {[p.name for p in shots]}"
+        switch, first_frame = iio.imread(shots[0]), iio.imread(shots[1])
+        assert loading_text_pixels(switch) > 100, "the switch's loading frame has no message"
+        assert fluid_box(switch, 1) is None, "the switch's loading frame shows fluid already"
+        assert loading_text_pixels(first_frame) > 100, "pool_3d's first frame does not say it is compiling"
+        assert fluid_box(first_frame, 1) is not None, "pool_3d's first frame shows no particles"
         assert app.quit() == 0, app.output()
     finally:
         app.close()
@@ -336,6 +361,56 @@ def test_window_blow_up_pauses_and_prints_one_line(xdisplay, tmp_path):
         assert len(lines) == 1 and lines[0].endswith("above physics.max_speed = 0.5 m/s"), app.output()
         app.next_frame()
         assert app.stats()[-1]["paused"], "the window did not pause after the blow-up"
+        assert app.quit() == 0, app.output()
+    finally:
+        app.close()
+
+
+def test_window_draws_the_loading_message(xdisplay, tmp_path):
+    """A scene's first frames say "loading SCENE (compiling ...)" (their stats lines say
+    loading, and the screenshot of the last of them, just before the step compiles, has
+    the message's colour in the message's panel); a later frame does not. With one such
+    frame the message never showed: ImGui draws a new panel from its second frame."""
+    app = App(["-m", "mrsph.app", "--fake", "2", "--width", WIDTH, "--height", HEIGHT,
+               "--frame-budget", "0"], xdisplay, tmp_path)
+    try:
+        app.wait_window(120)
+        rows = app.wait_frames(12, 120)
+        assert rows[0]["loading"] and not rows[-1]["loading"], [r["loading"] for r in rows]
+        shots = sorted(tmp_path.glob("shot_loading_*.png"))
+        assert shots, f"no loading frame saved: {sorted(p.name for p in tmp_path.iterdir())}"
+        # the last before the step compiles (ImGui draws a new panel from its second frame)
+        loading, later = iio.imread(shots[-1]), iio.imread(app.shot_path)   # frame 10's
+        assert loading_text_pixels(loading) > 100, \
+            f"{loading_text_pixels(loading)} pixels of the loading message in its panel"
+        assert loading_text_pixels(later) < 10, "the message is still drawn after loading"
+        assert app.quit() == 0, app.output()
+    finally:
+        app.close()
+
+
+def test_window_latches_a_tapped_key_and_toggles_the_water_view(xdisplay, tmp_path):
+    """A tap of z (pressed and released between two frames: xdotool's key) zooms the 3D
+    camera in once, by e^(-1.2 x 0.15) (window.TAP_S); w turns the water view on. Without
+    the latch, the held-key check never sees a tap's key down."""
+    app = App(["-m", "mrsph.app", "--fake", "3", "--width", WIDTH, "--height", HEIGHT,
+               "--frame-budget", "0"], xdisplay, tmp_path)
+    try:
+        app.wait_window(120)
+        rows = app.wait_frames(5, 120)
+        assert rows[0]["loading"], "the first frame did not say that the step is compiling"
+        before = rows[-1]["camera_distance"]
+        app.xdo("key", "z")
+        app.xdo("key", "w")
+        deadline = time.time() + 60
+        while True:
+            app.alive()
+            last = app.stats()[-1]
+            if last["camera_distance"] < before and last["surface"]:
+                break
+            assert time.time() < deadline, f"camera {before} -> {last['camera_distance']}, water view {last['surface']}"
+            time.sleep(0.3)
+        assert last["camera_distance"] == pytest.approx(before * np.exp(-1.2 * 0.15), rel=1e-3)
         assert app.quit() == 0, app.output()
     finally:
         app.close()

@@ -28,7 +28,7 @@ PAIR_KEYS = {"pair", "adaptive_case", "uniform_case", "dim", "finest_spacing", "
              "interval", "speedup", "particle_ratio", "step_ratio", "multires_share"}
 DEMO_KEYS = {"renderer", "width", "height", "frames", "frames_per_s", "render_ms", "render_share",
              "render_compile_s", "fluid_volume", "reference_particles", "reference_spacing",
-             "spacing_ratio"}
+             "spacing_ratio", "surface_ms", "window_frame_ms", "surface_share", "surface_net_ms"}
 
 
 def _row(case, adaptive, wall, n_real, steps, shares, **kw):
@@ -138,9 +138,12 @@ def test_bench_smoke_writes_json_with_every_key(tmp_path):
     assert DEMO_KEYS <= set(demo) and demo["renderer"] in ("ggui", "raster")
     assert demo["frames"] == 1 and demo["frames_per_s"] > 0 and "render" in demo["phase_share"]
     assert demo["reference_spacing"] == pytest.approx((demo["fluid_volume"] / 10_000) ** 0.5)
+    assert demo["surface_share"] == pytest.approx(demo["surface_ms"] / demo["window_frame_ms"])
+    assert 0 < demo["surface_ms"] < demo["window_frame_ms"]
     for name in rows:
         assert name in proc.stdout
     assert "=> adaptive vs uniform:" in proc.stdout and "rendered frames/s" in proc.stdout
+    assert "% of a window frame with it" in proc.stdout
 
 
 def test_bench_rejects_an_unknown_case():

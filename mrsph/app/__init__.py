@@ -14,6 +14,12 @@ raster    pure-numpy software rasteriser (fallback when Vulkan is missing)
 record    ``record(sim, out, frames, ...)``: mp4 / gif / png sequence
 mouse     mouse state machine -> ``Disturbance`` (pure logic)
 window    ``run_window(...)``: the interactive app
+pointer   the window's drags: camera, HUD or fluid (the mouse's disturbance)
+marks     what the window draws over the water: stirrers and the mouse's reach
+loading   the window's "loading SCENE (compiling ...)" frames
+hooks     the window's stats lines and screenshots (test hooks)
+hud       the window's HUD and help panels
+probe     can a GGUI window open here (asked in a subprocess)
 fake      a tiny stand-in simulation for tests and demos
 __main__  ``python -m mrsph.app [scene]`` (``--fake 2|3`` for the stand-in)
 """

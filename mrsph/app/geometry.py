@@ -11,7 +11,9 @@ import math
 
 import numpy as np
 
-from .view import box_edges, circle_loop
+from typing import NamedTuple
+
+from .view import box_edges, circle_loop, scene_setting
 
 #: Segments of a circle outline: smooth at 1080p for a circle half the window high.
 CIRCLE_SEGMENTS = 72
@@ -93,3 +95,57 @@ def obstacle_shell(obstacle: dict):
                 faces.append(p)
         return np.concatenate(faces), 0.75 * spacing
     return np.zeros((0, 3)), 0.0
+
+
+# ----------------------------------------------------------------------------- marks
+class Mark(NamedTuple):
+    """Something that acts on the water, drawn as a circle: the mouse's reach or a
+    scene's stirrer. ``kind`` is "mouse" or "stirrer" (palette.MARK_COLOURS)."""
+    center: np.ndarray
+    radius: float
+    kind: str
+
+
+def stirrer_marks(scene, t: float) -> list[Mark]:
+    """The scene's stirrers at simulated time ``t``: where the solver puts them, from
+    the same scene data and the same ``mrsph.interaction.path_sample``."""
+    stirrers = scene_setting(scene, "stirrers", None) or []
+    if not stirrers:
+        return []
+    from mrsph.interaction import path_sample   # imports Taichi (not initialised): lazily
+    out = []
+    for st in stirrers:
+        pos, _vel = path_sample(st["path"], t, bool(st.get("loop", True)))
+        out.append(Mark(np.asarray(pos, float), float(st["radius"]), "stirrer"))
+    return out
+
+
+def mark_segments(mark: Mark, dim: int, facing=None) -> np.ndarray:
+    """A mark's outline as segment end points (2k, dim): a circle in 2D; in 3D a ring
+    in the plane facing the camera (``facing``: the view direction), moved toward the
+    camera by the radius, plus a smaller ring at half the radius, so it reads as a
+    sphere's outline with its centre."""
+    c, r = np.asarray(mark.center, float)[:dim], float(mark.radius)
+    if dim == 2:
+        return circle_loop(c, r, CIRCLE_SEGMENTS)
+    f = np.asarray(facing if facing is not None else (0.0, 0.0, -1.0), float)
+    f = f / max(np.linalg.norm(f), 1e-12)
+    a = np.cross(f, (0.0, 1.0, 0.0) if abs(f[1]) < 0.9 else (1.0, 0.0, 0.0))
+    a /= np.linalg.norm(a)
+    b = np.cross(f, a)
+    c = c - r * f     # on the near side of the reach, so the surface it acts on hides none of it
+    t = np.linspace(0.0, 2.0 * math.pi, CIRCLE_SEGMENTS + 1)
+    rings = []
+    for rr in (r, 0.5 * r):
+        pts = c + rr * (np.cos(t)[:, None] * a + np.sin(t)[:, None] * b)
+        rings.append(np.stack([pts[:-1], pts[1:]], axis=1).reshape(-1, 3))
+    return np.concatenate(rings)
+
+
+def water(snapshot, rgb):
+    """The water view's surface of a snapshot (``mrsph.surface.surface``), coloured by
+    the particles' colours ``rgb`` (N, 3) mixed into the water's (palette.WATER_TINT)."""
+    from mrsph.surface import surface
+    from . import palette
+    tint = (1.0 - palette.WATER_TINT) * np.asarray(palette.WATER_COLOUR) + palette.WATER_TINT * np.asarray(rgb)
+    return surface(snapshot.x, snapshot.m, snapshot.rho, snapshot.level, snapshot.kind, snapshot.dim, tint)

@@ -11,6 +11,19 @@ Gestures
   the cursor's velocity (smoothed, so mouse jitter does not shake the fluid);
 * right drag, or shift + left drag: pull toward the cursor;
 * wheel: radius up / down by a constant factor, clamped.
+
+Time and the speed cap
+----------------------
+``dt`` is *wall-clock* time: the drag velocity is the hand's velocity in metres per
+wall second. (Per simulated second, a one-second swipe in 10x slow motion became a blow
+ten times faster than the hand.) Both gestures are capped to ``max_speed``, by default
+:func:`safe_speed`: a tenth of the fluid's sound speed c0 = sqrt(fluid.stiffness)
+(``mrsph.eos.sound_speed``). Weakly compressible SPH holds density to ~1 % only while
+the flow stays below Mach 0.1 (Monaghan 1994, "Simulating free surface flows with
+SPH"); a faster push compresses the fluid and it splashes apart instead of moving along.
+The push's target velocity is clipped to the cap; the pull's target, strength × distance
+to the centre, is at most strength × radius, so the pull's strength is lowered until
+that is within the cap.
 """
 from __future__ import annotations
 
@@ -33,9 +46,24 @@ RADIUS_FRACTION = 0.08
 RADIUS_MIN_FRACTION = 0.01
 RADIUS_MAX_FRACTION = 0.5
 #: A cursor that jumps (window re-entered, a dropped frame) would otherwise hand the
-#: solver an absurd target velocity; clamp to this many domain sizes per second.
+#: solver an absurd target velocity; clamp to this many domain sizes per second (where
+#: no sound speed is known; see :func:`safe_speed`).
 MAX_SPEED_DOMAINS_PER_S = 8.0
+#: The mouse's speed cap as a fraction of the sound speed (Mach number): the weakly
+#: compressible limit, density within ~1 % (module docstring).
+SAFE_MACH = 0.1
 DEFAULT_STRENGTH = 20.0  # 1/s; relaxes the fluid to the drag velocity in ~50 ms
+
+
+def safe_speed(stiffness: float | None, domain_min, domain_max) -> float:
+    """The documented cap on the mouse's target speed, m/s: SAFE_MACH × sqrt(stiffness)
+    (c0 of ``mrsph.eos.sound_speed``), and never above MAX_SPEED_DOMAINS_PER_S domain
+    sizes per second; the latter alone when ``stiffness`` is None."""
+    size = float(np.max(np.asarray(domain_max, float) - np.asarray(domain_min, float)))
+    cap = MAX_SPEED_DOMAINS_PER_S * size
+    if stiffness is not None and stiffness > 0:
+        cap = min(cap, SAFE_MACH * math.sqrt(float(stiffness)))
+    return cap
 
 
 def _default_factory(**kwargs):
@@ -49,6 +77,8 @@ class MouseDisturbance:
 
     ``radius`` (m) and ``strength`` (1/s) are plain attributes the HUD sliders write;
     ``radius`` is clamped to [radius_min, radius_max] on every update.
+    ``max_speed`` (m/s) caps the push's target velocity and the pull's (see the module
+    docstring); ``dt`` of :meth:`update` is wall-clock time.
     ``factory`` builds the disturbance (default: ``mrsph.interaction.Disturbance``).
     """
 
@@ -68,14 +98,16 @@ class MouseDisturbance:
         self.reset()
 
     @classmethod
-    def for_domain(cls, domain_min, domain_max, **kwargs) -> "MouseDisturbance":
-        """Defaults scaled to the domain: radius 8 % of its largest side, clamps 1-50 %."""
+    def for_domain(cls, domain_min, domain_max, stiffness: float | None = None,
+                   **kwargs) -> "MouseDisturbance":
+        """Defaults scaled to the domain: radius 8 % of its largest side, clamps 1-50 %;
+        speed cap :func:`safe_speed` of the fluid's stiffness (the window's settings)."""
         lo, hi = np.asarray(domain_min, float), np.asarray(domain_max, float)
         size = float(np.max(hi - lo))
         kwargs.setdefault("radius", RADIUS_FRACTION * size)
         kwargs.setdefault("radius_min", RADIUS_MIN_FRACTION * size)
         kwargs.setdefault("radius_max", RADIUS_MAX_FRACTION * size)
-        kwargs.setdefault("max_speed", MAX_SPEED_DOMAINS_PER_S * size)
+        kwargs.setdefault("max_speed", safe_speed(stiffness, lo, hi))
         return cls(len(lo), **kwargs)
 
     def reset(self) -> None:
@@ -108,7 +140,8 @@ class MouseDisturbance:
     def update(self, cursor_world_pos, buttons, dt: float, wheel: float = 0):
         """One frame: cursor position in world units (None = outside the view), held
         buttons (``{"left"}``, ``{"right"}``, ``{"left", "shift"}``, Taichi's "LMB",
-        "RMB", "Shift" also accepted), frame time dt (s), wheel notches.
+        "RMB", "Shift" also accepted), wall-clock time since the last update dt (s),
+        wheel notches.
         Returns the disturbance to apply, or None."""
         self.scroll(wheel)
         mode = self.mode_for(buttons)
@@ -129,8 +162,11 @@ class MouseDisturbance:
             self._velocity = self._velocity + alpha * (raw - self._velocity)
         self._prev, self._mode = pos, mode
         velocity = self._velocity if mode == "push" else np.zeros(self.dim)
+        strength = float(self.strength)
+        if mode == "pull" and strength * self.radius > self.max_speed:
+            strength = self.max_speed / self.radius   # target speed at the rim = the cap
         self.current = self.factory(center=tuple(float(c) for c in pos), radius=float(self.radius),
-                                    strength=float(self.strength), mode=mode,
+                                    strength=strength, mode=mode,
                                     velocity=tuple(float(c) for c in velocity))
         return self.current
 

@@ -23,6 +23,14 @@ BACKGROUND = (0.085, 0.095, 0.115)
 DOMAIN_COLOUR = (0.62, 0.66, 0.72)
 OBSTACLE_FILL = (0.30, 0.32, 0.36)
 OBSTACLE_EDGE = (0.78, 0.80, 0.84)
+#: Marks of what acts on the water (geometry.Mark): the mouse's reach white, the scene's
+#: stirrers magenta, a hue no level colour (Okabe-Ito) and no colormap comes near.
+MARK_COLOURS = {"mouse": (1.0, 1.0, 1.0), "stirrer": (1.0, 0.2, 1.0)}
+#: Water view: the fluid's colour, and how much of the particles' colour (level, speed...)
+#: tints it, so the levels stay visible under the surface.
+WATER_COLOUR = (0.16, 0.42, 0.78)
+WATER_TINT = 0.3
+WATER_EDGE = (0.75, 0.88, 1.0)
 
 # Okabe-Ito, reordered so that consecutive levels differ in both hue and lightness.
 _LEVEL_HEX = (

@@ -80,8 +80,11 @@ class Rasterizer:
     # -- public ------------------------------------------------------------------------
     def render(self, snapshot, color_mode: str = "level", show_virtual: bool = False,
                camera: OrbitCamera | None = None, legend: bool = True,
-               style: Style | None = None, rest_density: float | None = None) -> np.ndarray:
-        """Draw one frame. ``camera`` is used in 3D (default: framed on the domain)."""
+               style: Style | None = None, rest_density: float | None = None, marks=(),
+               surface: bool = False) -> np.ndarray:
+        """Draw one frame. ``camera`` is used in 3D (default: framed on the domain).
+        ``marks`` and ``surface`` as for :meth:`mrsph.app.render.Renderer.draw`."""
+        self.marks, self.surface = list(marks or ()), bool(surface)
         w, h = self.width, self.height
         self.style = style or Style()
         self._img = np.empty((h * w, 3), dtype=np.float32)
@@ -106,6 +109,10 @@ class Rasterizer:
             self._fill_triangles(view.world_to_px(geometry.obstacle_triangles(obs)), palette.OBSTACLE_FILL)
         level = np.asarray(snap.level)
         virt = palette.is_virtual(snap.kind)
+        edge = None
+        if self.surface:
+            edge = self._fill_water(snap, rgb, view)
+            keep = keep & virt
         px = view.world_to_px(np.asarray(snap.x)[:, :2])
         radius_px = view.radius_px(np.asarray(snap.radius, dtype=np.float64)) * self.style.point_scale
         # Painter's order: virtual below real, coarse below fine (fine detail on top).
@@ -119,6 +126,33 @@ class Rasterizer:
             self._lines_flat(view.world_to_px(geometry.obstacle_segments(obs, 2)), palette.OBSTACLE_EDGE, lw)
         self._lines_flat(view.world_to_px(geometry.domain_segments(snap.domain_min, snap.domain_max)),
                        palette.DOMAIN_COLOUR, lw)
+        if edge is not None and len(edge):
+            self._lines_flat(view.world_to_px(edge), palette.WATER_EDGE, lw)
+        for mark in self.marks:
+            self._lines_flat(view.world_to_px(geometry.mark_segments(mark, 2)), palette.MARK_COLOURS[mark.kind], lw)
+
+    def _fill_water(self, snap, rgb, view):
+        """2D water view: pixels whose φ (bilinear on the surface grid) reaches the
+        level set take the grid's colour; returns the outline segments (world)."""
+        from mrsph.surface import ISO, marching_squares, volume_fraction
+        tint = (1.0 - palette.WATER_TINT) * np.asarray(palette.WATER_COLOUR) + palette.WATER_TINT * rgb
+        grid = volume_fraction(snap.x, snap.m, snap.rho, snap.level, snap.kind, tint)
+        if grid is None:
+            return None
+        ys, xs = np.mgrid[0:self.height, 0:self.width]
+        world = view.px_to_world(np.stack([xs.ravel() + 0.5, ys.ravel() + 0.5], axis=1))
+        u = (world - grid.origin) / grid.cell
+        nx, ny = grid.phi.shape
+        ok = (u[:, 0] >= 0) & (u[:, 0] < nx - 1) & (u[:, 1] >= 0) & (u[:, 1] < ny - 1)
+        i0 = np.floor(u[ok]).astype(np.int64)
+        f = u[ok] - i0
+        p = grid.phi
+        phi = ((1 - f[:, 0]) * (1 - f[:, 1]) * p[i0[:, 0], i0[:, 1]] + f[:, 0] * (1 - f[:, 1]) * p[i0[:, 0] + 1, i0[:, 1]]
+               + (1 - f[:, 0]) * f[:, 1] * p[i0[:, 0], i0[:, 1] + 1] + f[:, 0] * f[:, 1] * p[i0[:, 0] + 1, i0[:, 1] + 1])
+        inside = np.nonzero(ok)[0][phi >= ISO]
+        near = np.rint(u[inside]).astype(np.int64)
+        self._img[inside] = grid.rgb[near[:, 0], near[:, 1]]
+        return marching_squares(grid)[2]
 
     def _indices(self, px: np.ndarray, dx: np.ndarray, dy: np.ndarray):
         """Flat pixel indices (n, k) of stamps at pixel positions px, and a validity mask."""
@@ -176,6 +210,9 @@ class Rasterizer:
         self._zbuf = np.full(w * h, np.inf, dtype=np.float64)
         frags = []  # (idx, depth, colour) of every fragment, resolved by the z-buffer
         radius = np.asarray(snap.radius, dtype=np.float64)[np.asarray(snap.level)] * self.style.point_scale
+        if self.surface:
+            frags += self._mesh_splats(cam, snap, rgb, f)
+            keep = keep & palette.is_virtual(snap.kind)
         frags += self._spheres(cam, np.asarray(snap.x)[keep], radius[keep], rgb[keep], f)
         for obs in snap.obstacles:
             pts, r = geometry.obstacle_shell(obs)
@@ -188,6 +225,9 @@ class Rasterizer:
         for obs in snap.obstacles:
             if obs.get("shape") == "box":
                 frags += self._lines_zbuffered(cam, geometry.obstacle_segments(obs, 3), palette.OBSTACLE_EDGE, lw)
+        for mark in self.marks:
+            frags += self._lines_zbuffered(cam, geometry.mark_segments(mark, 3, cam.basis()[0]),
+                                           palette.MARK_COLOURS[mark.kind], lw)
         if not frags:
             return
         idx = np.concatenate([fr[0] for fr in frags])
@@ -216,6 +256,34 @@ class Rasterizer:
             depth = z[sel][:, None] - r_world[sel][:, None] * nz[None, :]
             col = rgb[sel][:, None, :] * shade[None, :, None].astype(np.float32)
             out.append((idx[ok], depth[ok], np.minimum(col, 1.0)[ok]))
+        return out
+
+    def _mesh_splats(self, cam, snap, rgb, focal):
+        """3D water view without GPU: each triangle of the surface mesh as a flat disc
+        of its size at its centroid, lit by its normal (the triangles are a few pixels)."""
+        water = geometry.water(snap, rgb)
+        if water is None or len(water[1]) == 0:
+            return []
+        tri = water[1].reshape(-1, 3, 3)
+        c = tri.mean(axis=1)
+        nrm = water[2].reshape(-1, 3, 3).mean(axis=1)
+        col = water[3].reshape(-1, 3, 3).mean(axis=1)
+        forward, right, up = cam.basis()
+        n_view = np.stack([nrm @ right, nrm @ up, -(nrm @ forward)], axis=1)
+        shade = AMBIENT + DIFFUSE * np.abs(n_view @ LIGHT_DIR_VIEW)      # two-sided, as GGUI draws it
+        size = np.sqrt(np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1))
+        px, z = cam.project(c, self.width, self.height)
+        front = z > cam.z_near
+        out = []
+        r_q = _quantise(0.75 * size[front] * focal / z[front])
+        px, z, col, shade = px[front], z[front], col[front], shade[front]
+        for q in np.unique(r_q):
+            sel = r_q == q
+            dx, dy, _, _ = _disc(int(q))
+            idx, ok = self._indices(px[sel], dx, dy)
+            depth = np.broadcast_to(z[sel][:, None], idx.shape)
+            colour = np.broadcast_to(np.minimum(col[sel] * shade[sel, None], 1.0)[:, None, :], idx.shape + (3,))
+            out.append((idx[ok], depth[ok], colour[ok].astype(np.float32)))
         return out
 
     def _lines_zbuffered(self, cam, seg_world, colour, width_px):
@@ -275,7 +343,7 @@ class Rasterizer:
 def rasterize(snapshot, width: int = 960, height: int = 540, color_mode: str = "level",
               show_virtual: bool = False, camera: OrbitCamera | None = None,
               legend: bool = True, style: Style | None = None,
-              rest_density: float | None = None) -> np.ndarray:
+              rest_density: float | None = None, marks=(), surface: bool = False) -> np.ndarray:
     """One-shot convenience: render ``snapshot`` into an (height, width, 3) uint8 image."""
     return Rasterizer(width, height).render(snapshot, color_mode, show_virtual, camera, legend,
-                                            style, rest_density)
+                                            style, rest_density, marks, surface)

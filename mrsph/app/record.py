@@ -16,6 +16,7 @@ import numpy as np
 
 from .palette import Style
 from .probe import run_probe
+from .geometry import stirrer_marks
 from .view import camera_for_scene, scene_setting
 
 BACKENDS = ("auto", "ggui", "raster")
@@ -76,7 +77,7 @@ class _GguiFrames:
         self.renderer = Renderer(self.window, style, scene)
         self._first = True
 
-    def render(self, snap, color_mode, show_virtual, rest_density) -> np.ndarray:
+    def render(self, snap, color_mode, show_virtual, rest_density, marks=(), surface=False) -> np.ndarray:
         from .render import image_from_window
         if self._first:
             # ImGui sizes its windows on their first frame and draws them from the
@@ -84,7 +85,8 @@ class _GguiFrames:
             self.renderer.draw(snap, color_mode, show_virtual, rest_density=rest_density)
             image_from_window(self.window)
             self._first = False
-        self.renderer.draw(snap, color_mode, show_virtual, rest_density=rest_density)
+        self.renderer.draw(snap, color_mode, show_virtual, rest_density=rest_density, marks=marks,
+                           surface=surface)
         return image_from_window(self.window)
 
     def close(self):
@@ -106,12 +108,12 @@ class _RasterFrames:
         self.style, self.scene = style, scene
         self.camera = None
 
-    def render(self, snap, color_mode, show_virtual, rest_density) -> np.ndarray:
+    def render(self, snap, color_mode, show_virtual, rest_density, marks=(), surface=False) -> np.ndarray:
         if snap.dim == 3 and self.camera is None:
             self.camera = camera_for_scene(self.scene, snap.domain_min, snap.domain_max,
                                            self.raster.width / self.raster.height)
         return self.raster.render(snap, color_mode, show_virtual, self.camera, True, self.style,
-                                  rest_density)
+                                  rest_density, marks, surface)
 
     def close(self):
         pass
@@ -200,7 +202,8 @@ def _sink_kind(out: Path) -> str:
 # ----------------------------------------------------------------------------- record
 def record(sim, out, frames: int, width: int | None = None, height: int | None = None,
            fps: float | None = None, backend: str = "auto", progress: bool = True,
-           color_mode: str = "level", show_virtual: bool = False) -> Path:
+           color_mode: str = "level", show_virtual: bool = False,
+           surface: bool | None = None) -> Path:
     """Advance ``sim`` and write ``frames`` frames to ``out``; returns the path written.
 
     out: ``*.mp4`` (H.264, yuv420p), ``*.gif`` (loops forever), or a directory
@@ -210,6 +213,8 @@ def record(sim, out, frames: int, width: int | None = None, height: int | None =
     ``run.fps`` (else 960x540 at 30 fps); mp4 dimensions are rounded up to even numbers.
     backend: "ggui" (shared GGUI renderer, offscreen), "raster" (numpy), or "auto"
     (GGUI when :func:`vulkan_available`, else raster with a notice on stderr).
+    surface: the water view (default: the scene's ``render.surface``). The scene's
+    stirrers are drawn as circles where they act.
     """
     out = Path(out)
     if int(frames) < 1:
@@ -221,6 +226,8 @@ def record(sim, out, frames: int, width: int | None = None, height: int | None =
     width = int(width or scene_setting(scene, "render.width", DEFAULT_SIZE[0]))
     height = int(height or scene_setting(scene, "render.height", DEFAULT_SIZE[1]))
     fps = float(fps or scene_setting(scene, "run.fps", DEFAULT_FPS))
+    if surface is None:
+        surface = bool(scene_setting(scene, "render.surface", False))
     if kind == "mp4" and (width % 2 or height % 2):
         even = (width + width % 2, height + height % 2)
         print(f"mrsph: H.264 (yuv420p) needs even dimensions: recording {even[0]}x{even[1]} "
@@ -238,7 +245,9 @@ def record(sim, out, frames: int, width: int | None = None, height: int | None =
                desc=f"{out.name} [{source.name}]", dynamic_ncols=True)
     try:
         for i in range(frames):
-            img = source.render(sim.snapshot(), color_mode, show_virtual, rest_density)
+            snap = sim.snapshot()
+            img = source.render(snap, color_mode, show_virtual, rest_density,
+                                stirrer_marks(scene, float(snap.time)), surface)
             sink.append(img)
             bar.update(1)
             if i + 1 < frames:

@@ -12,7 +12,11 @@ compile and a memory block Taichi never returns), and draws
 * 3D: ``scene.particles`` with per-vertex colour and radius, obstacle shells as small
   spheres, domain and box-obstacle wireframes with ``scene.lines``, seen through an
   :class:`~mrsph.app.view.OrbitCamera` (y up, framed on the domain at first);
-* a legend sub-window (level colours, or the colormap range) and the simulated time.
+* a legend sub-window (level colours, or the colormap range) and the simulated time;
+* marks of what acts on the water (the mouse's reach, the scene's stirrers) as circles
+  (3D: rings facing the camera), and, in the water view (``surface=True``), the fluid
+  as a filled, level-tinted area with its outline (2D) or a lit mesh (3D) from
+  :mod:`mrsph.surface` instead of the particles.
 
 ``canvas.circles`` / ``canvas.lines`` / ``canvas.triangles`` always draw their whole
 field, so unused slots are parked far outside the view (``_PARK``) with radius 0.
@@ -35,6 +39,10 @@ _PARK = -1.0e6
 #: Smallest capacity of a particle buffer, and how much it grows when it must: growing
 #: by half again keeps reallocations rare while a refining fluid gains particles.
 _MIN_CAPACITY = 1024
+#: Vertices per scene.mesh field: GGUI 1.7.4 on lavapipe drew nothing of a mesh of
+#: 75 600 vertices (pool_3d's first water view was invisible; 60 000 and 66 000 drew),
+#: so larger meshes are drawn in parts of this many. A multiple of 3: whole triangles.
+MESH_CHUNK = 65535
 _GROWTH = 1.5
 #: 3D line width handed to scene.lines (pixels where the driver supports wide lines).
 LINE_WIDTH_3D = 2.0
@@ -53,14 +61,16 @@ class _Buffer:
     a persistent numpy staging array so a frame allocates nothing on the Taichi side.
     """
 
-    def __init__(self, components: int, park: float):
-        self.components, self.park = components, park
+    def __init__(self, components: int, park: float, max_capacity: int | None = None):
+        self.components, self.park, self.max_capacity = components, park, max_capacity
         self.capacity = 0
         self.field = None
         self._staging = None
 
     def _allocate(self, n: int) -> None:
         cap = max(_MIN_CAPACITY, int(n * _GROWTH) if self.capacity else n)
+        if self.max_capacity:
+            cap = max(min(cap, self.max_capacity), n)
         shape = (cap, self.components) if self.components else (cap,)
         if self.components:
             self.field = ti.Vector.field(self.components, ti.f32, shape=cap)
@@ -108,6 +118,12 @@ class Renderer:
         self._line3 = _Buffer(3, _PARK)
         self._line_col = _Buffer(3, 0.0)
         self._shell_pos = _Buffer(3, _PARK)
+        self._mesh: list = []            # 3D water: (vertices, normals, colours) per chunk
+        self._mesh_c = _Buffer(3, 0.0)
+        self._area_v = _Buffer(2, _PARK)
+        #: wall seconds the last frame spent on the water view's surface (bench reads it)
+        self.surface_s = 0.0
+        self._water_cache = None        # (snapshot, colours, surface) of the last frame
         self._shell_key = None
         self._shell_r = 0.0
 
@@ -153,8 +169,12 @@ class Renderer:
 
     # -- drawing -----------------------------------------------------------------------
     def draw(self, snapshot, color_mode: str = "level", show_virtual: bool = False,
-             legend: bool = True, rest_density: float | None = None) -> None:
-        """Draw one frame (call ``window.show()`` or read the image buffer afterwards)."""
+             legend: bool = True, rest_density: float | None = None, marks=(),
+             surface: bool = False) -> None:
+        """Draw one frame (call ``window.show()`` or read the image buffer afterwards).
+        ``marks``: :class:`~mrsph.app.geometry.Mark` circles to draw over the fluid;
+        ``surface``: the water view."""
+        self.marks, self.surface = list(marks or ()), bool(surface)
         self.canvas.set_background_color(tuple(float(c) for c in self.style.background))
         rgb = palette.colours(snapshot, color_mode, rest_density=rest_density)
         keep = np.ones(len(rgb), dtype=bool) if show_virtual else ~palette.is_virtual(snapshot.kind)
@@ -181,6 +201,14 @@ class Renderer:
             self.canvas.triangles(self._tri.upload(tri), color=palette.OBSTACLE_FILL)
         level = np.asarray(snap.level)
         virt = palette.is_virtual(snap.kind)
+        water = self._water(snap, rgb)
+        if water is not None:
+            tri, tri_rgb, edge = water[1], water[2], water[3]
+            if len(tri):
+                self.canvas.triangles(self._area_v.upload(view.world_to_canvas(tri)),
+                                      per_vertex_color=self._mesh_c.upload(tri_rgb))
+            keep = keep & virt      # the surface stands for the real particles
+            self._water_edge = edge
         idx = np.nonzero(keep)[0]
         # Painter's order: virtual first, then coarse to fine, so fine detail is on top.
         idx = idx[np.lexsort((-level[idx], ~virt[idx]))]
@@ -195,12 +223,38 @@ class Renderer:
         self.canvas.lines(self._line2.upload(view.world_to_canvas(segs)), width=LINE_WIDTH_FRACTION,
                           per_vertex_color=self._line_col.upload(cols))
 
+    def _water(self, snap, rgb):
+        """The water view's surface, or None when it is off (timed: surface_s)."""
+        import time
+        self._water_edge = None
+        if not self.surface:
+            self.surface_s = 0.0
+            self._water_cache = None
+            return None
+        cached = self._water_cache
+        if cached is not None and cached[0] is snap and np.array_equal(cached[1], rgb):
+            # the same snapshot and colours (paused, or the simulation did not advance):
+            # the same surface, at no cost
+            self.surface_s = 0.0
+            return cached[2]
+        t0 = time.perf_counter()
+        out = geometry.water(snap, rgb)
+        self.surface_s = time.perf_counter() - t0
+        self._water_cache = (snap, np.array(rgb), out)
+        return out
+
     def _outline_segments(self, snap, dim):
-        """Domain outline and obstacle outlines (2D) or box wireframes (3D), with colours."""
+        """Domain outline and obstacle outlines (2D) or box wireframes (3D), the water's
+        outline (2D water view) and the marks, with colours."""
         parts = [(geometry.domain_segments(snap.domain_min, snap.domain_max), palette.DOMAIN_COLOUR)]
         for o in snap.obstacles:
             if dim == 2 or o.get("shape") == "box":
                 parts.append((geometry.obstacle_segments(o, dim), palette.OBSTACLE_EDGE))
+        if getattr(self, "_water_edge", None) is not None and len(self._water_edge):
+            parts.append((self._water_edge, palette.WATER_EDGE))
+        facing = self.camera.basis()[0] if dim == 3 and self.camera is not None else None
+        for mark in getattr(self, "marks", ()):
+            parts.append((geometry.mark_segments(mark, dim, facing), palette.MARK_COLOURS[mark.kind]))
         segs = np.concatenate([p for p, _ in parts])
         cols = np.concatenate([np.tile(np.asarray(c, np.float32), (len(p), 1)) for p, c in parts])
         return segs, cols
@@ -224,6 +278,19 @@ class Renderer:
         scene.ambient_light((AMBIENT,) * 3)
         scene.point_light(tuple(light), (DIFFUSE,) * 3)
 
+        water = self._water(snap, rgb)
+        if water is not None:
+            verts, normals, vrgb = water[1], water[2], water[3]
+            if len(verts):
+                for k, start in enumerate(range(0, len(verts), MESH_CHUNK)):
+                    if k == len(self._mesh):
+                        self._mesh.append(tuple(_Buffer(3, p, MESH_CHUNK) for p in (_PARK, 0.0, 0.0)))
+                    part = slice(start, start + MESH_CHUNK)
+                    bv, bn, bc = self._mesh[k]
+                    scene.mesh(bv.upload(verts[part]), normals=bn.upload(normals[part]),
+                               per_vertex_color=bc.upload(vrgb[part]), two_sided=True,
+                               vertex_count=len(verts[part]))
+            keep = keep & palette.is_virtual(snap.kind)
         n = int(keep.sum())
         if n:
             rad = np.asarray(snap.radius, np.float64)[np.asarray(snap.level)[keep]] * self.style.point_scale

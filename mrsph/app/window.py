@@ -18,98 +18,60 @@ c / v / h / u          colour mode / show virtual particles / help / HUD panel
 left drag              push the fluid along the drag
 right drag (2D),       pull the fluid toward the cursor
 shift + left drag
-q / e                  smaller / larger mouse radius
+q / e                  smaller / larger mouse radius (drawn as a white circle)
+w                      water view (surface) on / off
 3D: right drag,        orbit the camera
 arrows
 3D: middle drag        pan
 3D: z / x              zoom in / out;  f: frame the domain again
-p                      screenshot (PNG)
+p                      screenshot (PNG, into out/screenshots/)
 Esc                    quit
 =====================  =================================================
 
-Test hooks (environment variables)
-----------------------------------
-``MRSPH_WINDOW_STATS=path``: append one JSON line per frame: frame, time,
-kinetic_energy, n_real, n_virtual, disturbance_active, paused, scene, wall_s, fps,
-speed (simulated seconds per wall second).
-``MRSPH_WINDOW_SCREENSHOT=path``: write the screenshot there (frame 10, and on ``p``).
+The mouse acts in wall-clock time, capped (``mrsph.app.mouse.safe_speed``). Key taps
+are latched: a press seen between two frames acts once even when the key is up again
+when the next frame reads the keys (z / x / arrows at a few frames per second).
+A scene that loads or compiles shows "loading SCENE (compiling ...)"; Taichi compiles
+on the main thread only, so an Esc pressed during one compile is answered when it ends.
+
+Test hooks: ``MRSPH_WINDOW_STATS`` and ``MRSPH_WINDOW_SCREENSHOT`` (mrsph.app.hooks).
 """
 from __future__ import annotations
 
-import collections
 import inspect
 import json
 import math
 import os
 import sys
-import textwrap
 import time
-from pathlib import Path
-
-import numpy as np
 
 from . import palette
-from .probe import run_probe
-from .mouse import LEFT, RIGHT, SHIFT, MouseDisturbance, pick_point, ray_plane
+from .probe import display_available  # noqa: F401  (mrsph.cli imports it from here)
+from .mouse import MouseDisturbance, safe_speed
+from .pointer import Pointer
+from .hud import Rates, Speed, draw_hud, hud_rect_px
+from .hooks import (AUTO_SCREENSHOT_FRAME, SCREENSHOT_ENV, STATS_ENV, loading_shot_path, stats_row,
+                    write_screenshot)
+from .loading import loading_panel, show_loading_frame
+from .marks import frame_marks
 from .view import scene_setting
 
-STATS_ENV = "MRSPH_WINDOW_STATS"
-SCREENSHOT_ENV = "MRSPH_WINDOW_SCREENSHOT"
-#: Frame at which the automatic screenshot of MRSPH_WINDOW_SCREENSHOT is taken: late
-#: enough that ImGui has laid out its windows (they appear from the second frame).
-AUTO_SCREENSHOT_FRAME = 10
-#: HUD panel on the right: width in pixels (fits the slider labels of ImGui's default
-#: 13 px font) and height in pixels (cut to the window, less the margins).
-HUD_WIDTH_PX = 330
-HUD_TEXT_CHARS = 40     # characters a line of the panel holds (ImGui's 7 px wide glyphs)
-HUD_HEIGHT_PX = 600
-HUD_MARGIN_PX = 8
-#: Camera speeds: arrows orbit at this many rad/s; z/x zoom by e^(rate dt); a drag over
-#: the whole window orbits by half a turn horizontally.
+#: Camera speeds: arrows orbit at this many rad/s; z/x zoom by e^(rate dt) (drags:
+#: mrsph.app.pointer).
 ORBIT_KEY_RATE = 1.5
 ZOOM_KEY_RATE = 1.2
-ORBIT_DRAG_GAIN = math.pi
-#: Window over which splits/s and merges/s are counted (simulated seconds).
-RATE_WINDOW_S = 1.0
 #: Keys that change the mouse radius: one press = this many wheel notches.
 RADIUS_KEY_NOTCHES = 1.0
-PROBE_TIMEOUT_S = 60.0
-
-_HELP = """\
-space     pause / run          n   step one frame
-r         reset                tab next scene (list below)
-c         colour mode          v   show virtual particles
-h         this help            p   screenshot
-left drag push the fluid       right drag / shift+left: pull
-q / e     mouse radius - / +   u   hide / show the HUD
-Esc       quit
-3D: right drag or arrows orbit, middle drag pan,
-    z / x zoom in / out, f frame the domain"""
-
-_display_cache: dict = {}
-_PROBE_SCRIPT = r"""
-w = ti.ui.Window("mrsph display probe", (64, 48), show_window=True)
-w.get_canvas().set_background_color((0.1, 0.1, 0.1))
-w.show()
-w.destroy()
-print("MRSPH_DISPLAY_OK", flush=True)
-"""
-
-
-def display_available() -> tuple[bool, str]:
-    """(True, description) when an interactive GGUI window can open here, else (False,
-    why). Needs DISPLAY or WAYLAND_DISPLAY; the window itself is tried in a subprocess
-    (a broken Vulkan/GLFW setup can crash instead of raising); cached per process."""
-    if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
-        return False, "no display: neither DISPLAY nor WAYLAND_DISPLAY is set"
-    key = (os.environ.get("DISPLAY"), os.environ.get("WAYLAND_DISPLAY"))
-    if key in _display_cache:
-        return _display_cache[key]
-    ok, why = run_probe(_PROBE_SCRIPT, "MRSPH_DISPLAY_OK", "opening a test window", PROBE_TIMEOUT_S)
-    result = (True, f"a GGUI window opens on {key[0] or key[1]}") if ok else (False, why)
-    _display_cache[key] = result
-    return result
-
+#: A tapped camera key (seen pressed and released between two frames) acts as if held
+#: this long: one tap of z zooms by e^(-ZOOM_KEY_RATE * TAP_S), 17 %.
+TAP_S = 0.15
+#: Frames that say "loading SCENE (compiling the step ...)" before the first advance
+#: compiles it: ImGui lays out a new window on its first frame and draws it from the
+#: second, so with one frame the app's first message was never seen (a test's
+#: screenshot of it had no text).
+LOADING_FRAMES = 2
+#: Keys whose action lasts while they are held (3D camera): taps of them are latched.
+CAMERA_KEYS = ("z", "x")
 
 def _accepts_overrides(make_sim) -> bool:
     """Whether make_sim takes a second argument (the scene overrides)."""
@@ -120,58 +82,6 @@ def _accepts_overrides(make_sim) -> bool:
     positional = [p for p in params if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)]
     return len(positional) >= 2 or any(p.kind == p.VAR_POSITIONAL for p in params) \
         or any(p.name == "overrides" for p in params)
-
-
-class _Rates:
-    """Splits and merges per simulated second. The stats row counts events since the
-    previous snapshot, so the rate is the sum over the last RATE_WINDOW_S divided by
-    the time covered."""
-
-    def __init__(self):
-        self.samples = collections.deque()
-
-    def add(self, t: float, splits: float, merges: float) -> None:
-        if self.samples and t < self.samples[-1][0]:
-            self.samples.clear()  # reset or new scene: time went back
-        if self.samples and t == self.samples[-1][0]:
-            return  # paused: the same frame again
-        self.samples.append((t, splits, merges))
-        while self.samples and self.samples[0][0] < t - RATE_WINDOW_S:
-            self.samples.popleft()
-
-    def rates(self) -> tuple[float, float]:
-        if len(self.samples) < 2:
-            return 0.0, 0.0
-        span = self.samples[-1][0] - self.samples[0][0]
-        if span <= 0:
-            return 0.0, 0.0
-        s = sum(x[1] for x in list(self.samples)[1:])
-        m = sum(x[2] for x in list(self.samples)[1:])
-        return s / span, m / span
-
-
-class _Speed:
-    """Simulated seconds per wall second over the frames of the last RATE_WINDOW_S of
-    wall time while the simulation runs (cleared on pause, single steps and resets)."""
-
-    def __init__(self):
-        self.samples = collections.deque()
-
-    def add(self, wall: float, sim_time: float) -> None:
-        if self.samples and sim_time < self.samples[-1][1]:
-            self.samples.clear()  # reset or new scene: time went back
-        self.samples.append((wall, sim_time))
-        while len(self.samples) > 2 and self.samples[0][0] < wall - RATE_WINDOW_S:
-            self.samples.popleft()
-
-    def clear(self) -> None:
-        self.samples.clear()
-
-    def value(self) -> float | None:
-        if len(self.samples) < 2:
-            return None
-        (w0, t0), (w1, t1) = self.samples[0], self.samples[-1]
-        return (t1 - t0) / (w1 - w0) if w1 > w0 else None
 
 
 class _App:
@@ -201,22 +111,25 @@ class _App:
         self.message = ""
         self.snap = None
         self.dirty = True
-        self.rates = _Rates()
+        self.rates = Rates()
         self.fps = 0.0
         self.frame_budget = frame_budget
-        self.speed = _Speed()
+        self.speed = Speed()
         self.start = time.perf_counter()
         self.last = self.start
-        self.cursor_prev = None
-        self.drag_owner = None        # "fluid" / "camera" / "pan" / "hud" while a button is held
-        self.drag_plane = None        # 3D: (point, normal) of the plane the push drag moves in
+        self.pointer = Pointer()      # who owns a drag (fluid, camera, HUD)
         self.stats_file = None
         path = os.environ.get(STATS_ENV)
         if path:
             self.stats_file = open(path, "a", encoding="utf-8")
         self.screenshot_path = os.environ.get(SCREENSHOT_ENV)
         self.frames_drawn = 0
+        self.loading_shots = 0        # loading frames saved by the test hook
         self.want_screenshot = False
+        self.taps: set = set()        # camera keys pressed since the last frame
+        self.loading = None           # the loading message while a scene loads or compiles
+        self.surface = False
+        self.pending = None           # an action of the HUD (scene switch) for the next frame
         self._on_new_sim()
 
     # -- simulation lifecycle ----------------------------------------------------------
@@ -230,7 +143,8 @@ class _App:
         scene = self.sim.scene
         snap = self.sim.snapshot()
         self.snap, self.dirty = snap, False
-        self.mouse = MouseDisturbance.for_domain(snap.domain_min, snap.domain_max)
+        stiffness = float(scene_setting(scene, "fluid.stiffness", 1000.0))
+        self.mouse = MouseDisturbance.for_domain(snap.domain_min, snap.domain_max, stiffness)
         g = scene_setting(scene, "physics.gravity", None)
         self.params = {
             "fluid.viscosity": float(scene_setting(scene, "fluid.viscosity", 0.05)),
@@ -244,14 +158,20 @@ class _App:
         self.frame_dt = 1.0 / float(scene_setting(scene, "run.fps", 30.0))
         self.frame_sim = self.frame_dt  # simulated time the last frame advanced
         self.renderer.reset_view(scene, palette.Style.from_scene(scene))
-        self.rates, self.speed = _Rates(), _Speed()
-        self.drag_owner, self.drag_plane = None, None
+        self.surface = bool(scene_setting(scene, "render.surface", False))
+        self.rates, self.speed = Rates(), Speed()
+        # The first frames show the particles and say the step is compiling; the next
+        # frame's first advance compiles it (tens of seconds for a 3D scene on a CPU).
+        self.fresh = LOADING_FRAMES
+        self.pointer.reset()
 
     def switch_scene(self, name: str, overrides=None) -> bool:
         """Build ``name`` (optionally with overrides) and make it current; on failure
         keep the running scene and say why in the HUD."""
         if not self._same_precision(name):
             return False
+        if not self._show_loading(name, f"loading {name} (compiling the particles' setup ...)"):
+            return False   # Esc: quitting
         try:
             sim = self._build(name, overrides)
         except Exception as e:  # a bad scene file must not close the window
@@ -280,12 +200,13 @@ class _App:
         return True
 
     def set_refinement(self, enabled: bool) -> None:
-        try:
-            self.sim.set_param("adaptivity.enabled", bool(enabled))
+        """Refinement on / off: live where the simulation lists ``adaptivity.enabled`` in
+        its ``LIVE_KEYS``, else by rebuilding the scene with the override (the solver's
+        levels are fixed when it is built)."""
+        if "adaptivity.enabled" in getattr(self.sim, "LIVE_KEYS", ()):
+            self._set_param("adaptivity.enabled", bool(enabled))
             self.refinement = bool(enabled)
             return
-        except (ValueError, KeyError, TypeError, AttributeError):
-            pass  # not live-tunable: rebuild the scene with the override
         if not self.can_override:
             self.message = "refinement toggle needs make_sim(scene_name, overrides)"
             return
@@ -304,6 +225,9 @@ class _App:
             self.params[key] = value
         except Exception as e:
             self.message = f"{key}: {str(e).splitlines()[0][:160]}"
+            return
+        if key == "fluid.stiffness":   # the sound speed, and so the mouse's cap, follow it
+            self.mouse.max_speed = safe_speed(float(value), self.snap.domain_min, self.snap.domain_max)
 
     def _set_gravity_y(self, gy: float) -> None:
         g = list(self.gravity)
@@ -323,38 +247,25 @@ class _App:
             self.fps = 1.0 / dt_wall if self.fps == 0 else 0.9 * self.fps + 0.1 / dt_wall
             if not self._keys():
                 break
+            if self.pending is not None:   # before anything of this frame is drawn
+                action, self.pending = self.pending, None
+                action()
+                if not self.window.running:
+                    break
             # fit the domain into the area left of the HUD panel, so nothing hides (3D:
             # when the camera is framed, at the start or on f); before any camera use
             w, _ = self.renderer.size
             free = self._hud_rect_px()[0] / w if self.show_hud else 1.0
             self.renderer.viewport = (0.0, 0.0, max(free, 0.3), 1.0)
             self._held_keys(min(dt_wall, 0.1))  # no camera jump after a slow frame
-            # The drag velocity is measured in simulated time: the cursor moves so far
-            # per frame and the fluid should follow it on screen, however fast the
-            # simulation runs compared to the wall clock.
-            d = self._mouse(dt_wall if self.paused else self.frame_sim)
+            # The drag velocity is the hand's, in metres per wall second, capped to the
+            # safe speed (mrsph.app.mouse): per simulated second, a swipe in slow motion
+            # became a blow as many times faster as the slow-down.
+            d = self._mouse(dt_wall)
             self.sim.set_disturbance(d)
             if self.paused or self.step_once:
                 self.speed.clear()
-            if not self.paused or self.step_once:
-                t0 = float(self.sim.time)
-                try:
-                    # a frame cut to the budget keeps the window responsive where the
-                    # machine is too slow for the scene (slow motion); a single step
-                    # (n) is a whole frame
-                    self.sim.advance_frame(None if self.step_once else self.frame_budget)
-                except Exception as e:  # blow-up: stop and say so, keep the window
-                    self.paused = True
-                    line = (str(e).splitlines() or [type(e).__name__])[0]
-                    print(f"error: {line}", file=sys.stderr, flush=True)   # as headless runs say it
-                    self.message = f"simulation stopped: {line[:240]} (r: reset)"
-                advanced = float(self.sim.time) - t0
-                if advanced > 0.0:
-                    self.frame_sim = advanced
-                if not (self.paused or self.step_once):
-                    self.speed.add(time.perf_counter(), float(self.sim.time))
-                self.step_once = False
-                self.dirty = True
+            self._advance()
             if self.dirty:
                 self.snap = self.sim.snapshot()
                 self.dirty = False
@@ -362,9 +273,13 @@ class _App:
             st = snap.stats or {}
             self.rates.add(float(snap.time), float(st.get("splits", 0)), float(st.get("merges", 0)))
             self.renderer.draw(snap, self.color_mode, self.show_virtual,
-                               rest_density=getattr(self.sim, "rest_density", None))
-            self._hud(snap)
+                               rest_density=getattr(self.sim, "rest_density", None),
+                               marks=self._marks(snap), surface=self.surface)
+            draw_hud(self, snap)
+            loading_panel(self.window, self.renderer.size, self.loading)
             self._write_stats(snap, d)
+            if self.loading:
+                self._loading_shot(self.scene_name)
             self.frames_drawn += 1
             if self.want_screenshot or (self.screenshot_path and self.frames_drawn == AUTO_SCREENSHOT_FRAME):
                 # Between drawing and show(): the image buffer holds this frame.
@@ -375,6 +290,39 @@ class _App:
             self.stats_file.close()
         self.window.destroy()
         self.ini.cleanup()
+
+    def _advance(self) -> None:
+        """This frame's simulation: none on a scene's first LOADING_FRAMES frames (they
+        say the step is compiling; the next frame's advance compiles it), or while
+        paused."""
+        compiling = self.fresh > 0 and not self.paused
+        if compiling:
+            self.loading = f"loading {self.scene_name} (compiling the step ...)"
+        elif self.loading and not self.fresh:
+            self.loading = None
+        if (not self.paused or self.step_once) and not compiling:
+            t0 = float(self.sim.time)
+            try:
+                # a frame cut to the budget keeps the window responsive where the
+                # machine is too slow for the scene (slow motion); a single step
+                # (n) is a whole frame
+                self.sim.advance_frame(None if self.step_once else self.frame_budget)
+            except Exception as e:  # blow-up: stop and say so, keep the window
+                self.paused = True
+                line = (str(e).splitlines() or [type(e).__name__])[0]
+                print(f"error: {line}", file=sys.stderr, flush=True)   # as headless runs say it
+                self.message = f"simulation stopped: {line[:240]} (r: reset)"
+            advanced = float(self.sim.time) - t0
+            if advanced > 0.0:
+                self.frame_sim = advanced
+            if not (self.paused or self.step_once):
+                self.speed.add(time.perf_counter(), float(self.sim.time))
+            self.step_once = False
+            self.dirty = True
+        if compiling:
+            self.fresh -= 1        # then a frame advances (and compiles)
+        elif self.fresh and self.paused:
+            self.fresh = 0
 
     def _keys(self) -> bool:
         """Pressed-key events; False when the app should quit."""
@@ -406,25 +354,33 @@ class _App:
                 self.mouse.scroll(RADIUS_KEY_NOTCHES)
             elif k == "f":
                 self.renderer.reset_view()
+            elif k == "w":
+                self.surface = not self.surface
+            elif k in CAMERA_KEYS or k in (ti.ui.LEFT, ti.ui.RIGHT, ti.ui.UP, ti.ui.DOWN):
+                self.taps.add(k)     # latched: acts this frame even if already released
             elif k == "p":
                 self.want_screenshot = True  # taken after this frame is drawn
         return True
 
     def _held_keys(self, dt: float) -> None:
         """Camera keys act while held (3D only)."""
+        taps, self.taps = self.taps, set()
         if self.snap is None or self.snap.dim != 3:
             return
         cam = self.renderer.ensure_camera(self.snap)
-        w = self.window
-        ti = self.ti
-        yaw = (w.is_pressed(ti.ui.LEFT) - w.is_pressed(ti.ui.RIGHT)) * ORBIT_KEY_RATE * dt
-        pitch = (w.is_pressed(ti.ui.UP) - w.is_pressed(ti.ui.DOWN)) * ORBIT_KEY_RATE * dt
+        w, ti = self.window, self.ti
+
+        def held(key) -> float:
+            """Seconds the key acted this frame: the frame while held, TAP_S for a tap
+            that was released before this frame could see it held."""
+            return dt if w.is_pressed(key) else (TAP_S if key in taps else 0.0)
+        yaw = (held(ti.ui.LEFT) - held(ti.ui.RIGHT)) * ORBIT_KEY_RATE
+        pitch = (held(ti.ui.UP) - held(ti.ui.DOWN)) * ORBIT_KEY_RATE
         if yaw or pitch:
             cam.orbit(yaw, pitch)
-        zoom_in = w.is_pressed("z")
-        zoom_out = w.is_pressed("x")
-        if zoom_in != zoom_out:
-            cam.zoom(math.exp((ZOOM_KEY_RATE if zoom_out else -ZOOM_KEY_RATE) * dt))
+        zoom = (held("x") - held("z")) * ZOOM_KEY_RATE
+        if zoom:
+            cam.zoom(math.exp(zoom))
 
     def _reset(self) -> None:
         try:
@@ -435,6 +391,26 @@ class _App:
         self.mouse.reset()
         self.dirty = True
 
+    def later(self, action) -> None:
+        """Run ``action`` at the start of the next frame: a HUD button is read in the
+        middle of a frame, and a scene switch draws loading frames of its own."""
+        self.pending = action
+
+    def _show_loading(self, name: str, text: str) -> bool:
+        """Draw one frame that says ``text``; False when Esc was pressed (quitting)."""
+        self.loading = text
+        if show_loading_frame(self.window, self.renderer, text, self.ti.ui.ESCAPE,
+                              lambda: self._loading_shot(name)):
+            return True
+        self.window.running = False
+        return False
+
+    def _marks(self, snap) -> list:
+        """What acts on the water, to draw (mrsph.app.marks)."""
+        u, v = self.window.get_cursor_pos()
+        hovering = self.pointer.owner is None and not self._over_hud(u, v)
+        return frame_marks(self.sim.scene, snap, self.mouse, (u, v), self.renderer, hovering)
+
     def _next_scene(self) -> None:
         if self.scene_name in self.scene_names:
             i = (self.scene_names.index(self.scene_name) + 1) % len(self.scene_names)
@@ -444,9 +420,7 @@ class _App:
 
     # -- mouse -------------------------------------------------------------------------
     def _hud_rect_px(self):
-        w, h = self.renderer.size
-        x0 = w - HUD_WIDTH_PX - HUD_MARGIN_PX
-        return x0, HUD_MARGIN_PX, w - HUD_MARGIN_PX, min(HUD_MARGIN_PX + HUD_HEIGHT_PX, h - HUD_MARGIN_PX)
+        return hud_rect_px(self.renderer.size)
 
     def _over_hud(self, u: float, v: float) -> bool:
         """Whether the cursor (canvas coords, y up) is over a HUD panel, where clicks
@@ -461,159 +435,29 @@ class _App:
         return lx * w <= x <= (lx + lw) * w and ly * h <= y <= (ly + lh) * h
 
     def _mouse(self, dt: float):
-        """Cursor and buttons -> camera motion (3D) or a disturbance."""
-        ti, w, snap = self.ti, self.window, self.snap
+        """Cursor and buttons -> camera motion (3D) or a disturbance (mrsph.app.pointer)."""
+        ti, w = self.ti, self.window
         u, v = w.get_cursor_pos()
-        lmb, rmb, mmb = w.is_pressed(ti.ui.LMB), w.is_pressed(ti.ui.RMB), w.is_pressed(ti.ui.MMB)
-        shift = w.is_pressed(ti.ui.SHIFT)
-        prev = self.cursor_prev
-        self.cursor_prev = (u, v)
-        if not (lmb or rmb or mmb):
-            self.drag_owner, self.drag_plane = None, None
-            return self.mouse.update(None, set(), dt)
-        if self.drag_owner is None:  # a press: decide once who owns this drag
-            if self._over_hud(u, v):
-                self.drag_owner = "hud"
-            elif snap.dim == 3 and rmb:
-                self.drag_owner = "camera"
-            elif snap.dim == 3 and mmb:
-                self.drag_owner = "pan"
-            else:
-                self.drag_owner = "fluid"
-        if self.drag_owner in ("camera", "pan"):
-            if prev is not None:
-                du, dv = u - prev[0], v - prev[1]
-                cam = self.renderer.ensure_camera(snap)
-                if self.drag_owner == "camera":
-                    cam.orbit(-du * ORBIT_DRAG_GAIN, -dv * ORBIT_DRAG_GAIN * 0.5)
-                else:
-                    width, height = self.renderer.size
-                    cam.pan(du * width / height, dv)
-            return self.mouse.update(None, set(), dt)
-        if self.drag_owner != "fluid":
-            return self.mouse.update(None, set(), dt)
-        buttons = {b for b, held in ((LEFT, lmb), (RIGHT, rmb and snap.dim == 2), (SHIFT, shift)) if held}
-        return self.mouse.update(self._cursor_world(u, v), buttons, dt)
-
-    def _cursor_world(self, u: float, v: float):
-        snap = self.snap
-        if snap.dim == 2:
-            return self.renderer.view2d(snap).canvas_to_world((u, v))
-        cam = self.renderer.ensure_camera(snap)
-        width, height = self.renderer.size
-        origin, direction = cam.ray(u, v, width / height)
-        forward = cam.basis()[0]
-        if self.drag_plane is None:
-            # Start of a drag: grab the fluid where the ray enters its bounding box (or
-            # the plane through the domain centre), then move in the plane through that
-            # point facing the camera, so the drag velocity is the cursor's velocity.
-            real = ~palette.is_virtual(snap.kind)
-            x = np.asarray(snap.x)[real] if real.any() else np.asarray(snap.x)
-            centre = (np.asarray(snap.domain_min) + np.asarray(snap.domain_max)) / 2.0
-            if len(x):
-                p = pick_point(origin, direction, x.min(axis=0), x.max(axis=0), centre, forward)
-            else:
-                p = pick_point(origin, direction, snap.domain_min, snap.domain_max, centre, forward)
-            self.drag_plane = (p, forward)
-            return p
-        p = ray_plane(origin, direction, self.drag_plane[0], self.drag_plane[1])
-        return p if p is not None else self.drag_plane[0]
-
-    # -- HUD ---------------------------------------------------------------------------
-    def _hud(self, snap) -> None:
-        gui = self.window.get_gui()
-        w, h = self.renderer.size
-        x0, y0, x1, y1 = self._hud_rect_px()
-        st = snap.stats or {}
-        if self.show_help:
-            rows = len(_HELP.splitlines()) + 2 + len(self.scene_names)
-            with gui.sub_window("Help", 0.2, 0.15, min(440 / w, 0.9), min((40 + 23 * rows) / h, 0.9)):
-                for line in _HELP.splitlines():
-                    gui.text(line)
-                gui.text("scenes:")
-                for name in self.scene_names:
-                    if name != self.scene_name and gui.button(name):
-                        self.switch_scene(name)
-        if not self.show_hud:
-            return
-        with gui.sub_window("mrsph", x0 / w, y0 / h, (x1 - x0) / w, (y1 - y0) / h):
-            gui.text(f"scene {self.scene_name} ({snap.dim}D)")
-            gui.text("h: help   u: hide this panel")
-            gui.text(f"{self.fps:5.1f} fps   frame {snap.frame}" + ("   PAUSED" if self.paused else ""))
-            gui.text(f"t = {float(snap.time):.3f} s   dt = {float(st.get('dt', 0.0)):.2e} s")
-            speed = self.speed.value()
-            if speed is None:
-                gui.text("speed: paused" if self.paused else "speed: measuring")
-            else:
-                slow = "   (slow motion)" if self.frame_sim < 0.999 * self.frame_dt else ""
-                gui.text(f"speed {speed:.3g}x real time{slow}")
-            gui.text(f"real {st.get('n_real', '?')}   virtual {st.get('n_virtual', '?')}"
-                     f"   transient {st.get('n_transient', '?')}")
-            for lvl in range(int(snap.levels)):
-                gui.text(f"  level {lvl}: {st.get(f'n_level_{lvl}', '?')} real, "
-                         f"{st.get(f'n_virtual_level_{lvl}', '?')} virtual",
-                         color=tuple(float(c) for c in palette.level_colour(lvl)))
-            splits, merges = self.rates.rates()
-            gui.text(f"splits {splits:.0f}/s   merges {merges:.0f}/s")
-            unit = "kg" if snap.dim == 3 else "kg/m"
-            gui.text(f"mass {float(st.get('total_mass', 0.0)):.4g} {unit}   "
-                     f"max rho/rho0 {float(st.get('max_density_ratio', 0.0)):.3f}")
-            if gui.button("Run" if self.paused else "Pause"):
-                self.paused = not self.paused
-            if gui.button("Step"):
-                self.paused, self.step_once = True, True
-            if gui.button("Reset"):
-                self._reset()
-            if gui.button("Next scene (tab)"):
-                self._next_scene()
-            if gui.button("Scenes and keys (h)"):
-                self.show_help = not self.show_help
-            gui.text("fluid")
-            for key, label in (("fluid.viscosity", "viscosity"), ("fluid.stiffness", "stiffness")):
-                lo = 0.0 if key == "fluid.viscosity" else 0.1 * self.slider_max[key] / 4.0
-                new = gui.slider_float(label, self.params[key], lo, self.slider_max[key])
-                if not math.isclose(new, self.params[key], rel_tol=1e-6, abs_tol=1e-12):
-                    self._set_param(key, float(new))
-            new = gui.slider_float("gravity y", self.params["gravity_y"], -20.0, 5.0)
-            if not math.isclose(new, self.params["gravity_y"], abs_tol=1e-9):
-                self._set_gravity_y(new)
-            gui.text("mouse (q / e: radius)")
-            self.mouse.radius = gui.slider_float("radius", self.mouse.radius, self.mouse.radius_min,
-                                                 self.mouse.radius_max)
-            self.mouse.strength = gui.slider_float("strength", self.mouse.strength, 0.0, 100.0)
-            new = gui.checkbox("refinement", self.refinement)
-            if new != self.refinement:
-                self.set_refinement(new)
-            self.show_virtual = gui.checkbox("show virtual (v)", self.show_virtual)
-            if gui.button(f"colour: {self.color_mode} (c)"):
-                self.color_mode = palette.next_mode(self.color_mode)
-            for line in textwrap.wrap(self.message, HUD_TEXT_CHARS):
-                gui.text(line, color=(1.0, 0.75, 0.3))
+        return self.pointer.update((u, v), w.is_pressed(ti.ui.LMB), w.is_pressed(ti.ui.RMB),
+                                   w.is_pressed(ti.ui.MMB), w.is_pressed(ti.ui.SHIFT), self.snap,
+                                   self.renderer, self.mouse, self._over_hud(u, v), dt)
 
     # -- hooks -------------------------------------------------------------------------
     def _write_stats(self, snap, d) -> None:
-        if not self.stats_file:
-            return
-        st = snap.stats or {}
-        row = {"frame": int(snap.frame), "time": float(snap.time),
-               "kinetic_energy": float(st.get("kinetic_energy", 0.0)),
-               "n_real": int(st.get("n_real", 0)), "n_virtual": int(st.get("n_virtual", 0)),
-               "disturbance_active": d is not None, "paused": self.paused,
-               "scene": self.scene_name, "wall_s": round(time.perf_counter() - self.start, 4),
-               "fps": round(self.fps, 2), "speed": round(self.speed.value() or 0.0, 4)}
-        self.stats_file.write(json.dumps(row) + "\n")
-        self.stats_file.flush()
+        if self.stats_file:
+            self.stats_file.write(json.dumps(stats_row(self, snap, d)) + "\n")
+            self.stats_file.flush()
+
+    def _loading_shot(self, scene: str) -> None:
+        """Test hook: every loading frame's screenshot beside MRSPH_WINDOW_SCREENSHOT's
+        (``scene``: the scene it loads)."""
+        path = loading_shot_path(self.screenshot_path, scene, self.loading_shots)
+        if path is not None:
+            write_screenshot(self.window, str(path))
+            self.loading_shots += 1
 
     def _screenshot(self) -> None:
-        import imageio.v3 as iio
-        from .render import image_from_window
-        path = Path(self.screenshot_path or time.strftime("mrsph_%Y%m%d_%H%M%S.png"))
-        try:
-            iio.imwrite(path, image_from_window(self.window))
-            self.message = f"screenshot {path}"
-        except Exception as e:
-            self.message = f"screenshot failed: {e}"
-
+        self.message = write_screenshot(self.window, self.screenshot_path)
 
 def run_window(make_sim, scene_name: str, scene_names: list[str], width: int = 1280,
                height: int = 720, frame_budget: float | None = None) -> None:

@@ -1,0 +1,63 @@
+"""The window's hooks for tests and users: per-frame stats lines and screenshots.
+
+``MRSPH_WINDOW_STATS=path``: append one JSON line per frame: frame, time,
+kinetic_energy, n_real, n_virtual, disturbance_active, paused, scene, wall_s, fps,
+speed (simulated seconds per wall second), camera_distance (3D, else null), surface,
+surface_ms (what computing the water view's surface took this frame; 0 when off or
+reused), loading (the frame shows the loading message).
+``MRSPH_WINDOW_SCREENSHOT=path``: write the screenshot there (frame
+AUTO_SCREENSHOT_FRAME, and on ``p``), and every frame that shows the loading message
+beside it, as ``<stem>_loading_<scene>_<n><suffix>`` (n counts them from 0); without it
+``p`` writes into SCREENSHOT_DIR.
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+STATS_ENV = "MRSPH_WINDOW_STATS"
+SCREENSHOT_ENV = "MRSPH_WINDOW_SCREENSHOT"
+#: Frame at which the automatic screenshot of MRSPH_WINDOW_SCREENSHOT is taken: late
+#: enough that ImGui has laid out its windows (they appear from the second frame).
+AUTO_SCREENSHOT_FRAME = 10
+#: Where ``p`` writes screenshots, relative to the working directory (.gitignore covers
+#: /out/ at the repository root).
+SCREENSHOT_DIR = Path("out") / "screenshots"
+
+
+def loading_shot_path(screenshot_path: str | None, scene: str, n: int) -> Path | None:
+    """Where the n-th loading frame's screenshot goes, or None without the hook."""
+    if not screenshot_path:
+        return None
+    p = Path(screenshot_path)
+    return p.with_name(f"{p.stem}_loading_{scene}_{n:03d}{p.suffix}")
+
+
+def stats_row(app, snap, disturbance) -> dict:
+    """The stats line of one frame of the window ``app`` (an ``_App``)."""
+    st = snap.stats or {}
+    camera = app.renderer.camera
+    return {"frame": int(snap.frame), "time": float(snap.time),
+            "kinetic_energy": float(st.get("kinetic_energy", 0.0)),
+            "n_real": int(st.get("n_real", 0)), "n_virtual": int(st.get("n_virtual", 0)),
+            "disturbance_active": disturbance is not None, "paused": app.paused,
+            "scene": app.scene_name, "wall_s": round(time.perf_counter() - app.start, 4),
+            "fps": round(app.fps, 2), "speed": round(app.speed.value() or 0.0, 4),
+            "camera_distance": (round(float(camera.distance), 6)
+                                if snap.dim == 3 and camera is not None else None),
+            "surface": app.surface, "surface_ms": round(1e3 * app.renderer.surface_s, 3),
+            "loading": app.loading is not None}
+
+
+def write_screenshot(window, path: str | None) -> str:
+    """Save the frame in the window's image buffer (call between drawing and show());
+    ``path`` None: a time-stamped file in SCREENSHOT_DIR. Returns the HUD's message."""
+    import imageio.v3 as iio
+    from .render import image_from_window
+    out = Path(path or SCREENSHOT_DIR / time.strftime("mrsph_%Y%m%d_%H%M%S.png"))
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        iio.imwrite(out, image_from_window(window))
+        return f"screenshot {out}"
+    except Exception as e:
+        return f"screenshot failed: {e}"
