@@ -17,6 +17,8 @@ import time
 import warnings
 from pathlib import Path
 
+import numpy as np
+
 from .options import (EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE,
                       WINDOW_FRAME_BUDGET_MS, HelpFormatter, Parser, dir_problem, file_problem,
                       fps_arg, frame_budget_arg, pixels_arg, positive_int, threads_arg)
@@ -176,7 +178,8 @@ class _Dumper:
 
     def dump(self, snap) -> None:
         from .output import write_frame
-        parts = {"x": snap.x, "v": snap.v, "m": snap.m, "rho": snap.rho,
+        p = snap.p if snap.p is not None else np.zeros_like(snap.rho)
+        parts = {"x": snap.x, "v": snap.v, "m": snap.m, "rho": snap.rho, "p": p,
                  "level": snap.level, "kind": snap.kind}
         write_frame(self.directory, snap.frame, parts, self.dim, self.fmt)
         self.stats.write(snap.stats)

@@ -7,15 +7,16 @@ A frame dump holds every alive particle, virtual ones included, with the arrays
 ``v``    (N, d)    velocity, m/s
 ``m``    (N,)      mass, kg
 ``rho``  (N,)      density, kg/m^3
+``p``    (N,)      pressure, Pa (WCSPH: the equation of state's; DFSPH: the solve's)
 ``level`` (N,)     int32, resolution level (0 = finest)
 ``kind`` (N,)      int32, kind code (docs/ARCHITECTURE.md; virtual = kind >= 4)
 =======  ========  ===========================================================
 
 ``frame_00000.npz`` keeps them as they are. ``frame_00000.ply`` is a binary
 little-endian point cloud (ParaView, MeshLab, Blender) with the properties
-``x y z vx vy vz m rho level kind``; 2D positions and velocities get z = 0.
+``x y z vx vy vz m rho p level kind``; 2D positions and velocities get z = 0.
 ``frame_00000.vtu`` is a VTK unstructured grid of vertex cells (ParaView) with ``v``,
-``m``, ``rho``, ``level`` and ``kind`` as point data, written by meshio.
+``m``, ``rho``, ``p``, ``level`` and ``kind`` as point data, written by meshio.
 ``frame_00000.obj`` is not the particles but the fluid's surface (:mod:`mrsph.surface`,
 the window's water view) as a Wavefront OBJ triangle mesh for Blender and the like:
 3D, a closed mesh with vertex normals, wound outward; 2D, the filled area as triangles
@@ -32,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 FORMATS = ("npz", "ply", "vtk", "obj")
-FRAME_ARRAYS = ("x", "v", "m", "rho", "level", "kind")
+FRAME_ARRAYS = ("x", "v", "m", "rho", "p", "level", "kind")
 #: File name of frame i: frame_00000.npz; five digits keep frames sorted by name.
 FRAME_NAME = "frame_{:05d}.{}"
 _SUFFIX = {"npz": "npz", "ply": "ply", "vtk": "vtu", "obj": "obj"}
@@ -113,15 +114,15 @@ def write_frame(directory, frame_index: int, parts: dict, dim: int, fmt: str = "
 def _write_ply(path: Path, a: dict) -> None:
     n = len(a["x"])
     fdt = np.dtype("<f8") if a["x"].dtype == np.float64 or a["v"].dtype == np.float64 else np.dtype("<f4")
-    sdt = np.dtype("<f8") if a["m"].dtype == np.float64 or a["rho"].dtype == np.float64 else np.dtype("<f4")
+    sdt = np.dtype("<f8") if any(a[k].dtype == np.float64 for k in ("m", "rho", "p")) else np.dtype("<f4")
     fields = [(name, fdt) for name in ("x", "y", "z", "vx", "vy", "vz")]
-    fields += [("m", sdt), ("rho", sdt), ("level", np.dtype("<i4")), ("kind", np.dtype("<i4"))]
+    fields += [("m", sdt), ("rho", sdt), ("p", sdt), ("level", np.dtype("<i4")), ("kind", np.dtype("<i4"))]
     rec = np.empty(n, dtype=np.dtype(fields))
     for k, name in enumerate(("x", "y", "z")):
         rec[name] = _pad3(a["x"])[:, k]
     for k, name in enumerate(("vx", "vy", "vz")):
         rec[name] = _pad3(a["v"])[:, k]
-    for name in ("m", "rho", "level", "kind"):
+    for name in ("m", "rho", "p", "level", "kind"):
         rec[name] = a[name]
     header = ["ply", "format binary_little_endian 1.0", "comment written by mrsph",
               f"element vertex {n}"]
@@ -186,7 +187,7 @@ def _write_vtu(path: Path, a: dict) -> None:
     points = _pad3(a["x"]).astype(np.float64)
     cells = [meshio.CellBlock("vertex", np.arange(n, dtype=np.int64).reshape(n, 1))]
     point_data = {"v": _pad3(a["v"]).astype(np.float64)}
-    for name in ("m", "rho", "level", "kind"):
+    for name in ("m", "rho", "p", "level", "kind"):
         point_data[name] = a[name]
     # An empty frame (a pour before its first particle) is written uncompressed, so that
     # no zero-length zlib block appears; ParaView opens it, meshio's reader cannot read
@@ -198,7 +199,8 @@ def _write_vtu(path: Path, a: dict) -> None:
 # ------------------------------------------------------------------------- stats.csv
 #: Columns a stats row may carry beyond the base ones, in the order they are written;
 #: per-level columns come in level order. Any other key follows, sorted by name.
-_EXTRA_ORDER = ("n_virtual_level_*", "n_transient", "splits", "merges", "refused")
+_EXTRA_ORDER = ("n_virtual_level_*", "n_transient", "solver", "density_iterations", "divergence_iterations",
+                "density_error", "unconverged", "splits", "merges", "refused")
 
 
 def stats_columns(dim: int, levels: int) -> list[str]:

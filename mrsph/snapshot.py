@@ -26,3 +26,4 @@ class Snapshot:
     domain_max: np.ndarray
     obstacles: list = field(default_factory=list)
     stats: dict = field(default_factory=dict)
+    p: np.ndarray | None = None     # pressure, Pa (None: a stand-in without one)

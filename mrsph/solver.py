@@ -366,7 +366,7 @@ class Simulation:
             radius=np.array([0.5 * self.s0 * 2**l for l in range(self.levels)]),
             domain_min=np.asarray(s["domain"]["min"], float), domain_max=np.asarray(s["domain"]["max"], float),
             obstacles=[dict(o) for o in s["obstacles"]],
-            stats=self.stats(parts) if stats else {})
+            stats=self.stats(parts) if stats else {}, p=parts["p"])
 
     def save_state(self) -> dict:
         """The simulation's state in memory (numpy copies): every particle attribute, the

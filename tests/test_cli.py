@@ -313,7 +313,7 @@ def test_headless_dump_ply_and_vtk(tmp_path, fmt):
         else:
             mesh = meshio.read(p)
             assert mesh.points.shape == (16 * 33, 3)
-            assert set(mesh.point_data) == {"v", "m", "rho", "level", "kind"}
+            assert set(mesh.point_data) == {"v", "m", "rho", "p", "level", "kind"}
     assert (out / "stats.csv").is_file()
 
 

@@ -19,7 +19,8 @@ def particles(dim: int, n: int = 37, seed: int = 0) -> dict:
         "v": rng.standard_normal((n, dim)).astype(np.float32),
         "m": rng.random(n) * 1e-3 + 1e-4,
         "rho": 1000.0 + rng.standard_normal(n),
-        "p": rng.random(n),                          # extra arrays are ignored
+        "p": rng.random(n) * 1e4,                    # pressure, Pa (both solvers write it)
+        "lam": rng.random(n),                        # extra arrays are ignored
         "level": rng.integers(0, 3, n).astype(np.int32),
         "kind": rng.integers(0, 6, n).astype(np.int32),
     }
@@ -35,7 +36,7 @@ def test_npz_round_trip(tmp_path, dim):
     path = write_frame(tmp_path, 7, parts, dim)
     assert path == tmp_path / "frame_00007.npz"
     with np.load(path) as f:
-        assert sorted(f.files) == sorted(["x", "v", "m", "rho", "level", "kind"])
+        assert sorted(f.files) == sorted(["x", "v", "m", "rho", "p", "level", "kind"])
         assert f["x"].shape == (37, dim) and f["v"].shape == (37, dim)
         assert f["level"].dtype == np.int32 and f["kind"].dtype == np.int32
         for key in f.files:
@@ -53,7 +54,7 @@ def test_ply_header_and_values(tmp_path, dim):
     assert lines[:2] == ["ply", "format binary_little_endian 1.0"]
     assert "element vertex 37" in lines
     props = [ln.split()[2] for ln in lines if ln.startswith("property")]
-    assert props == ["x", "y", "z", "vx", "vy", "vz", "m", "rho", "level", "kind"]
+    assert props == ["x", "y", "z", "vx", "vy", "vz", "m", "rho", "p", "level", "kind"]
     # the body is exactly N records of the declared types, nothing more
     sizes = {"float": 4, "double": 8, "int": 4}
     record = sum(sizes[ln.split()[1]] for ln in lines if ln.startswith("property"))
@@ -64,7 +65,7 @@ def test_ply_header_and_values(tmp_path, dim):
     for k, name in enumerate("xyz"):
         np.testing.assert_array_equal(back[name], x[:, k])
         np.testing.assert_array_equal(back["v" + name], v[:, k])
-    for name in ("m", "rho", "level", "kind"):
+    for name in ("m", "rho", "p", "level", "kind"):
         np.testing.assert_array_equal(back[name], parts[name])
 
 
@@ -78,11 +79,11 @@ def test_vtu_reads_back_with_meshio(tmp_path, dim):
     assert [c.type for c in mesh.cells] == ["vertex"]
     np.testing.assert_array_equal(mesh.cells[0].data.ravel(), np.arange(37))
     np.testing.assert_array_equal(mesh.point_data["v"], padded(parts["v"]))
-    for name in ("m", "rho", "level", "kind"):
+    for name in ("m", "rho", "p", "level", "kind"):
         np.testing.assert_array_equal(mesh.point_data[name], parts[name])
     # the XML check the empty frame relies on agrees with meshio here (zlib-compressed)
     assert vtu_array_lengths(path) == {"Points": 37, "connectivity": 37, "offsets": 37, "types": 37,
-                                       "v": 37, "m": 37, "rho": 37, "level": 37, "kind": 37}
+                                       "v": 37, "m": 37, "rho": 37, "p": 37, "level": 37, "kind": 37}
 
 
 @pytest.mark.parametrize("fmt", FORMATS)
@@ -93,12 +94,12 @@ def test_empty_frame_is_written(tmp_path, fmt):
     assert path.is_file() and path.stat().st_size > 0
     if fmt == "ply":
         back = read_ply(path)
-        assert list(back) == ["x", "y", "z", "vx", "vy", "vz", "m", "rho", "level", "kind"]
+        assert list(back) == ["x", "y", "z", "vx", "vy", "vz", "m", "rho", "p", "level", "kind"]
         assert all(len(a) == 0 for a in back.values()), {k: len(a) for k, a in back.items()}
     elif fmt == "npz":
         with np.load(path) as f:
             shapes = {k: f[k].shape for k in f.files}
-        assert shapes == {"x": (0, 2), "v": (0, 2), "m": (0,), "rho": (0,), "level": (0,),
+        assert shapes == {"x": (0, 2), "v": (0, 2), "m": (0,), "rho": (0,), "p": (0,), "level": (0,),
                           "kind": (0,)}, f"empty npz frame holds {shapes}"
     elif fmt == "obj":
         # no fluid, no surface: the file names its object and holds no vertex or face
@@ -109,7 +110,7 @@ def test_empty_frame_is_written(tmp_path, fmt):
         # a minimal hand-written valid one with ascii, empty DataArrays; meshio 5.3.5), so
         # the XML is checked here as a VTK reader sees it.
         assert vtu_array_lengths(path) == {"Points": 0, "connectivity": 0, "offsets": 0, "types": 0,
-                                           "v": 0, "m": 0, "rho": 0, "level": 0, "kind": 0}
+                                           "v": 0, "m": 0, "rho": 0, "p": 0, "level": 0, "kind": 0}
 
 
 def vtu_array_lengths(path) -> dict:
