@@ -77,7 +77,10 @@ def _cases(full: bool) -> list[Case]:
              ("particles.spacing=0.0035",), 0.24, 0.01, "pair"),
         Case("dam_break_obstacle_3d s=15mm", "dam_break_obstacle_3d",
              ("particles.spacing=0.015",), 0.2, 0.01, "pair"),
+        Case("dam_break_2d dfsph ~10k", "dam_break_2d",
+             ("particles.spacing=0.0035", "fluid.solver=\"dfsph\""), 0.1, 0.05),
         Case("demo_2d rendered", "demo_2d", (), 1.0 / 30.0, 0.1, "demo"),
+        Case("demo_3d rendered", "demo_3d", (), 1.0 / 30.0, 0.1, "demo"),
         Case("pool_3d rendered", "pool_3d", (), 1.0 / 30.0, 0.1, "demo"),
     ]
     if not full:
@@ -85,6 +88,12 @@ def _cases(full: bool) -> list[Case]:
     return quick + [
         Case("dam_break_2d uniform ~50k", "dam_break_2d", ("particles.spacing=0.0016",), 0.25, 0.02),
         Case("dam_break_3d uniform ~100k", "dam_break_3d", ("particles.spacing=0.0063",), 0.2, 0.01),
+        # the same flows with the divergence-free solver: its steps are ~10x longer, so the
+        # interval is longer too (a handful of steps would time the launches, not the flow)
+        Case("dam_break_2d dfsph ~50k", "dam_break_2d",
+             ("particles.spacing=0.0016", "fluid.solver=\"dfsph\""), 0.25, 0.05),
+        Case("dam_break_3d dfsph ~100k", "dam_break_3d",
+             ("particles.spacing=0.0063", "fluid.solver=\"dfsph\""), 0.2, 0.03),
         Case("dam_break_obstacle_2d s=2mm", "dam_break_obstacle_2d",
              ("particles.spacing=0.002",), 0.24, 0.01, "pair"),
         Case("dam_break_obstacle_3d s=10mm", "dam_break_obstacle_3d",

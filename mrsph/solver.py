@@ -115,6 +115,7 @@ class Simulation:
         self.coupling.forces, self.coupling.density = self.forces, self.density
         self.seeder = Seeder(parts, self.integrator.gravity, self.pressure.stiffness)
         self.emitters = Emitters(parts, self.seeder)
+        self.pressure.warn = self._warn
 
     # ================================================================== state
     def reset(self) -> None:
@@ -282,10 +283,13 @@ class Simulation:
     def _warn_refused(self):
         if not self._refusal_warned:
             self._refusal_warned = True
-            msg = (f"particle pool full (particles.capacity = {self.capacity}): splits/emission "
-                   f"refused and counted in stats (refused); the simulation goes on coarser")
-            self.warnings.append(msg)
-            warnings.warn(msg, RuntimeWarning, stacklevel=3)
+            self._warn(f"particle pool full (particles.capacity = {self.capacity}): splits/emission "
+                       f"refused and counted in stats (refused); the simulation goes on coarser")
+
+    def _warn(self, msg: str) -> None:
+        """A warning the app shows (``warnings``) and Python's warnings machinery reports."""
+        self.warnings.append(msg)
+        warnings.warn(msg, RuntimeWarning, stacklevel=4)
 
     def _stirrers(self, t):
         for i, st in enumerate(self.scene.data["stirrers"]):     # at most MAX_STIRRERS (config)

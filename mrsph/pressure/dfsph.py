@@ -89,6 +89,9 @@ class DFSPH:
         self.error = ti.field(ti.f64, shape=())      # the last iteration's average error
         self.n_real = ti.field(ti.i32, shape=())
         self.reset_counters()
+        # how a warning reaches the user: the Simulation sets its own (kept in its
+        # ``warnings`` for the app, and given to Python's warnings)
+        self.warn = lambda msg: warnings.warn(msg, RuntimeWarning, stacklevel=3)
 
     # ------------------------------------------------------------------ interface
     def signal_speed(self) -> float:
@@ -170,9 +173,9 @@ class DFSPH:
             self._warned = True
             k = 0 if which == "density" else 1
             key = "max_iterations" if k == 0 else "divergence_max_iterations"
-            warnings.warn(f"dfsph: the {which} solve stopped at dfsph.{key} = {self.max_iterations[k]} "
-                          f"before reaching its tolerance {self.tolerance[k]:g} (counted in stats as "
-                          f"unconverged; warned once)", RuntimeWarning, stacklevel=4)
+            self.warn(f"dfsph: the {which} solve stopped at dfsph.{key} = {self.max_iterations[k]} "
+                      f"before reaching its tolerance {self.tolerance[k]:g} (counted in stats as "
+                      f"unconverged; warned once)")
 
     def _solve(self, n: int, dt: float, which: int):
         """Jacobi iterations, ``ITERATIONS_PER_LAUNCH`` a launch, until the device says
