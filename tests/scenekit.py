@@ -1,4 +1,5 @@
 """Helpers shared by the physics test modules: scene boxes and known failures."""
+import numpy as np
 import pytest
 
 
@@ -16,3 +17,125 @@ def known_xfail(request, known: dict, dim: int, key: str, measured: float) -> No
     reason = known.get((key, dim))
     if reason:
         request.applymarker(pytest.mark.xfail(strict=False, reason=f"{reason} (this run: {measured:.4g})"))
+
+
+# ------------------------------------------------------------------ pressure solvers
+SOLVERS = ("wcsph", "dfsph")
+
+
+def case_id(dim: int, solver: str) -> str:
+    """The id of a (dim, solver) case: "2d" for the weakly compressible solver, as the
+    tests were named before DFSPH came, "2d-dfsph" for the divergence-free one."""
+    return f"{dim}d" if solver == "wcsph" else f"{dim}d-{solver}"
+
+
+def dim_solver_params(slow=(), fixture: bool = False) -> list:
+    """The (dim, solver) cases of a test that runs with both pressure solvers, for
+    ``parametrize(("dim", "solver"), ...)``, or with ``fixture`` the params of a fixture
+    (each a (dim, solver) pair); the ids in ``slow`` (see ``case_id``) are marked slow."""
+    return [pytest.param(*(((d, s),) if fixture else (d, s)), id=case_id(d, s),
+                         marks=[pytest.mark.slow] if case_id(d, s) in slow else [])
+            for s in SOLVERS for d in (2, 3)]
+
+
+def with_solver(scene: dict, solver: str) -> dict:
+    """The scene, run with ``solver`` (``fluid.solver``)."""
+    out = dict(scene)
+    out["fluid"] = dict(scene["fluid"], solver=solver)
+    return out
+
+
+class SolveLog:
+    """What the stats rows say of the pressure solves, read after every step: the worst
+    average density error, the solves stopped at their maximum, the mean iterations, and
+    the split and merge counts (``sim.stats()`` counts those since the last call)."""
+
+    def __init__(self):
+        self.steps = 0
+        self.worst_error = 0.0
+        self.worst_at = None
+        self.unconverged = 0
+        self.density_iterations = 0.0
+        self.divergence_iterations = 0.0
+        self.splits = self.merges = 0
+        self.transient = self.virtual = False
+        self.solver, self.tolerance = None, None
+
+    def add(self, sim, row: dict) -> None:
+        self.solver = sim.scene.data["fluid"]["solver"]
+        self.tolerance = float(sim.scene.data["dfsph"]["density_tolerance"])
+        self.steps += 1
+        if row["density_error"] > self.worst_error:
+            self.worst_error, self.worst_at = row["density_error"], sim.time
+        self.unconverged += row["unconverged"]
+        self.density_iterations += row["density_iterations"]
+        self.divergence_iterations += row["divergence_iterations"]
+        self.splits += row["splits"]
+        self.merges += row["merges"]
+        self.transient |= row["n_transient"] > 0
+        self.virtual |= row["n_virtual"] > 0
+
+    def summary(self) -> str:
+        k = max(self.steps, 1)
+        return (f"{self.steps} steps, density error {self.worst_error:.3g} at worst (t = {self.worst_at}), "
+                f"{self.unconverged} solves unconverged, iterations a step: density "
+                f"{self.density_iterations / k:.2f}, divergence {self.divergence_iterations / k:.2f}")
+
+    def check(self, what: str) -> None:
+        """After every step the average density error within dfsph.density_tolerance, and
+        no solve stopped at its maximum iterations (a DFSPH run; nothing to hold a WCSPH
+        run to)."""
+        if self.solver != "dfsph":
+            return
+        tol = self.tolerance
+        assert self.steps > 0, f"{what}: no step was logged"
+        assert self.unconverged == 0 and self.worst_error <= tol, (
+            f"{what}: {self.summary()}; expected every step's density error <= dfsph.density_tolerance "
+            f"= {tol:g} and no unconverged solve")
+
+
+def advance_logged(sim, seconds: float, log: SolveLog) -> None:
+    """``sim.advance(seconds)``, reading the stats row after every step into ``log``
+    (a WCSPH run reads it once, at the end: it has no solve to watch)."""
+    if sim.scene.data["fluid"]["solver"] != "dfsph":
+        sim.advance(seconds)
+        log.add(sim, sim.stats())
+        return
+    end = sim.time + seconds
+    while sim.time < end - 1e-12:
+        sim.step(max_dt=end - sim.time)
+        log.add(sim, sim.stats())
+
+
+def watch_solves(sim) -> list:
+    """Wrap the DFSPH solves of ``sim`` (the divergence solve, in ``after_density``, and
+    the density solve, ``solve``) so that each appends (which, Σ m Δv, Σ m |Δv|) over the
+    real particles: the momentum the solve's pressure accelerations added, and how hard
+    they pushed. A WCSPH run has no solve: the list stays empty."""
+    from mrsph.particles import VIRTUAL_CHILD
+    out = []
+    if not getattr(sim.pressure, "implicit", False):
+        return out
+
+    def state():
+        n = sim.pool.count()
+        kind = sim.pool.p.kind.to_numpy()[:n]
+        real = (kind >= 0) & (kind < VIRTUAL_CHILD)
+        return (sim.pool.p.m.to_numpy()[:n][real].astype(np.float64),
+                sim.pool.p.v.to_numpy()[:n][real].astype(np.float64))
+
+    def wrap(name, label):
+        inner = getattr(sim.pressure, name)
+
+        def watched(n, dt, phase):
+            m0, v0 = state()
+            inner(n, dt, phase)
+            m1, v1 = state()
+            assert np.array_equal(m0, m1), f"the {label} solve changed the real particles"
+            dv = m0[:, None] * (v1 - v0)
+            out.append((label, dv.sum(axis=0), float(np.linalg.norm(dv, axis=1).sum())))
+        setattr(sim.pressure, name, watched)
+
+    wrap("after_density", "divergence")
+    wrap("solve", "density")
+    return out

@@ -20,7 +20,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from mrsph.config import load_scene
-from scenekit import box, known_xfail
+from scenekit import SolveLog, advance_logged, box, case_id, dim_solver_params, known_xfail, with_solver
 
 G = 9.81
 RHO0 = 1000.0
@@ -97,10 +97,11 @@ def measure_pool(scene: dict) -> dict:
     rlo = np.asarray(scene["criteria"][0]["min"], float)
     rhi = np.asarray(scene["criteria"][0]["max"], float)
     near_band = 2.0 * 2.0 * sim.h0          # one coarse support each side of the box surface
-    sim.advance(SETTLE_S)
+    log = SolveLog()
+    advance_logged(sim, SETTLE_S, log)
     speeds, peaks = [], []
     for _ in range(int(round(MEASURE_S / 0.01))):   # 20 snapshots
-        sim.advance(0.01)
+        advance_logged(sim, 0.01, log)
         p = sim.particles(virtual=False)
         x = p["x"].astype(np.float64)
         outside = np.linalg.norm(np.maximum(np.maximum(rlo - x, x - rhi), 0.0), axis=1)
@@ -112,15 +113,16 @@ def measure_pool(scene: dict) -> dict:
     # value over 20 snapshots is one particle's worst moment, and with the reactions summed
     # by atomics in parallel (order-dependent rounding) it varied by ~2 % between runs
     return {"speed": float(np.mean(speeds)), "peak": float(np.mean(peaks)), "worst": max(peaks),
-            "n_real": sim.stats()["n_real"]}
+            "n_real": sim.stats()["n_real"], "log": log}
 
 
-@pytest.fixture(scope="module", params=DIMS, ids=[f"{d}d" for d in DIMS])
+@pytest.fixture(scope="module", params=dim_solver_params(fixture=True))
 def pool_runs(request):
-    dim = request.param
-    out = adaptive_and_uniform(dim, refined_pool(dim), measure_pool)
+    dim, solver = request.param
+    out = adaptive_and_uniform(dim, with_solver(refined_pool(dim), solver), measure_pool)
+    out["solver"], out["case"] = solver, case_id(dim, solver)
     a, u = out["adaptive"], out["uniform"]
-    print(f"\n{dim}D pool with a refined box after {SETTLE_S} s: mean speed {a['speed'] / math.sqrt(G * POOL_H):.4f} "
+    print(f"\n{dim}D {solver} pool with a refined box after {SETTLE_S} s: mean speed {a['speed'] / math.sqrt(G * POOL_H):.4f} "
           f"sqrt(gH) (uniform {u['speed'] / math.sqrt(G * POOL_H):.4f}); largest density next to the "
           f"interface {a['peak']:.4f} rho0 on average over the window, {a['worst']:.4f} at worst "
           f"(uniform {u['peak']:.4f}, {u['worst']:.4f}); {a['n_real']} real particles "
@@ -133,7 +135,8 @@ def test_refined_pool_stays_at_rest(pool_runs, request):
     dim, a = pool_runs["dim"], pool_runs["adaptive"]
     ratio = a["speed"] / math.sqrt(G * POOL_H)
     known_xfail(request, KNOWN_FAILURES, dim, "rest_speed", ratio)
-    assert ratio <= 0.01, (f"{dim}D: mean speed {a['speed']:.4f} m/s = {ratio:.4f} sqrt(gH) after "
+    a["log"].check(f"{pool_runs['case']} refined pool, adaptive run")
+    assert ratio <= 0.01, (f"{pool_runs['case']}: mean speed {a['speed']:.4f} m/s = {ratio:.4f} sqrt(gH) after "
                            f"{SETTLE_S} s with a refined box; expected <= 0.01 sqrt(gH)")
 
 
@@ -240,14 +243,16 @@ def test_body_front_counts_every_body_of_5_percent_and_no_spray():
 
 def run_dam(scene: dict) -> dict:
     sim = make_sim(scene)
-    out = {"splits": 0, "merges": 0, "transient": False, "virtual": False, "counts": []}
+    log = SolveLog()
+    out = {"splits": 0, "merges": 0, "transient": False, "virtual": False, "counts": [], "log": log}
     while sim.time < DAM_T - 1e-9:
-        sim.advance(0.05)
+        before = (log.splits, log.merges)
+        advance_logged(sim, 0.05, log)       # a stats row after every DFSPH step
         st = sim.stats()
-        out["splits"] += st["splits"]
-        out["merges"] += st["merges"]
-        out["transient"] |= st["n_transient"] > 0
-        out["virtual"] |= st["n_virtual"] > 0
+        out["splits"] += st["splits"] + log.splits - before[0]
+        out["merges"] += st["merges"] + log.merges - before[1]
+        out["transient"] |= st["n_transient"] > 0 or log.transient
+        out["virtual"] |= st["n_virtual"] > 0 or log.virtual
         out["counts"].append(st["n_real"])
         if sim.time > EARLY_T - 1e-9 and "front_early" not in out:
             out["front_early"] = body_front(sim.particles(virtual=False), sim.h0)
@@ -256,18 +261,20 @@ def run_dam(scene: dict) -> dict:
         # merges only: front, counts and splits stay those of the first DAM_T seconds
         out["merges_late"] = out["merges"]
         while sim.time < MERGE_T - 1e-9:
-            sim.advance(0.05)
-            out["merges_late"] += sim.stats()["merges"]
+            before = log.merges
+            advance_logged(sim, 0.05, log)
+            out["merges_late"] += sim.stats()["merges"] + log.merges - before
     return out
 
 
-@pytest.fixture(scope="module", params=DIMS, ids=[f"{d}d" for d in DIMS])
+@pytest.fixture(scope="module", params=dim_solver_params(fixture=True))
 def dam_runs(request):
-    dim = request.param
-    out = adaptive_and_uniform(dim, refined_dam(dim), run_dam)
+    dim, solver = request.param
+    out = adaptive_and_uniform(dim, with_solver(refined_dam(dim), solver), run_dam)
+    out["solver"], out["case"] = solver, case_id(dim, solver)
     a, u = out["adaptive"], out["uniform"]
     out["saving"] = float(np.mean(u["counts"]) / np.mean(a["counts"]))
-    print(f"\n{dim}D dam break refined near a block, t = {DAM_T} s: front {a['front']:.3f} m (uniform "
+    print(f"\n{dim}D {solver} dam break refined near a block, t = {DAM_T} s: front {a['front']:.3f} m (uniform "
           f"{u['front']:.3f} m); real particles {np.mean(a['counts']):.0f} on average, "
           f"{a['counts'][-1]} at the end (uniform {u['counts'][-1]}): {out['saving']:.2f}x fewer; "
           f"{a['splits']} splits, {a['merges']} merges; {a['merges_late']} merges by {MERGE_T} s; "
@@ -315,8 +322,18 @@ def test_adaptive_dam_break_front_matches_uniform(dam_runs, request):
     dim, a, u = dam_runs["dim"], dam_runs["adaptive"], dam_runs["uniform"]
     err = a["front"] / u["front"] - 1.0
     known_xfail(request, KNOWN_FAILURES, dim, "dam_front", err)
-    assert abs(err) <= 0.05, (f"{dim}D: front of the adaptive run at {a['front']:.3f} m, uniform "
+    assert abs(err) <= 0.05, (f"{dam_runs['case']}: front of the adaptive run at {a['front']:.3f} m, uniform "
                               f"{u['front']:.3f} m at {DAM_T} s ({100 * err:+.1f} %, expected within 5 %)")
+
+
+@pytest.mark.slow
+def test_adaptive_dam_break_density_error_stays_within_tolerance(dam_runs):
+    """DFSPH: after every step of both runs the average density error is within
+    dfsph.density_tolerance, and no solve stopped at its maximum iterations."""
+    if dam_runs["solver"] != "dfsph":
+        pytest.skip("wcsph has no density solve to hold to a tolerance")
+    for run in ("adaptive", "uniform"):
+        dam_runs[run]["log"].check(f"{dam_runs['case']} refined dam break, {run} run")
 
 
 # ================================================================== the split's energy

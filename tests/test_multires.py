@@ -23,6 +23,8 @@ from mrsph.particles import (DEAD, REGULAR, TRANSIENT_BOTH as T_BOTH, TRANSIENT_
                              TRANSIENT_PARENT as T_PARENT, VIRTUAL_CHILD as V_CHILD,
                              VIRTUAL_PARENT as V_PARENT)
 
+from scenekit import dim_solver_params, watch_solves, with_solver
+
 pytestmark = pytest.mark.usefixtures("fresh_program")
 
 REAL_KINDS = (REGULAR, T_PARENT, T_CHILD, T_BOTH)
@@ -42,6 +44,22 @@ def sound_step(scene: dict) -> float:
     """The CFL time step of the fluid at rest, dt = cfl h0 / sqrt(k), to script paths in steps."""
     s0 = scene["particles"]["spacing"]
     return 0.2 * 2.0 * s0 / math.sqrt(scene["fluid"]["stiffness"])
+
+
+def case_label(dim: int, solver: str) -> str:
+    """How a message names the case: "2D", "2D dfsph"."""
+    return f"{dim}D" + ("" if solver == "wcsph" else f" {solver}")
+
+
+def for_solver(scene: dict, solver: str) -> dict:
+    """The scene with ``fluid.solver = solver``. DFSPH's time step is set by the flow
+    speed (dt_max at rest, ~15x the sound step here): its dt_max is pinned to the sound
+    step, so that the paths scripted in sound steps (``sound_step``) take as many steps
+    and the refined box sweeps the fluid alike with both solvers."""
+    out = with_solver(scene, solver)
+    if solver == "dfsph":
+        out["physics"] = dict(scene["physics"], dt_max=sound_step(scene))
+    return out
 
 
 # ================================================================== the raw pool
@@ -200,7 +218,8 @@ def moving_region_scene(dim: int, half_period_steps: int = 30, levels: int = 3) 
 
 
 # ================================================================== 1. links at every step
-def test_links_hold_at_every_step_of_a_moving_refinement(dim):
+@pytest.mark.parametrize(("dim", "solver"), dim_solver_params())
+def test_links_hold_at_every_step_of_a_moving_refinement(dim, solver):
     """METHOD.md §3, §8: every virtual particle has a live owner that lists it, every
     transient child's virtual parent lists it, groups hold at most 2^d children, and no
     regular particle neighbours a regular one two levels finer: after every step of a run
@@ -210,10 +229,11 @@ def test_links_hold_at_every_step_of_a_moving_refinement(dim):
     narrow band: a level-1 particle split at the fine pair of a pass can leave a level-0
     transient child within h_2 of a level-2 transient parent until the next pass (measured
     when this was written: 0.079 m < h_2 = 0.08 m in 2D, 0.140 m < 0.16 m in 3D)."""
-    sim = make_sim(moving_region_scene(dim))
+    sim = make_sim(for_solver(moving_region_scene(dim), solver))
+    case = case_label(dim, solver)
     steps = 80
     bad = link_violations(sim, raw_pool(sim))
-    assert not bad, f"{dim}D, after construction: " + "; ".join(bad)
+    assert not bad, f"{case}, after construction: " + "; ".join(bad)
     splits = merges = 0
     kinds_seen = set()
     # steps at which regular level-0 and level-2 particles came within 2 h_2 of each other,
@@ -232,16 +252,16 @@ def test_links_hold_at_every_step_of_a_moving_refinement(dim):
         if len(x0) and len(x2):
             two_apart += bool(cKDTree(x0).query(x2, k=1)[0].min() < 2 * h2)
         bad = link_violations(sim, pool)
-        assert not bad, (f"{dim}D, step {step} (t = {sim.time:.4g} s, {splits} splits and {merges} "
+        assert not bad, (f"{case}, step {step} (t = {sim.time:.4g} s, {splits} splits and {merges} "
                          f"merges so far): " + "; ".join(bad))
-    print(f"\n{dim}D links: {steps} steps, {splits} splits, {merges} merges, kinds seen {sorted(kinds_seen)}, "
+    print(f"\n{case} links: {steps} steps, {splits} splits, {merges} merges, kinds seen {sorted(kinds_seen)}, "
           f"{pool['n']} slots at the end; rule (e) had regular levels 0 and 2 within 2 h_2 at {two_apart} steps")
-    assert two_apart > 0, (f"{dim}D: rule (e) was never exercised (at no step were regular levels "
+    assert two_apart > 0, (f"{case}: rule (e) was never exercised (at no step were regular levels "
                            f"0 and 2 within 2 h_2 of each other)")
     assert splits > 0 and merges > 0, (
-        f"{dim}D: the run did not exercise the scheme: {splits} splits, {merges} merges in {steps} steps")
+        f"{case}: the run did not exercise the scheme: {splits} splits, {merges} merges in {steps} steps")
     missing = {T_PARENT, T_CHILD, V_CHILD, V_PARENT} - kinds_seen
-    assert not missing, f"{dim}D: kinds {sorted(missing)} never appeared (seen {sorted(kinds_seen)})"
+    assert not missing, f"{case}: kinds {sorted(missing)} never appeared (seen {sorted(kinds_seen)})"
 
 
 # ================================================================== 2. mass
@@ -258,33 +278,35 @@ def event_steps(sim, events: int = 100, max_steps: int = 150):
         yield steps, splits, merges, ev
 
 
-def test_mass_is_bit_identical_through_splits_and_merges(dim):
+@pytest.mark.parametrize(("dim", "solver"), dim_solver_params())
+def test_mass_is_bit_identical_through_splits_and_merges(dim, solver):
     """METHOD.md §5, §6, §8: with full groups only (merge_min_children = 2^d),
     the total real mass (math.fsum of the masses) is bit-identical at every step of a run
     with at least a hundred splits and a hundred merges, and every real particle keeps its level's nominal
     mass m_l = 2^(d l) m0 exactly (dividing by 2^d and summing 2^d equal masses are exact)."""
     scene = moving_region_scene(dim, half_period_steps=25)
     scene["adaptivity"]["merge_min_children"] = 2**dim
-    sim = make_sim(scene)
+    sim = make_sim(for_solver(scene, solver))
     assert sim.multires.merge_min == 2**dim, f"merge_min_children resolved to {sim.multires.merge_min}"
     nominal = sim.lev.m.to_numpy()
     pool = raw_pool(sim)
     m_start = real_mass(pool)
+    case = case_label(dim, solver)
     for steps, splits, merges, ev in event_steps(sim):
         assert ev["total_mass"] == m_start, (
-            f"{dim}D, step {steps}: total real mass {ev['total_mass']!r} != {m_start!r} at the start "
+            f"{case}, step {steps}: total real mass {ev['total_mass']!r} != {m_start!r} at the start "
             f"(difference {ev['total_mass'] - m_start:.3e} kg after {splits} splits, {merges} merges)")
     pool = raw_pool(sim)
     m_end = real_mass(pool)
-    print(f"\n{dim}D mass: {steps} steps, {splits} splits, {merges} merges; total {m_start!r} -> {m_end!r}")
+    print(f"\n{case} mass: {steps} steps, {splits} splits, {merges} merges; total {m_start!r} -> {m_end!r}")
     assert splits >= 100 and merges >= 100, (
-        f"{dim}D: too few events to test: {splits} splits, {merges} merges in {steps} steps")
-    assert m_end == m_start, f"{dim}D: total real mass {m_end!r} != {m_start!r} (Δ = {m_end - m_start:.3e} kg)"
+        f"{case}: too few events to test: {splits} splits, {merges} merges in {steps} steps")
+    assert m_end == m_start, f"{case}: total real mass {m_end!r} != {m_start!r} (Δ = {m_end - m_start:.3e} kg)"
     real = np.isin(pool["kind"], REAL_KINDS)
     off = real & (pool["m"] != nominal[np.clip(pool["level"], 0, len(nominal) - 1)])
     if off.any():
         i = int(np.flatnonzero(off)[0])
-        pytest.fail(f"{dim}D: {int(off.sum())} real particles do not have their level's nominal mass; "
+        pytest.fail(f"{case}: {int(off.sum())} real particles do not have their level's nominal mass; "
                     f"first {describe(pool, i)}: m = {pool['m'][i]!r}, nominal {nominal[pool['level'][i]]!r}")
 
 
@@ -309,21 +331,22 @@ def test_mass_is_kept_to_round_off_with_partial_groups(dim):
         partial += bool((pool["m"][real] != nominal[pool["level"][real]]).any())
         rel = abs(real_mass(pool) - m_start) / m_start
         worst = max(worst, rel)
-        assert rel <= 1e-12, (f"{dim}D, step {steps}: total real mass {real_mass(pool)!r} against "
+        assert rel <= 1e-12, (f"{case}, step {steps}: total real mass {real_mass(pool)!r} against "
                               f"{m_start!r} at the start ({rel:.2e} relative, expected <= 1e-12) "
                               f"after {splits} splits, {merges} merges")
-    print(f"\n{dim}D mass, partial groups: {steps} steps, {splits} splits, {merges} merges, "
+    print(f"\n{case} mass, partial groups: {steps} steps, {splits} splits, {merges} merges, "
           f"non-nominal masses after {partial} steps; worst relative drift {worst:.2e}")
     assert splits >= 100 and merges >= 100, (
-        f"{dim}D: too few events to test: {splits} splits, {merges} merges in {steps} steps")
-    assert partial > 0, f"{dim}D: no partial group merged in {steps} steps ({merges} merges)"
+        f"{case}: too few events to test: {splits} splits, {merges} merges in {steps} steps")
+    assert partial > 0, f"{case}: no partial group merged in {steps} steps ({merges} merges)"
     snap = sim.snapshot(stats=False)       # what --dump writes: the run's own precision
     assert snap.x.dtype == snap.v.dtype == np.float64, (
-        f"{dim}D: an f64 run's snapshot holds {snap.x.dtype} positions, {snap.v.dtype} velocities")
+        f"{case}: an f64 run's snapshot holds {snap.x.dtype} positions, {snap.v.dtype} velocities")
 
 
 # ================================================================== 3. momentum through a pass
-def test_adaptivity_pass_keeps_momentum(dim):
+@pytest.mark.parametrize(("dim", "solver"), dim_solver_params())
+def test_adaptivity_pass_keeps_momentum(dim, solver):
     """METHOD.md §5, §6, §8: a split gives the children the parent's velocity and a merge
     gives the merged particle the group's mass-weighted mean velocity, so the total real
     momentum Σ m v is unchanged by an adaptivity pass, up to round-off. The fluid carries
@@ -334,7 +357,8 @@ def test_adaptivity_pass_keeps_momentum(dim):
     moves it)."""
     scene = moving_region_scene(dim, half_period_steps=30)
     scene["adaptivity"]["interval"] = 1000          # only the direct calls below adapt
-    sim = make_sim(scene, threads=1)     # the same passes every run (see the profiled test)
+    # one thread: the same passes every run (see the profiled test)
+    sim = make_sim(for_solver(scene, solver), threads=1)
     n = sim.pool.count()
     kind = sim.pool.p.kind.to_numpy()[:n]
     v = sim.pool.p.v.to_numpy()
@@ -342,6 +366,7 @@ def test_adaptivity_pass_keeps_momentum(dim):
     real = np.isin(kind, REAL_KINDS)
     v[:n][real] = rng.normal(0.0, 0.5, size=(int(real.sum()), dim)) + 0.3   # a net drift too
     sim.pool.p.v.from_numpy(v)
+    case = case_label(dim, solver)
     worst, worst_at = 0.0, None
     total = {"splits": 0, "merges": 0}
     passes = 0
@@ -362,7 +387,7 @@ def test_adaptivity_pass_keeps_momentum(dim):
             moved = float(np.linalg.norm(q1 - q0)) / xscale
             merge_only.append(moved)
             assert moved <= 1e-8, (   # measured: 4e-10 (2D), 1e-10 (3D)
-                f"{dim}D, pass after step {step} ({ev['merges']} merges, no split): Σ m x of the real "
+                f"{case}, pass after step {step} ({ev['merges']} merges, no split): Σ m x of the real "
                 f"particles moved by {np.linalg.norm(q1 - q0):.3e} kg m ({moved:.2e} of Σ m|x|); a merged "
                 f"particle belongs at its group's centre of mass")
         passes += 1
@@ -372,17 +397,17 @@ def test_adaptivity_pass_keeps_momentum(dim):
         if rel > worst:
             worst, worst_at = rel, (step, ev["splits"], ev["merges"], p0, p1, scale0)
         assert rel <= 1e-6, (
-            f"{dim}D, pass after step {step} ({ev['splits']} splits, {ev['merges']} merges): total real "
+            f"{case}, pass after step {step} ({ev['splits']} splits, {ev['merges']} merges): total real "
             f"momentum {p0.tolist()} -> {p1.tolist()}, |ΔP| = {np.linalg.norm(p1 - p0):.3e}; expected "
             f"<= 1e-6 · Σ m|v| = {1e-6 * scale0:.3e} (ratio {rel:.2e})")
-    print(f"\n{dim}D momentum through passes: {passes} passes with events, {total['splits']} splits, "
+    print(f"\n{case} momentum through passes: {passes} passes with events, {total['splits']} splits, "
           f"{total['merges']} merges; worst |ΔP|/Σ m|v| = {worst:.2e}"
           + (f" (after step {worst_at[0]}: {worst_at[1]} splits, {worst_at[2]} merges)" if worst_at else ""))
     assert total["splits"] > 0 and total["merges"] > 0, (
-        f"{dim}D: the passes did not split and merge ({total['splits']} splits, {total['merges']} merges)")
-    print(f"{dim}D: {len(merge_only)} passes merged without splitting; Σ m x moved by at most "
+        f"{case}: the passes did not split and merge ({total['splits']} splits, {total['merges']} merges)")
+    print(f"{case}: {len(merge_only)} passes merged without splitting; Σ m x moved by at most "
           f"{max(merge_only, default=0):.2e} of Σ m|x|")
-    assert merge_only, f"{dim}D: no pass merged without splitting, so the centre of mass went unchecked"
+    assert merge_only, f"{case}: no pass merged without splitting, so the centre of mass went unchecked"
 
 
 # ================================================================== 4. momentum through coupling
@@ -404,8 +429,11 @@ def refined_blob_scene(dim: int) -> dict:
 
 
 @pytest.mark.slow_params("3d-symmetric")
-@pytest.mark.parametrize("coupling", ["variational", "symmetric"])
-def test_virtual_coupling_conserves_momentum(dim, coupling):
+@pytest.mark.parametrize(("coupling", "solver"), [
+    pytest.param("variational", "wcsph", id="variational"),
+    pytest.param("symmetric", "wcsph", id="symmetric"),
+    pytest.param("variational", "dfsph", id="variational-dfsph")])
+def test_virtual_coupling_conserves_momentum(dim, coupling, solver):
     """METHOD.md §4, §8: the reaction of every force between a real and a virtual particle
     goes back to the real particle(s) the virtual one stands for, so internal forces across
     a level interface sum to zero over real particles. Random velocities shear and
@@ -420,12 +448,14 @@ def test_virtual_coupling_conserves_momentum(dim, coupling):
     variational cases (|ΔP| / Σ m|v| = 7e-2 in 2D, 1e-1 in 3D) and not the symmetric ones."""
     scene = refined_blob_scene(dim)
     scene["adaptivity"]["coupling"] = coupling
-    sim = make_sim(scene)
+    sim = make_sim(for_solver(scene, solver))
+    case = case_label(dim, solver)
+    solves = watch_solves(sim)
     n = sim.pool.count()
     kind = sim.pool.p.kind.to_numpy()[:n]
     counts = {k: int((kind == k).sum()) for k in (REGULAR, T_PARENT, T_CHILD, T_BOTH, V_CHILD, V_PARENT)}
     assert counts[T_PARENT] > 0 and counts[T_CHILD] > 0 and counts[V_CHILD] > 0 and counts[V_PARENT] > 0, (
-        f"{dim}D: no level interface in the blob (kind counts {counts})")
+        f"{case}: no level interface in the blob (kind counts {counts})")
     v = sim.pool.p.v.to_numpy()
     rng = np.random.default_rng(1234 + dim)
     real = np.isin(kind, REAL_KINDS)
@@ -440,6 +470,7 @@ def test_virtual_coupling_conserves_momentum(dim, coupling):
         r = np.isin(pool["kind"], REAL_KINDS)
         a = sim.pool.p.a.to_numpy()[: pool["n"]][r].astype(np.float64)
         impulse += dt * float((pool["m"][r] * np.linalg.norm(a, axis=1)).sum())
+        impulse += sum(push for _name, _dp, push in solves[-2:]) if solver == "dfsph" else 0.0
         ev = sim.stats()
         events["splits"] += ev["splits"]
         events["merges"] += ev["merges"]
@@ -448,17 +479,50 @@ def test_virtual_coupling_conserves_momentum(dim, coupling):
     r = np.isin(pool["kind"], REAL_KINDS)
     x, lv = pool["x"][r].astype(np.float64), pool["level"][r]
     gap = np.minimum(x.min(axis=1), (1.0 - x).min(axis=1)) - sim.h0 * 2.0 ** lv
-    assert gap.min() > 0, f"{dim}D: a particle came within its h of a wall (margin {gap.min():.3g} m); the test proves nothing"
+    assert gap.min() > 0, f"{case}: a particle came within its h of a wall (margin {gap.min():.3g} m); the test proves nothing"
     kind_end = pool["kind"]
-    assert (kind_end == V_CHILD).any() and (kind_end == V_PARENT).any(), f"{dim}D: the interface vanished"
+    assert (kind_end == V_CHILD).any() and (kind_end == V_PARENT).any(), f"{case}: the interface vanished"
     dp = float(np.linalg.norm(p1 - p0))
-    print(f"\n{dim}D {coupling} coupling: kinds at start {counts}; events after construction {events}; "
+    print(f"\n{case} {coupling} coupling: kinds at start {counts}; events after construction {events}; "
           f"|ΔP| = {dp:.3e}, Σ m|v| = {scale:.3e}, ratio {dp / scale:.2e}, Σ dt Σ m|a| = {impulse:.3e}")
-    assert impulse > 1e3 * 1e-5 * scale, f"{dim}D: internal forces too weak to test (impulse {impulse:.3e})"
+    assert impulse > 1e3 * 1e-5 * scale, f"{case}: internal forces too weak to test (impulse {impulse:.3e})"
     assert dp <= 1e-5 * scale, (
-        f"{dim}D: internal forces across the level interface changed the total real momentum by "
+        f"{case}: internal forces across the level interface changed the total real momentum by "
         f"|ΔP| = {dp:.3e} kg m/s in 100 steps (P {p0.tolist()} -> {p1.tolist()}); expected <= 1e-5 · Σ m|v| "
         f"= {1e-5 * scale:.3e} (ratio {dp / scale:.2e})")
+    if solver == "dfsph":
+        # each solve on its own: Σ m Δv over the real particles (what the solve's pressure
+        # accelerations add up to) against Σ m |Δv| (how hard it pushed)
+        worst = max(solves, key=lambda s: float(np.linalg.norm(s[1])) / max(s[2], 1e-30))
+        ratio = float(np.linalg.norm(worst[1])) / max(worst[2], 1e-30)
+        pushed = sum(push for _n, _d, push in solves)
+        print(f"{case}: {len(solves)} pressure solves, Σ m|Δv| = {pushed:.3e} in all; worst |Σ m Δv| / "
+              f"Σ m|Δv| = {ratio:.2e} ({worst[0]} solve)")
+        assert len(solves) == 200 and pushed > 1e3 * 1e-5 * scale, (
+            f"{case}: {len(solves)} solves pushed Σ m|Δv| = {pushed:.3e} in all; too little to test")
+        assert ratio <= 1e-4, (
+            f"{case}: a {worst[0]} solve changed the real particles' momentum by |Σ m Δv| = "
+            f"{np.linalg.norm(worst[1]):.3e} kg m/s while pushing Σ m|Δv| = {worst[2]:.3e}; expected "
+            f"<= 1e-4 of it (ratio {ratio:.2e}): a pressure reaction is not handed back in full")
+
+
+def test_symmetric_coupling_is_refused_with_dfsph(dim):
+    """The implicit solver hands a virtual particle's reaction to its owners within each
+    iteration; the symmetric coupling's own reaction pass cannot: the scene is refused,
+    in one line naming the key, its value and what to use (issue 31 §2)."""
+    from mrsph.config import SceneError
+    scene = for_solver(refined_blob_scene(dim), "dfsph")
+    scene["adaptivity"]["coupling"] = "symmetric"
+    with pytest.raises(SceneError) as info:
+        load_scene(scene)
+    lines = info.value.problems
+    assert len(lines) == 1 and "adaptivity.coupling" in lines[0] and "dfsph" in lines[0] \
+        and "symmetric" in lines[0] and "\n" not in lines[0], (
+            f"{dim}D: expected one line naming adaptivity.coupling, its value and dfsph; got {lines}")
+    scene["adaptivity"]["coupling"] = "variational"
+    load_scene(scene)            # the same scene with the variational coupling loads
+    scene["adaptivity"]["coupling"] = "symmetric"
+    load_scene(with_solver(scene, "wcsph"))         # and so does the symmetric one with wcsph
 
 
 # ================================================================== 5. merging into the coarsest level

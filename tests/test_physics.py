@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from mrsph.config import load_scene
-from scenekit import box, known_xfail
+from scenekit import (SolveLog, advance_logged, box, case_id, dim_solver_params, known_xfail,
+                      watch_solves, with_solver)
 
 G = 9.81
 RHO0 = 1000.0
@@ -27,6 +28,21 @@ pytestmark = pytest.mark.usefixtures("fresh_program")
 # None at present: the resting tank, listed until fluid.hydrostatic_start and
 # fluid.artificial_viscosity, now settles and reads hydrostatic pressure in 2D and 3D.
 KNOWN_FAILURES: dict[tuple[str, int], str] = {}
+
+# DFSPH cases that fail because of the solver, marked xfail(strict=True) with what was
+# measured when they were marked (reported to the lead; the tolerance is not loosened):
+# {(test key, case id): reason}. Strict: the day the solver passes, the mark must go.
+DFSPH_FAILURES: dict[tuple[str, str], str] = {
+    ("tank_wall", "2d-dfsph"): "DFSPH tank: a particle sits on a wall (gap 1.5e-11 m, expected >= s/4; measured 2026-11-27)",
+    ("tank_speed", "2d-dfsph"): "DFSPH tank does not settle: 0.0125 sqrt(gH) after 1.5 s (wcsph 2D passes; measured 2026-11-27)",
+    ("tank_pressure", "2d-dfsph"): "DFSPH tank pressure p = rho sum(kappa) reads +12.3 % over rho0 g depth (measured 2026-11-27)",
+}
+
+
+def dfsph_xfail(request, key: str, case: str, measured: float) -> None:
+    reason = DFSPH_FAILURES.get((key, case))
+    if reason:
+        request.applymarker(pytest.mark.xfail(strict=True, reason=f"{reason} (this run: {measured:.4g})"))
 
 
 def stiffness_for(height: float) -> float:
@@ -77,8 +93,17 @@ def blob_scene(dim):
     }
 
 
-def test_internal_forces_conserve_momentum(dim):
-    sim = make_sim(blob_scene(dim))
+# the DFSPH cases took 210 s (2D, first compile, on a loaded 2-core machine): slow; the
+# default run keeps the per-solve check in test_multires' variational-dfsph coupling case
+@pytest.mark.parametrize(("dim", "solver"), dim_solver_params(slow=("2d-dfsph", "3d-dfsph")))
+def test_internal_forces_conserve_momentum(dim, solver):
+    """Pair forces are antisymmetric, so the total momentum of a free blob does not
+    change. With DFSPH the pressure is in the solves' velocity updates, not in ``a``:
+    their pushes (Σ m |Δv| of each solve) count in the impulse, and each solve's own
+    Σ m Δv over the particles must vanish."""
+    sim = make_sim(with_solver(blob_scene(dim), solver))
+    solves = watch_solves(sim)
+    case = f"{dim}D {solver}"
     n = sim.pool.count()
     rng = np.random.default_rng(1234 + dim)
     # random velocities of 0.5 m/s scale shear and compress the blob in every direction,
@@ -93,19 +118,27 @@ def test_internal_forces_conserve_momentum(dim):
         dt = sim.step()
         a = alive_slots(sim, "a").astype(np.float64)
         impulse += dt * float((alive_slots(sim, "m") * np.linalg.norm(a, axis=1)).sum())
+    impulse += sum(push for _which, _dp, push in solves)
     p1 = real(sim)
     assert len(p1["m"]) == len(m0), "particles were created or lost"
     gap = gap_to_walls(sim, p1["x"])
     assert gap > sim.h0, f"a particle came within {gap:.3g} m of a wall (h = {sim.h0}); the test proves nothing"
     mom1 = (p1["m"].astype(np.float64)[:, None] * p1["v"]).sum(axis=0)
     dp = float(np.linalg.norm(mom1 - mom0))
-    print(f"\n{dim}D momentum: |ΔP| = {dp:.3e}, Σ m|v| = {scale:.3e}, ratio {dp / scale:.2e}, "
+    print(f"\n{case} momentum: |ΔP| = {dp:.3e}, Σ m|v| = {scale:.3e}, ratio {dp / scale:.2e}, "
           f"Σ dt Σ m|a| = {impulse:.3e} kg m/s")
     # the forces did real work: their total impulse dwarfs the bound below
     assert impulse > 1e3 * 1e-5 * scale, f"internal forces too weak to test (impulse {impulse:.3e})"
     assert dp <= 1e-5 * scale, (
-        f"{dim}D: internal forces changed the total momentum by |ΔP| = {dp:.3e} kg m/s in 100 steps; "
+        f"{case}: internal forces changed the total momentum by |ΔP| = {dp:.3e} kg m/s in 100 steps; "
         f"expected <= 1e-5 · Σ m|v| = {1e-5 * scale:.3e} (ratio {dp / scale:.2e})")
+    if solves:
+        worst = max(solves, key=lambda r: float(np.linalg.norm(r[1])) / max(r[2], 1e-30))
+        ratio = float(np.linalg.norm(worst[1])) / max(worst[2], 1e-30)
+        print(f"{case}: {len(solves)} solves; worst |Σ m Δv| / Σ m|Δv| = {ratio:.2e} ({worst[0]} solve)")
+        assert ratio <= 1e-4, (
+            f"{case}: a {worst[0]} solve changed the momentum by |Σ m Δv| = {np.linalg.norm(worst[1]):.3e} "
+            f"kg m/s while pushing Σ m|Δv| = {worst[2]:.3e}; expected <= 1e-4 of it (ratio {ratio:.2e})")
 
 
 # ================================================================== fluid at rest
@@ -170,23 +203,26 @@ MEASURE_S = 0.3       # then averaged over this long: several periods of the poo
 SAMPLE_S = 0.01       # modes (4 H / c = 0.05 s), which viscosity damps only slowly
 
 
-@pytest.fixture(scope="module", params=DIMS, ids=[f"{d}d" for d in DIMS])
+@pytest.fixture(scope="module", params=dim_solver_params(slow=("2d-dfsph", "3d-dfsph"), fixture=True))
 def tank_run(request):
-    """One settled tank per dimension, measured; shared by the tank tests below."""
+    """One settled tank per dimension and pressure solver, measured; shared by the tank
+    tests below. A DFSPH run reads its stats row after every step (``SolveLog``). The
+    DFSPH tanks are long (900 steps of dt_max and a row a step): marked slow."""
     from mrsph import runtime
     runtime.reset()
-    dim = request.param
-    sim = make_sim(tank_scene(dim))
+    dim, solver = request.param
+    sim = make_sim(with_solver(tank_scene(dim), solver))
+    log = SolveLog()
     s, h = float(sim.s0), float(sim.h0)
     lo = np.asarray(sim.scene.domain.min, float)
     hi = np.asarray(sim.scene.domain.max, float)
     p0 = real(sim)
-    out = {"dim": dim, "spacing": s, "lo": lo, "hi": hi, "n0": len(p0["m"]),
+    out = {"dim": dim, "solver": solver, "case": case_id(dim, solver), "log": log, "spacing": s, "lo": lo, "hi": hi, "n0": len(p0["m"]),
            "mass0": math.fsum(p0["m"].astype(np.float64).tolist())}
-    sim.advance(SETTLE_S)
+    advance_logged(sim, SETTLE_S, log)
     speeds, band_p, band_ref, tops = [], [], [], []
     for _ in range(int(round(MEASURE_S / SAMPLE_S))):
-        sim.advance(SAMPLE_S)
+        advance_logged(sim, SAMPLE_S, log)
         p = real(sim)
         x = p["x"].astype(np.float64)
         speeds.append(float(np.linalg.norm(p["v"], axis=1).mean()))
@@ -206,36 +242,38 @@ def tank_run(request):
                reference=float(np.mean(band_ref)), top=max(tops))
     out["v_ref"] = math.sqrt(G * TANK_H)
     out["error"] = out["pressure"] / out["reference"] - 1.0
-    print(f"\n{dim}D tank after {SETTLE_S + MEASURE_S:.1f} s: mean speed {out['speed']:.4f} m/s = "
+    print(f"\n{dim}D {solver} tank after {SETTLE_S + MEASURE_S:.1f} s: mean speed {out['speed']:.4f} m/s = "
           f"{out['speed'] / out['v_ref']:.4f} sqrt(gH); band pressure {out['pressure']:.1f} Pa vs "
           f"rho0 g depth {out['reference']:.1f} Pa ({100 * out['error']:+.2f} %); highest particle "
-          f"{out['top']:.4f} m")
+          f"{out['top']:.4f} m" + (f"; {log.summary()}" if solver == "dfsph" else ""))
     runtime.reset()
     return out
 
 
-def test_tank_keeps_its_fluid(tank_run):
+def test_tank_keeps_its_fluid(tank_run, request):
     """Nothing escapes, nothing is created or lost, nothing is flung above the surface."""
     r = tank_run
-    d, x = r["dim"], r["x"]
-    assert r["n1"] == r["n0"], f"{d}D: particle count {r['n1']}, started with {r['n0']}"
-    assert np.all(np.isfinite(x)), f"{d}D: {int((~np.isfinite(x)).any(axis=1).sum())} non-finite positions"
+    d, x = f"{r['dim']}D {r['solver']}", r["x"]
+    gap = float(np.minimum(x - r["lo"], r["hi"] - x).min())
+    dfsph_xfail(request, "tank_wall", r["case"], gap)
+    assert r["n1"] == r["n0"], f"{d}: particle count {r['n1']}, started with {r['n0']}"
+    assert np.all(np.isfinite(x)), f"{d}: {int((~np.isfinite(x)).any(axis=1).sum())} non-finite positions"
     # the walls clamp any particle that reaches them onto them; the mirror images must
     # hold the fluid off before that (the bottom layer rests half a spacing above)
-    gap = float(np.minimum(x - r["lo"], r["hi"] - x).min())
-    assert gap >= 0.25 * r["spacing"], (f"{d}D: a particle came within {gap:.2e} m of a wall "
+    assert gap >= 0.25 * r["spacing"], (f"{d}: a particle came within {gap:.2e} m of a wall "
                                         f"(spacing {r['spacing']} m; expected >= a quarter)")
     assert r["top"] <= TANK_H + 2.0 * r["spacing"], \
-        f"{d}D: a particle rose to {r['top']:.4f} m above a {TANK_H} m deep pool at rest"
-    assert r["mass1"] == r["mass0"], f"{d}D: total mass {r['mass1']!r}, started with {r['mass0']!r}"
+        f"{d}: a particle rose to {r['top']:.4f} m above a {TANK_H} m deep pool at rest"
+    assert r["mass1"] == r["mass0"], f"{d}: total mass {r['mass1']!r}, started with {r['mass0']!r}"
 
 
 def test_tank_settles_to_rest(tank_run, request):
     r = tank_run
     ratio = r["speed"] / r["v_ref"]
     known_xfail(request, KNOWN_FAILURES, r["dim"], "tank_speed", ratio)
+    dfsph_xfail(request, "tank_speed", r["case"], ratio)
     assert r["speed"] <= 0.01 * r["v_ref"], (
-        f"{r['dim']}D: mean speed {r['speed']:.4f} m/s after {SETTLE_S} s (averaged over the next "
+        f"{r['dim']}D {r['solver']}: mean speed {r['speed']:.4f} m/s after {SETTLE_S} s (averaged over the next "
         f"{MEASURE_S} s); expected <= 1 % of sqrt(g H) = {0.01 * r['v_ref']:.4f} m/s "
         f"(measured {ratio:.4f} sqrt(gH))")
 
@@ -243,10 +281,20 @@ def test_tank_settles_to_rest(tank_run, request):
 def test_tank_pressure_is_hydrostatic(tank_run, request):
     r = tank_run
     known_xfail(request, KNOWN_FAILURES, r["dim"], "tank_pressure", r["error"])
+    dfsph_xfail(request, "tank_pressure", r["case"], r["error"])
     assert abs(r["error"]) <= 0.05, (
-        f"{r['dim']}D: mean pressure {r['pressure']:.1f} Pa in the band 0.3 H..0.7 H below the "
+        f"{r['dim']}D {r['solver']}: mean pressure {r['pressure']:.1f} Pa in the band 0.3 H..0.7 H below the "
         f"surface; rho0 g depth = {r['reference']:.1f} Pa ({100 * r['error']:+.2f} %, expected "
         f"within 5 %)")
+
+
+def test_tank_density_error_stays_within_tolerance(tank_run):
+    """DFSPH: after every step of the tank's run the stats row's average density error is
+    within dfsph.density_tolerance, and no solve stopped at its maximum iterations."""
+    r = tank_run
+    if r["solver"] != "dfsph":
+        pytest.skip("wcsph has no density solve to hold to a tolerance")
+    r["log"].check(r["case"] + " tank")
 
 
 # ================================================================== dam break
@@ -282,16 +330,18 @@ def dam_scene(dim):
     }
 
 
-@pytest.fixture(scope="module", params=[2, pytest.param(3, marks=pytest.mark.slow)], ids=["2d", "3d"])
+@pytest.fixture(scope="module", params=dim_solver_params(slow=("3d", "2d-dfsph", "3d-dfsph"), fixture=True))
 def dam_run(request):
-    """One dam break per dimension to t = 1.5 s, checked every frame for NaN and for its
-    mass at the end; returns the front history. Shared by the dam-break tests below.
-    The 3D run is long validation, marked ``slow`` (``python3 -m pytest -q -m slow``).
-    (Particles cannot leave the domain: the boundary pass clamps them into it.)"""
+    """One dam break per dimension and pressure solver to t = 1.5 s, checked every frame
+    for NaN and for its mass at the end; returns the front history. Shared by the
+    dam-break tests below. The 3D runs and the DFSPH ones (2D: ~75 s on a loaded core)
+    are long validation, marked ``slow`` (``python3 -m pytest -q -m slow``). A DFSPH run reads its stats row after every step
+    (``SolveLog``). (Particles cannot leave the domain: the boundary pass clamps them into it.)"""
     from mrsph import runtime
     runtime.reset()
-    dim = request.param
-    sim = make_sim(dam_scene(dim))
+    dim, solver = request.param
+    sim = make_sim(with_solver(dam_scene(dim), solver))
+    log = SolveLog()
     s = float(sim.s0)
     mass0 = math.fsum(real(sim)["m"].astype(np.float64).tolist())
     times, lead, p99, problems = [], [], [], []
@@ -303,7 +353,7 @@ def dam_run(request):
         p99.append(float(np.percentile(x[:, 0], 99)))
         if sim.time >= DAM_END_S - 1e-9:
             break
-        sim.advance(FRAME_S)
+        advance_logged(sim, FRAME_S, log)
         p = real(sim)
         x = p["x"]
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(p["v"]))):
@@ -312,25 +362,27 @@ def dam_run(request):
     if math.fsum(real(sim)["m"].astype(np.float64).tolist()) != mass0:
         problems.append("total mass changed")
     runtime.reset()
-    return {"dim": dim, "spacing": s, "t": np.array(times), "lead": np.array(lead),
+    if solver == "dfsph":
+        print(f"\n{dim}D dfsph dam break: {log.summary()}")
+    return {"dim": dim, "solver": solver, "case": case_id(dim, solver), "log": log, "spacing": s, "t": np.array(times), "lead": np.array(lead),
             "p99": np.array(p99), "problems": problems, "t_end": sim.time}
 
 
 def test_dam_break_runs_clean_and_front_advances(dam_run):
     r = dam_run
-    d, s = r["dim"], r["spacing"]
-    assert not r["problems"], f"{d}D dam break: {'; '.join(r['problems'])}"
-    assert r["t_end"] >= DAM_END_S - 1e-9, f"{d}D: stopped at t = {r['t_end']:.3f} s"
+    d, s = f"{r['dim']}D {r['solver']}", r["spacing"]
+    assert not r["problems"], f"{d} dam break: {'; '.join(r['problems'])}"
+    assert r["t_end"] >= DAM_END_S - 1e-9, f"{d}: stopped at t = {r['t_end']:.3f} s"
     # the front advances monotonically until it reaches the far wall
     hit = np.flatnonzero(r["lead"] >= DAM_L - s)
-    assert len(hit), f"{d}D: the front never reached the far wall (furthest {r['lead'].max():.3f} m)"
+    assert len(hit), f"{d}: the front never reached the far wall (furthest {r['lead'].max():.3f} m)"
     end = int(hit[0])
     t = r["t"]
     for name in ("lead", "p99"):
         drops = np.diff(r[name][: end + 1])
         k = int(np.argmin(drops))
         assert drops[k] >= -0.5 * s, (
-            f"{d}D: front ({name}) went back by {-drops[k]:.4f} m between t = {t[k]:.2f} "
+            f"{d}: front ({name}) went back by {-drops[k]:.4f} m between t = {t[k]:.2f} "
             f"and {t[k + 1]:.2f} s; expected non-decreasing within half a spacing ({0.5 * s} m)")
 
 
@@ -338,8 +390,8 @@ def test_dam_break_front_matches_experiment(dam_run):
     """The bulk front (99th percentile of x: a few particles shot ahead of the surge do
     not make the front) against Martin & Moyce; the leading particle is reported too."""
     r = dam_run
-    d = r["dim"]
-    assert not r["problems"], f"{d}D dam break: {'; '.join(r['problems'])}"
+    d = f"{r['dim']}D {r['solver']}"
+    assert not r["problems"], f"{d} dam break: {'; '.join(r['problems'])}"
     T = r["t"] * math.sqrt(2.0 * G / DAM_A)
     rows = []
     for t_exp, z_exp in MARTIN_MOYCE:
@@ -347,13 +399,23 @@ def test_dam_break_front_matches_experiment(dam_run):
                      float(np.interp(t_exp, T, r["lead"] / DAM_A)), 1.0 + 2.0 * t_exp))
     table = "; ".join(f"T={t:.2f}: Z={z:.2f} (experiment {ze:.2f}, leading particle {zl:.2f}, "
                       f"Ritter {zr:.2f})" for t, ze, z, zl, zr in rows)
-    print(f"\n{d}D dam break front: {table}")
+    print(f"\n{d} dam break front: {table}")
     for t_exp, z_exp, z_sim, z_lead, z_ritter in rows:
         assert z_lead <= z_ritter + 0.5 * r["spacing"] / DAM_A, \
-            f"{d}D: front faster than Ritter's ideal dam break: {table}"
+            f"{d}: front faster than Ritter's ideal dam break: {table}"
         assert -MM_BEHIND <= z_sim - z_exp <= MM_AHEAD, (
-            f"{d}D: surge front at T = {t_exp:.2f} is {z_sim - z_exp:+.2f} a off Martin & Moyce "
+            f"{d}: surge front at T = {t_exp:.2f} is {z_sim - z_exp:+.2f} a off Martin & Moyce "
             f"(allowed -{MM_BEHIND} .. +{MM_AHEAD} a): {table}")
+
+
+def test_dam_break_density_error_stays_within_tolerance(dam_run):
+    """DFSPH: after every step of the dam break (impact on the far wall included) the
+    stats row's average density error is within dfsph.density_tolerance, and no solve
+    stopped at its maximum iterations."""
+    r = dam_run
+    if r["solver"] != "dfsph":
+        pytest.skip("wcsph has no density solve to hold to a tolerance")
+    r["log"].check(r["case"] + " dam break")
 
 
 @pytest.mark.parametrize("dim", DIMS)
@@ -566,6 +628,78 @@ def test_stats_dt_is_the_chosen_step_not_the_frame_remainder(dim):
         assert rows[-1] == pytest.approx(step, rel=0.05), (
             f"{dim}D: stats dt {rows[-1]:.4g} s after frame {sim.frame}, the next step "
             f"{step:.4g} s")
+
+
+# ================================================================== DFSPH solve reporting
+SOLVE_COLUMNS = ("solver", "density_iterations", "divergence_iterations", "density_error", "unconverged")
+
+
+def test_dfsph_solve_stopped_at_its_maximum_is_counted_warned_once_and_written(dim, tmp_path):
+    """A density solve that stops at dfsph.max_iterations before its tolerance is never
+    silent (issue 31 §3): each such step is counted in the stats row (``unconverged``), a
+    RuntimeWarning naming the key and its value is given once for the run, and stats.csv
+    carries the solver's columns. Here max_iterations = 1 against a tolerance of 1e-9 in
+    a tank just let go (the lattice compresses under gravity), so every density solve stops
+    at its maximum; the divergence solve is left to converge."""
+    import csv
+    import warnings
+
+    from mrsph.output import StatsWriter
+
+    scene = with_solver(tank_scene(dim), "dfsph")
+    scene["dfsph"] = {"max_iterations": 1, "density_tolerance": 1e-9}
+    sim = make_sim(scene)
+    steps = 6
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with StatsWriter(tmp_path / "stats.csv", dim, sim.levels) as out:
+            rows = []
+            for _ in range(2):
+                for _ in range(steps // 2):
+                    sim.step()
+                rows.append(sim.stats())
+                out.write(rows[-1])
+    hits = [w for w in caught if issubclass(w.category, RuntimeWarning) and "dfsph" in str(w.message)]
+    counted = sum(r["unconverged"] for r in rows)
+    print(f"\n{dim}D max_iterations = 1: rows {[{k: r[k] for k in SOLVE_COLUMNS} for r in rows]}; "
+          f"warnings {[str(w.message) for w in hits]}")
+    assert counted == steps, (f"{dim}D: {counted} unconverged solves counted in the stats rows over {steps} "
+                              f"steps that each stopped at max_iterations = 1; expected {steps}")
+    assert all(r["density_error"] > 1e-9 for r in rows), (
+        f"{dim}D: density errors {[r['density_error'] for r in rows]}; expected above the 1e-9 tolerance")
+    assert len(hits) == 1 and "dfsph.max_iterations = 1" in str(hits[0].message), (
+        f"{dim}D: expected one RuntimeWarning naming dfsph.max_iterations = 1 for {steps} unconverged "
+        f"solves, got {len(hits)}: {[str(w.message) for w in hits]}")
+    with open(tmp_path / "stats.csv", newline="") as f:
+        back = list(csv.DictReader(f))
+    missing = [c for c in SOLVE_COLUMNS if c not in back[0]]
+    assert not missing, f"{dim}D: stats.csv lacks the columns {missing} (has {list(back[0])})"
+    assert [r["solver"] for r in back] == ["dfsph", "dfsph"], f"{dim}D: solver column {[r['solver'] for r in back]}"
+    assert [int(r["unconverged"]) for r in back] == [r["unconverged"] for r in rows], (
+        f"{dim}D: stats.csv unconverged {[r['unconverged'] for r in back]}, rows {[r['unconverged'] for r in rows]}")
+    for key in ("density_iterations", "divergence_iterations", "density_error"):
+        assert [float(r[key]) for r in back] == [r[key] for r in rows], f"{dim}D: stats.csv {key} does not read back"
+    assert all(r["density_iterations"] == 1.0 for r in rows), (
+        f"{dim}D: density iterations a step {[r['density_iterations'] for r in rows]}; expected 1 (the maximum)")
+
+
+def test_dfsph_converged_solves_are_not_counted(dim):
+    """The other side: at its default tolerance and maximum the same tank's solves
+    converge, the rows count none unconverged and nothing is warned."""
+    import warnings
+
+    sim = make_sim(with_solver(tank_scene(dim), "dfsph"))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        for _ in range(6):
+            sim.step()
+        row = sim.stats()
+    hits = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
+    tol = float(sim.scene.data["dfsph"]["density_tolerance"])
+    assert row["unconverged"] == 0 and not hits and row["density_error"] <= tol, (
+        f"{dim}D: {row['unconverged']} unconverged, density error {row['density_error']:.3g} "
+        f"(tolerance {tol:g}), warnings {hits}; expected none, within the tolerance")
+    assert row["solver"] == "dfsph" and row["density_iterations"] >= 1.0, row
 
 
 # ================================================================== time step
