@@ -15,6 +15,8 @@ HUD_WIDTH_PX = 330
 HUD_TEXT_CHARS = 40     # characters a line of the panel holds (ImGui's 7 px wide glyphs)
 HUD_HEIGHT_PX = 600
 HUD_MARGIN_PX = 8
+#: The colour of the HUD's message lines (what an action did, or why it could not).
+MESSAGE_COLOUR = (1.0, 0.75, 0.3)
 #: Window over which splits/s and merges/s are counted (simulated seconds).
 RATE_WINDOW_S = 1.0
 _HELP = """\
@@ -147,6 +149,10 @@ def draw_hud(self, snap) -> None:
             gui.text(f"speed {speed:.3g}x real time{slow}")
         for line in solver_lines(st, self.solver, self.tolerance):
             gui.text(line)
+        # the last message under the figures, where it is seen at any window height (at
+        # the panel's foot it fell below the fold of a 600-pixel window)
+        for line in textwrap.wrap(self.message, HUD_TEXT_CHARS):
+            gui.text(line, color=MESSAGE_COLOUR)
         gui.text(f"real {st.get('n_real', '?')}   virtual {st.get('n_virtual', '?')}"
                  f"   transient {st.get('n_transient', '?')}")
         for lvl in range(int(snap.levels)):
@@ -192,5 +198,3 @@ def draw_hud(self, snap) -> None:
         self.surface = gui.checkbox("water view (w)", self.surface)
         if gui.button(f"colour: {self.color_mode} (c)"):
             self.color_mode = palette.next_mode(self.color_mode)
-        for line in textwrap.wrap(self.message, HUD_TEXT_CHARS):
-            gui.text(line, color=(1.0, 0.75, 0.3))
