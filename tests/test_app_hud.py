@@ -55,6 +55,7 @@ def test_switch_refuses_a_scene_that_cannot_take_dfsph_in_one_line():
     why = why_not(symmetric, "dfsph")
     assert why is not None and why.startswith("cannot switch to dfsph: "), why
     assert "adaptivity.coupling" in why and "\n" not in why, why
+    assert str(symmetric.path) not in why, f"the scene's path is noise in the HUD: {why}"
 
 
 def test_switch_says_the_stand_in_has_no_solver():

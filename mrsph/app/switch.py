@@ -44,5 +44,7 @@ def why_not(scene, solver: str) -> str | None:
         with_overrides({"fluid.solver": solver})
     except Exception as e:      # SceneError: the scene's own words, first line
         first = (str(e).splitlines() or [type(e).__name__])[0]
-        return f"cannot switch to {solver}: {first[:MAX_REASON_CHARS]}"
+        # less the scene's path: "FILE with override fluid.solver: KEY: what (got; expected)"
+        _, found, rest = first.partition(" with override fluid.solver: ")
+        return f"cannot switch to {solver}: {(rest if found else first)[:MAX_REASON_CHARS]}"
     return None
