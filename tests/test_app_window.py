@@ -416,3 +416,35 @@ def test_window_latches_a_tapped_key_and_toggles_the_water_view(xdisplay, tmp_pa
         assert app.quit() == 0, app.output()
     finally:
         app.close()
+
+
+def test_window_s_switches_the_solver_and_frames_keep_coming(xdisplay, tmp_path):
+    """s on pool_2d rebuilds it with ``fluid.solver = "dfsph"``: the stats line's solver
+    turns from wcsph to dfsph, the switch's first frames say loading (the new step
+    compiles), and then dfsph frames keep coming with simulated time advancing and the
+    density solve iterating."""
+    app = App([str(REPO / "main.py"), "pool_2d", "--width", WIDTH, "--height", HEIGHT],
+              xdisplay, tmp_path)
+    try:
+        app.wait_window(FIRST_FRAMES_TIMEOUT_S)
+        rows = app.wait_frames(3, FIRST_FRAMES_TIMEOUT_S)
+        assert {r["solver"] for r in rows} == {"wcsph"}, "pool_2d no longer opens with wcsph"
+        app.xdo("key", "s")
+        deadline = time.time() + FIRST_FRAMES_TIMEOUT_S
+        while True:
+            app.alive()
+            new = [r for r in app.stats()[len(rows):] if r["solver"] == "dfsph"]
+            running = [r for r in new if not r["loading"]]
+            if len(running) >= 5:
+                break
+            assert time.time() < deadline, \
+                f"{len(new)} dfsph frames ({len(running)} past loading) after s:\n{app.output()}"
+            time.sleep(0.5)
+        assert new[0]["loading"], f"the switch's first frame did not say loading: {new[0]}"
+        assert new[0]["message"] == "solver dfsph", new[0]["message"]
+        times = [r["time"] for r in running]
+        assert times[-1] > times[0] > 0.0, f"dfsph frames did not advance: {times}"
+        assert running[-1]["density_iterations"] > 0, running[-1]
+        assert app.quit() == 0, app.output()
+    finally:
+        app.close()

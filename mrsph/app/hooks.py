@@ -4,7 +4,10 @@
 kinetic_energy, n_real, n_virtual, disturbance_active, paused, scene, wall_s, fps,
 speed (simulated seconds per wall second), camera_distance (3D, else null), surface,
 surface_ms (what computing the water view's surface took this frame; 0 when off or
-reused), loading (the frame shows the loading message).
+reused), loading (the frame shows the loading message), solver (the pressure solver; null
+for the stand-in) with density_iterations, divergence_iterations, density_error and
+unconverged of the simulation's stats row (null where the row has none), message (the
+HUD's last message line, "" when none).
 ``MRSPH_WINDOW_SCREENSHOT=path``: write the screenshot there (frame
 AUTO_SCREENSHOT_FRAME, and on ``p``), and every frame that shows the loading message
 beside it, as ``<stem>_loading_<scene>_<n><suffix>`` (n counts them from 0); without it
@@ -46,7 +49,11 @@ def stats_row(app, snap, disturbance) -> dict:
             "camera_distance": (round(float(camera.distance), 6)
                                 if snap.dim == 3 and camera is not None else None),
             "surface": app.surface, "surface_ms": round(1e3 * app.renderer.surface_s, 3),
-            "loading": app.loading is not None}
+            "loading": app.loading is not None,
+            "solver": st.get("solver", app.solver),
+            **{k: st.get(k) for k in ("density_iterations", "divergence_iterations",
+                                      "density_error", "unconverged")},
+            "message": app.message}
 
 
 def write_screenshot(window, path: str | None) -> str:

@@ -7,6 +7,7 @@ import math
 import textwrap
 
 from . import palette
+from .switch import next_solver
 
 #: HUD panel on the right: width in pixels (fits the slider labels of ImGui's default
 #: 13 px font) and height in pixels (cut to the window, less the margins).
@@ -14,12 +15,15 @@ HUD_WIDTH_PX = 330
 HUD_TEXT_CHARS = 40     # characters a line of the panel holds (ImGui's 7 px wide glyphs)
 HUD_HEIGHT_PX = 600
 HUD_MARGIN_PX = 8
+#: The colour of the HUD's message lines (what an action did, or why it could not).
+MESSAGE_COLOUR = (1.0, 0.75, 0.3)
 #: Window over which splits/s and merges/s are counted (simulated seconds).
 RATE_WINDOW_S = 1.0
 _HELP = """\
 space     pause / run          n   step one frame
 r         reset                tab next scene (list below)
 c         colour mode          v   show virtual particles
+s         pressure solver: wcsph <-> dfsph (rebuilds)
 h         this help            p   screenshot (out/screenshots)
 left drag push the fluid       right drag / shift+left: pull
 q / e     mouse radius - / +   u   hide / show the HUD
@@ -90,6 +94,31 @@ class Speed:
 
 
 
+def solver_lines(st: dict, solver: str | None, tolerance: float | None = None) -> list[str]:
+    """The HUD's lines on the pressure solver, from a stats row ``st`` of
+    ``Simulation.stats()`` (``solver``, ``density_iterations``, ``divergence_iterations``,
+    ``density_error``, ``unconverged``); ``solver``: the running scene's, for a row
+    without it; ``tolerance``: ``dfsph.density_tolerance``, shown beside the error. The
+    iterations are the mean velocity updates a step since the last row, the error the
+    average density error (DFSPH: its last density solve's; WCSPH: the mean compression).
+    No lines for a simulation without a pressure solver (the app's stand-in)."""
+    name = st.get("solver") or solver
+    if not name:
+        return []
+    lines = [f"solver {name}   (s: switch to {next_solver(name)})"]
+    err = st.get("density_error")
+    if name == "dfsph":
+        lines.append(f"iterations/step: density {float(st.get('density_iterations') or 0.0):.1f}, "
+                     f"div {float(st.get('divergence_iterations') or 0.0):.1f}")
+        tol = f" (tol {100.0 * tolerance:.3g} %)" if tolerance else ""
+        lines.append(f"density error {100.0 * float(err or 0.0):.3g} %{tol}")
+        if st.get("unconverged"):
+            lines.append(f"{int(st['unconverged'])} solves stopped at max iterations")
+    elif err is not None:
+        lines.append(f"mean compression {100.0 * float(err):.3g} %")
+    return lines
+
+
 def draw_hud(self, snap) -> None:
     """The HUD panel (right) and the help panel of the window ``self`` (an ``_App``)."""
     gui = self.window.get_gui()
@@ -118,6 +147,12 @@ def draw_hud(self, snap) -> None:
         else:
             slow = "   (slow motion)" if self.frame_sim < 0.999 * self.frame_dt else ""
             gui.text(f"speed {speed:.3g}x real time{slow}")
+        for line in solver_lines(st, self.solver, self.tolerance):
+            gui.text(line)
+        # the last message under the figures, where it is seen at any window height (at
+        # the panel's foot it fell below the fold of a 600-pixel window)
+        for line in textwrap.wrap(self.message, HUD_TEXT_CHARS):
+            gui.text(line, color=MESSAGE_COLOUR)
         gui.text(f"real {st.get('n_real', '?')}   virtual {st.get('n_virtual', '?')}"
                  f"   transient {st.get('n_transient', '?')}")
         for lvl in range(int(snap.levels)):
@@ -135,12 +170,16 @@ def draw_hud(self, snap) -> None:
             self.paused, self.step_once = True, True
         if gui.button("Reset"):
             self._reset()
+        if self.solver and gui.button(f"Solver: {self.solver} -> {next_solver(self.solver)} (s)"):
+            self.later(self.switch_solver)
         if gui.button("Next scene (tab)"):
             self.later(self._next_scene)
         if gui.button("Scenes and keys (h)"):
             self.show_help = not self.show_help
         gui.text("fluid")
         for key, label in (("fluid.viscosity", "viscosity"), ("fluid.stiffness", "stiffness")):
+            if not self.takes(key):   # dfsph has no stiffness
+                continue
             lo = 0.0 if key == "fluid.viscosity" else 0.1 * self.slider_max[key] / 4.0
             new = gui.slider_float(label, self.params[key], lo, self.slider_max[key])
             if not math.isclose(new, self.params[key], rel_tol=1e-6, abs_tol=1e-12):
@@ -159,5 +198,3 @@ def draw_hud(self, snap) -> None:
         self.surface = gui.checkbox("water view (w)", self.surface)
         if gui.button(f"colour: {self.color_mode} (c)"):
             self.color_mode = palette.next_mode(self.color_mode)
-        for line in textwrap.wrap(self.message, HUD_TEXT_CHARS):
-            gui.text(line, color=(1.0, 0.75, 0.3))

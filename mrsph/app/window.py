@@ -15,6 +15,7 @@ or a HUD button)
 space / n / r          pause-run / step one frame / reset
 tab / help buttons     next scene / any scene
 c / v / h / u          colour mode / show virtual particles / help / HUD panel
+s / HUD solver button  pressure solver wcsph <-> dfsph (rebuilds the scene)
 left drag              push the fluid along the drag
 right drag (2D),       pull the fluid toward the cursor
 shift + left drag
@@ -33,6 +34,9 @@ are latched: a press seen between two frames acts once even when the key is up a
 when the next frame reads the keys (z / x / arrows at a few frames per second).
 A scene that loads or compiles shows "loading SCENE (compiling ...)"; Taichi compiles
 on the main thread only, so an Esc pressed during one compile is answered when it ends.
+The refinement checkbox and the solver switch rebuild the running scene with an override
+(``adaptivity.enabled``, ``fluid.solver``), each on top of the other, and carry the
+live-tuned sliders over; a scene that cannot take the other solver says why in the HUD.
 
 Test hooks: ``MRSPH_WINDOW_STATS`` and ``MRSPH_WINDOW_SCREENSHOT`` (mrsph.app.hooks).
 """
@@ -54,6 +58,7 @@ from .hooks import (AUTO_SCREENSHOT_FRAME, SCREENSHOT_ENV, STATS_ENV, loading_sh
                     write_screenshot)
 from .loading import loading_panel, show_loading_frame
 from .marks import frame_marks
+from .switch import next_solver, running_solver, why_not
 from .view import scene_setting
 
 #: Camera speeds: arrows orbit at this many rad/s; z/x zoom by e^(rate dt) (drags:
@@ -130,6 +135,8 @@ class _App:
         self.loading = None           # the loading message while a scene loads or compiles
         self.surface = False
         self.pending = None           # an action of the HUD (scene switch) for the next frame
+        self.overrides: dict = {}     # the window's overrides of the running scene (rebuilds)
+        self.label = scene_name       # what the loading message names: the scene, its solver
         self._on_new_sim()
 
     # -- simulation lifecycle ----------------------------------------------------------
@@ -155,6 +162,11 @@ class _App:
         self.slider_max = {"fluid.viscosity": max(1.0, 5.0 * self.params["fluid.viscosity"]),
                            "fluid.stiffness": 4.0 * self.params["fluid.stiffness"]}
         self.refinement = bool(scene_setting(scene, "adaptivity.enabled", self.sim.levels > 1))
+        self.solver = running_solver(scene)     # None: the stand-in, no solver to switch
+        self.tolerance = scene_setting(scene, "dfsph.density_tolerance", None) \
+            if self.solver == "dfsph" else None
+        # the keys this simulation tunes live (None: the stand-in, which takes them all)
+        self.live = getattr(self.sim, "LIVE_KEYS", None)
         self.frame_dt = 1.0 / float(scene_setting(scene, "run.fps", 30.0))
         self.frame_sim = self.frame_dt  # simulated time the last frame advanced
         self.renderer.reset_view(scene, palette.Style.from_scene(scene))
@@ -165,24 +177,66 @@ class _App:
         self.fresh = LOADING_FRAMES
         self.pointer.reset()
 
-    def switch_scene(self, name: str, overrides=None) -> bool:
+    def switch_scene(self, name: str, overrides=None, label: str | None = None) -> bool:
         """Build ``name`` (optionally with overrides) and make it current; on failure
-        keep the running scene and say why in the HUD."""
+        keep the running scene and say why in the HUD. ``label``: what the loading
+        message calls it (default: ``name``)."""
+        label = label or name
         if not self._same_precision(name):
             return False
-        if not self._show_loading(name, f"loading {name} (compiling the particles' setup ...)"):
+        if not self._show_loading(name, f"loading {label} (compiling the particles' setup ...)"):
             return False   # Esc: quitting
         try:
             sim = self._build(name, overrides)
         except Exception as e:  # a bad scene file must not close the window
             first = (str(e).splitlines() or [""])[0][:160]
-            self.message = f"cannot load {name}: {type(e).__name__}: {first}"
+            self.message = f"cannot load {label}: {type(e).__name__}: {first}"
             return False
         self.sim.set_disturbance(None)
-        self.sim, self.scene_name = sim, name
+        self.sim, self.scene_name, self.label = sim, name, label
+        self.overrides = dict(overrides or {})
         self._on_new_sim()
         self.message = f"scene {name}" + (f" with {overrides}" if overrides else "")
         return True
+
+    def takes(self, key: str) -> bool:
+        """Whether the running simulation tunes ``key`` live (dfsph: no stiffness)."""
+        return self.live is None or key in self.live
+
+    def _rebuild(self, override: dict, label: str) -> bool:
+        """Rebuild the running scene with ``override`` on top of the window's earlier
+        overrides (a solver switch keeps the refinement toggle's choice, and the reverse),
+        then carry the live-tuned values over where the new simulation takes them; one it
+        does not take (dfsph has no stiffness) stays remembered for a switch back."""
+        if not self.can_override:
+            self.message = f"{', '.join(override)}: rebuilding needs make_sim(scene_name, overrides)"
+            return False
+        kept = dict(self.params)
+        if not self.switch_scene(self.scene_name, {**self.overrides, **override}, label):
+            return False
+        for key in ("fluid.viscosity", "fluid.stiffness"):
+            if self.takes(key):
+                self._set_param(key, kept[key])
+            else:
+                self.params[key] = kept[key]
+        if self.takes("physics.gravity"):
+            self._set_gravity_y(kept["gravity_y"])
+        return True
+
+    def switch_solver(self) -> None:
+        """The other pressure solver (``fluid.solver``) for the running scene, rebuilt with
+        it; a scene that cannot take it (a SceneError, e.g. symmetric coupling with dfsph)
+        keeps running and the HUD says why, in one line."""
+        if not self.solver:
+            self.message = "this simulation has no pressure solver to switch"
+            return
+        want = next_solver(self.solver)
+        why = why_not(self.sim.scene, want)
+        if why:
+            self.message = why
+            return
+        if self._rebuild({"fluid.solver": want}, f"{self.scene_name} with {want}"):
+            self.message = f"solver {want}"
 
     def _same_precision(self, name: str) -> bool:
         """A scene with another float precision would re-initialise Taichi, which
@@ -207,17 +261,9 @@ class _App:
             self._set_param("adaptivity.enabled", bool(enabled))
             self.refinement = bool(enabled)
             return
-        if not self.can_override:
-            self.message = "refinement toggle needs make_sim(scene_name, overrides)"
-            return
-        kept = dict(self.params)
-        if not self.switch_scene(self.scene_name, {"adaptivity.enabled": bool(enabled)}):
-            return
-        self.refinement = bool(enabled)
-        # carry the live-tuned values over to the rebuilt simulation
-        for key in ("fluid.viscosity", "fluid.stiffness"):
-            self._set_param(key, kept[key])
-        self._set_gravity_y(kept["gravity_y"])
+        if self._rebuild({"adaptivity.enabled": bool(enabled)},
+                         f"{self.scene_name} with refinement {'on' if enabled else 'off'}"):
+            self.refinement = bool(enabled)
 
     def _set_param(self, key, value) -> None:
         try:
@@ -297,7 +343,7 @@ class _App:
         paused."""
         compiling = self.fresh > 0 and not self.paused
         if compiling:
-            self.loading = f"loading {self.scene_name} (compiling the step ...)"
+            self.loading = f"loading {self.label} (compiling the step ...)"
         elif self.loading and not self.fresh:
             self.loading = None
         if (not self.paused or self.step_once) and not compiling:
@@ -356,6 +402,8 @@ class _App:
                 self.renderer.reset_view()
             elif k == "w":
                 self.surface = not self.surface
+            elif k == "s":
+                self.later(self.switch_solver)   # draws loading frames of its own
             elif k in CAMERA_KEYS or k in (ti.ui.LEFT, ti.ui.RIGHT, ti.ui.UP, ti.ui.DOWN):
                 self.taps.add(k)     # latched: acts this frame even if already released
             elif k == "p":
@@ -465,7 +513,8 @@ def run_window(make_sim, scene_name: str, scene_names: list[str], width: int = 1
 
     ``make_sim(scene_name)`` builds a Simulation (and so initialises Taichi). If it also
     accepts overrides, ``make_sim(scene_name, overrides: dict)``, the refinement
-    checkbox can rebuild the scene with ``{"adaptivity.enabled": bool}``.
+    checkbox and the solver switch can rebuild the scene with
+    ``{"adaptivity.enabled": bool, "fluid.solver": name}``.
     ``scene_names`` are the scenes offered by Tab and the help panel's buttons.
     ``frame_budget``: wall seconds of simulation per drawn frame (None: whole frames).
     """
