@@ -17,8 +17,6 @@ import time
 import warnings
 from pathlib import Path
 
-import numpy as np
-
 from .options import (EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE,
                       WINDOW_FRAME_BUDGET_MS, HelpFormatter, Parser, dir_problem, file_problem,
                       fps_arg, frame_budget_arg, pixels_arg, positive_int, threads_arg)
@@ -178,9 +176,10 @@ class _Dumper:
 
     def dump(self, snap) -> None:
         from .output import write_frame
-        p = snap.p if snap.p is not None else np.zeros_like(snap.rho)
-        parts = {"x": snap.x, "v": snap.v, "m": snap.m, "rho": snap.rho, "p": p,
+        parts = {"x": snap.x, "v": snap.v, "m": snap.m, "rho": snap.rho,
                  "level": snap.level, "kind": snap.kind}
+        if snap.p is not None:      # a stand-in without a pressure dumps zeros
+            parts["p"] = snap.p
         write_frame(self.directory, snap.frame, parts, self.dim, self.fmt)
         self.stats.write(snap.stats)
         self.last_row = snap.stats

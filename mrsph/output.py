@@ -66,7 +66,10 @@ def frame_path(directory, frame_index: int, fmt: str = "npz") -> Path:
 
 
 def _frame_arrays(parts: dict, dim: int) -> dict:
-    """The documented arrays of ``parts`` with checked shapes and fixed dtypes."""
+    """The documented arrays of ``parts`` with checked shapes and fixed dtypes. ``p`` may
+    be left out (a stand-in without a pressure): it is written as zeros."""
+    if "p" not in parts and "rho" in parts:
+        parts = {**parts, "p": np.zeros(np.shape(parts["rho"]), np.asarray(parts["rho"]).dtype)}
     missing = [k for k in FRAME_ARRAYS if k not in parts]
     if missing:
         raise ValueError(f"parts: missing arrays {', '.join(missing)} (expected {', '.join(FRAME_ARRAYS)})")
