@@ -354,7 +354,7 @@ def _surface_cost(source, sim, repeats) -> tuple[float, float, float]:
     import dataclasses
     from .app import palette
     from .app.geometry import water
-    from .cli import WINDOW_FRAME_BUDGET_MS, frame_budget_arg
+    from .options import WINDOW_FRAME_BUDGET_MS, frame_budget_arg
     budget = frame_budget_arg(WINDOW_FRAME_BUDGET_MS)
     snap = sim.snapshot()
     source.render(snap, "level", False, sim.rest_density, (), True)    # first use: allocations

@@ -259,7 +259,7 @@ def test_headless_dump_npz(tmp_path):
     n = None
     for name in files:
         with np.load(out / name) as f:
-            assert sorted(f.files) == ["kind", "level", "m", "rho", "v", "x"]
+            assert sorted(f.files) == ["kind", "level", "m", "p", "rho", "v", "x"]
             n = len(f["m"])
             assert f["x"].shape == (n, 2) and f["v"].shape == (n, 2)
             assert f["level"].dtype == np.int32 and f["kind"].dtype == np.int32
