@@ -98,21 +98,29 @@ class Neighbours:
     def for_each_neighbour(self, i, l, h, listed, own: ti.template(), image: ti.template(),
                            ctx: ti.template(), acc: ti.template()):
         """Every candidate of particle i's neighbourhood into one ``acc``: ``own(i, j, x_i,
-        I, …)`` for its same-level candidates, ``image(i, j, xq, L, …)`` for those of
-        each wall and obstacle image (i itself included, as its image sees it). For a
-        pass that needs no per-image partial sums (the implicit pressure solver)."""
+        I, …)`` for its same-level candidates, then ``image.visit`` (an ``ImageNeighbours``)
+        for each wall and obstacle image, which visits that image's candidates (i itself
+        included, as its image sees it). For a pass that needs no per-image partial sums
+        (the implicit pressure solver)."""
         xi = self.pool.p[i].x
         eye = ti.Matrix.identity(float, self.dim)
         self.candidates(i, xi, eye, xi, xi, False, l, listed, False, own, ctx, acc)
-        for mask in range(1, 2 ** self.dim):
-            ok, xr, sgn = self.boundary.domain_image(xi, h, mask)
-            if ok:
-                Ld = ti.Matrix.zero(float, self.dim, self.dim)
-                for k in ti.static(range(self.dim)):
-                    Ld[k, k] = sgn[k]
-                self.candidates(i, xr, Ld, xi, xi, False, l, listed, True, image, ctx, acc)
-        ok, xo, nrm = self.boundary.obstacle_image(xi, h)
-        if ok:
-            Lo = ti.Matrix.identity(float, self.dim) - 2.0 * nrm.outer_product(nrm)
-            self.candidates(i, xo, Lo, 0.5 * (xi + xo), nrm, True, l, False, True, image, ctx, acc)
+        self.images(i, h, image.visit, ctx, acc)
 
+
+@ti.data_oriented
+class ImageNeighbours:
+    """An image visit (for ``Neighbours.images``) that visits the image's candidates with
+    the pair visit ``pair``: i and i's list for a domain-wall image of a listed particle
+    (its list holds everything within h of such an image), else the grid around it."""
+
+    def __init__(self, neighbours: Neighbours, pair):
+        self.nb, self.pair = neighbours, pair
+
+    @ti.func
+    def visit(self, i, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
+        listed = self.nb.is_listed(i)
+        if ti.static(check):
+            listed = False      # an obstacle image's neighbours are not i's: the grid
+        self.nb.candidates(i, xq, L, p0, nrm, check, self.nb.pool.p[i].level, listed, True,
+                           self.pair, ctx, acc)

@@ -42,6 +42,7 @@ import warnings
 
 import taichi as ti
 
+from ..neighbours import ImageNeighbours
 from ..particles import is_real, is_virtual
 
 # Jacobi iterations per kernel launch: the host reads the convergence after each launch.
@@ -88,6 +89,10 @@ class DFSPH:
         self.err = ti.field(ti.f64, shape=())        # Σ of the real particles' errors
         self.error = ti.field(ti.f64, shape=())      # the last iteration's average error
         self.n_real = ti.field(ti.i32, shape=())
+        # the visits of each image's candidates, for Neighbours.images
+        self._factor_images = ImageNeighbours(self.nb, self._factor_pair)
+        self._rate_images = ImageNeighbours(self.nb, self._rate_pair)
+        self._push_images = ImageNeighbours(self.nb, self._push_image)
         self.reset_counters()
         # how a warning reaches the user: the Simulation sets its own (kept in its
         # ``warnings`` for the app, and given to Python's warnings)
@@ -284,41 +289,14 @@ class DFSPH:
                 eye = ti.Matrix.identity(float, self.dim)
                 if listed:
                     self.nb.candidates(i, xi, eye, xi, xi, False, l, True, False, self._store_pair, ctx, acc)
+                    self.nb.images(i, h, self._factor_images.visit, ctx, acc)
                 else:
-                    self.nb.candidates(i, xi, eye, xi, xi, False, l, False, False, self._factor_pair, ctx, acc)
-                self.nb.images(i, h, self._factor_image, ctx, acc)
+                    self.nb.for_each_neighbour(i, l, h, False, self._factor_pair, self._factor_images, ctx, acc)
                 s = ti.Vector([acc[k] for k in ti.static(range(self.dim))])
                 den = s.norm_sqr() + acc[self.dim]
                 # an isolated particle has no neighbour to push: no pressure
                 self.alpha[i] = p[i].rho / den if den > 1e-12 * p[i].rho * p[i].rho else 0.0
                 self.n_real[None] += 1
-
-    @ti.func
-    def _factor_image(self, i, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(),
-                      acc: ti.template()):
-        listed = self.nb.is_listed(i)
-        if ti.static(check):
-            listed = False
-        self.nb.candidates(i, xq, L, p0, nrm, check, self.pool.p[i].level, listed, True,
-                           self._factor_pair, ctx, acc)
-
-    @ti.func
-    def _rate_image(self, i, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(),
-                    acc: ti.template()):
-        listed = self.nb.is_listed(i)
-        if ti.static(check):
-            listed = False
-        self.nb.candidates(i, xq, L, p0, nrm, check, self.pool.p[i].level, listed, True,
-                           self._rate_pair, ctx, acc)
-
-    @ti.func
-    def _push_image_visit(self, i, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(),
-                          acc: ti.template()):
-        listed = self.nb.is_listed(i)
-        if ti.static(check):
-            listed = False
-        self.nb.candidates(i, xq, L, p0, nrm, check, self.pool.p[i].level, listed, True,
-                           self._push_image, ctx, acc)
 
     @ti.func
     def _rate(self, i):
@@ -331,11 +309,9 @@ class DFSPH:
             vi = p[i].v
             for q in range(self.nb.count[i]):
                 rate += (vi - p[self.nb.lists[i, q]].v).dot(self.gw[i, q])
+            self.nb.images(i, h, self._rate_images.visit, ctx, rate)
         else:
-            xi = p[i].x
-            eye = ti.Matrix.identity(float, self.dim)
-            self.nb.candidates(i, xi, eye, xi, xi, False, l, False, False, self._rate_pair, ctx, rate)
-        self.nb.images(i, h, self._rate_image, ctx, rate)
+            self.nb.for_each_neighbour(i, l, h, False, self._rate_pair, self._rate_images, ctx, rate)
         return rate
 
     @ti.func
@@ -353,11 +329,9 @@ class DFSPH:
                 f = (ki + self.coupling.partner_pressure(p[j].kind, self.kappa[j]) / p[j].rho) * self.gw[i, q]
                 acc += f
                 self.coupling.hand_reaction(j, -mi * f)
+            self.nb.images(i, h, self._push_images.visit, ctx, acc)
         else:
-            xi = p[i].x
-            eye = ti.Matrix.identity(float, self.dim)
-            self.nb.candidates(i, xi, eye, xi, xi, False, l, False, False, self._push_own, ctx, acc)
-        self.nb.images(i, h, self._push_image_visit, ctx, acc)
+            self.nb.for_each_neighbour(i, l, h, False, self._push_own, self._push_images, ctx, acc)
         return acc
 
     @ti.func
