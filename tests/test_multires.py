@@ -218,7 +218,9 @@ def moving_region_scene(dim: int, half_period_steps: int = 30, levels: int = 3) 
 
 
 # ================================================================== 1. links at every step
-@pytest.mark.parametrize(("dim", "solver"), dim_solver_params())
+# the dfsph cases compile a second solver's kernels (a minute or more each): the default
+# suite keeps the 2D links and the 2D coupling momentum with dfsph, -m slow the rest
+@pytest.mark.parametrize(("dim", "solver"), dim_solver_params(slow=("3d-dfsph",)))
 def test_links_hold_at_every_step_of_a_moving_refinement(dim, solver):
     """METHOD.md §3, §8: every virtual particle has a live owner that lists it, every
     transient child's virtual parent lists it, groups hold at most 2^d children, and no
@@ -278,7 +280,7 @@ def event_steps(sim, events: int = 100, max_steps: int = 150):
         yield steps, splits, merges, ev
 
 
-@pytest.mark.parametrize(("dim", "solver"), dim_solver_params())
+@pytest.mark.parametrize(("dim", "solver"), dim_solver_params(slow=("2d-dfsph", "3d-dfsph")))
 def test_mass_is_bit_identical_through_splits_and_merges(dim, solver):
     """METHOD.md §5, §6, §8: with full groups only (merge_min_children = 2^d),
     the total real mass (math.fsum of the masses) is bit-identical at every step of a run
@@ -346,7 +348,7 @@ def test_mass_is_kept_to_round_off_with_partial_groups(dim):
 
 
 # ================================================================== 3. momentum through a pass
-@pytest.mark.parametrize(("dim", "solver"), dim_solver_params())
+@pytest.mark.parametrize(("dim", "solver"), dim_solver_params(slow=("2d-dfsph", "3d-dfsph")))
 def test_adaptivity_pass_keeps_momentum(dim, solver):
     """METHOD.md §5, §6, §8: a split gives the children the parent's velocity and a merge
     gives the merged particle the group's mass-weighted mean velocity, so the total real
@@ -432,7 +434,7 @@ def refined_blob_scene(dim: int) -> dict:
     }
 
 
-@pytest.mark.slow_params("3d-symmetric")
+@pytest.mark.slow_params("3d-symmetric", "3d-variational-dfsph")
 @pytest.mark.parametrize(("coupling", "solver"), [
     pytest.param("variational", "wcsph", id="variational"),
     pytest.param("symmetric", "wcsph", id="symmetric"),
