@@ -26,9 +26,9 @@ soak_tool = _soak_tool()
 
 
 def test_strength_is_the_window_slider_maximum():
-    source = (REPO / "mrsph" / "app" / "window.py").read_text()
+    source = (REPO / "mrsph" / "app" / "hud.py").read_text()
     m = re.search(r'slider_float\("strength",[^,]+,\s*([0-9.]+),\s*([0-9.]+)\)', source)
-    assert m, "the window's strength slider was not found"
+    assert m, "the HUD's strength slider was not found in mrsph/app/hud.py"
     assert float(m.group(2)) == soak_tool.STRENGTH_MAX
 
 

@@ -48,7 +48,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-#: The upper end of the window's "strength" slider (mrsph/app/window.py, HUD panel), 1/s.
+#: The upper end of the window's "strength" slider (mrsph/app/hud.py), 1/s.
 STRENGTH_MAX = 100.0
 #: The cursor's gestures in turn; None lets go.
 GESTURES = ("push", "pull", None)
