@@ -93,10 +93,24 @@ def _pin(one_core: bool) -> None:
         allowed = os.sched_getaffinity(0)
         if len(allowed) > 1:
             _state["affinity"] = _state["affinity"] or allowed
-            os.sched_setaffinity(0, {min(allowed)})
+            core = _current_core()
+            os.sched_setaffinity(0, {core if core in allowed else min(allowed)})
     elif _state["affinity"]:
         os.sched_setaffinity(0, _state["affinity"])
         _state["affinity"] = None
+
+
+def _current_core() -> int | None:
+    """The core this thread runs on now (Linux: field 39 of /proc/self/stat), or None.
+    One-thread runs pin to it rather than to the lowest core, so that two of them side
+    by side (two recordings, or ``pytest -n 2``) run on the two cores the scheduler
+    has already given them instead of sharing one."""
+    try:
+        with open("/proc/thread-self/stat", encoding="ascii") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        return int(fields[36])      # field 39 counted from 1; fields 1-2 are before ")"
+    except (OSError, IndexError, ValueError):
+        return None
 
 
 def starting_particles(scene) -> int:

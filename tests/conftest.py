@@ -20,8 +20,18 @@ Nothing here touches Taichi at import time.
   some of its cases are long, name those cases' ids with
   ``@pytest.mark.slow_params("3d", ...)`` (or ``pytest.param(3, marks=pytest.mark.slow)``
   where the test owns the parameter), so the short cases stay in the default run.
+- ``open_issue`` tests: long validations of work an open issue has not finished (today
+  the DFSPH flows of issue 31 that were never run to the end here, ``UNVERIFIED_DFSPH``).
+  They are xfail and not strict, so no outcome of theirs can fail a run; they are left
+  out of both runs above, so that CI's time goes to tests that can fail, and run with
+  ``python3 -m pytest -q -m open_issue`` (they print their numbers).
 - ``soak`` tests (long robustness runs, tools/soak.py) are skipped unless ``--soak`` is
   given or the ``-m`` expression names them: ``python3 -m pytest -q --soak -m soak``.
+- Both runs use two processes (pytest-xdist, ``-n auto --dist loadgroup`` in pytest.ini;
+  ``-n 0`` runs in one). Most of a test's time is Taichi compiling, which is one thread,
+  so two processes halve the wall time on two cores. Tests that share an expensive
+  module fixture (one flow run read by several tests, one Xvfb server) are kept in one
+  process by an ``xdist_group`` named after their module and fixture case (``GROUPED``).
 """
 
 import pytest
@@ -40,6 +50,8 @@ def pytest_configure(config):
     config.addinivalue_line(
         "markers", "slow_params(*ids): mark slow only the parametrised cases with these ids")
     config.addinivalue_line(
+        "markers", "open_issue: xfail validations of an open issue's unfinished work; run with -m open_issue")
+    config.addinivalue_line(
         "markers", "soak: robustness runs of 10^5 steps; skipped unless --soak (or -m soak)")
 
 
@@ -49,6 +61,12 @@ def pytest_configure(config):
 # a failure is reported as xfail, not hidden as a pass. Each is to be made strict, or its
 # mark dropped, once measured. Keyed by test file and a substring of the test id.
 UNVERIFIED_DFSPH = (("test_physics.py", "3d-dfsph"), ("test_adaptive_flow.py", "dfsph"))
+
+# Modules whose tests read a module fixture that is expensive to build: with the fixture's
+# case (the test id) -> one xdist group per case; None -> one group for the module.
+GROUPED = {"test_adaptive_flow.py": "case", "test_physics.py": "case",
+           "test_app_window.py": None, "test_app_render.py": None, "test_app_record.py": None,
+           "test_app_swipe.py": None, "test_app_water.py": None, "test_config.py": None}
 
 
 @pytest.hookimpl(tryfirst=True)     # before -m deselects: the slow marks must be on by then
@@ -62,6 +80,16 @@ def pytest_collection_modifyitems(config, items):
                                         for f, key in UNVERIFIED_DFSPH):
             item.add_marker(pytest.mark.xfail(strict=False, reason="DFSPH validation not yet run to "
                                               "the end on this machine (conftest.UNVERIFIED_DFSPH)"))
+            item.add_marker(pytest.mark.open_issue)
+        if item.path.name in GROUPED:
+            by_case = GROUPED[item.path.name] == "case" and callspec is not None
+            item.add_marker(pytest.mark.xdist_group(
+                f"{item.path.stem}[{callspec.id}]" if by_case else item.path.stem))
+    if "open_issue" not in (config.getoption("-m") or ""):
+        kept = [item for item in items if "open_issue" not in item.keywords]
+        if len(kept) < len(items):
+            config.hook.pytest_deselected(items=[i for i in items if "open_issue" in i.keywords])
+            items[:] = kept
     if config.getoption("--soak") or "soak" in (config.getoption("-m") or ""):
         return
     skip = pytest.mark.skip(reason="soak test: run with --soak (python3 -m pytest --soak -m soak)")
