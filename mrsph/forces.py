@@ -34,7 +34,7 @@ class Forces:
         self.integrator = None      # set by the Simulation (a uniform run's fused accelerations)
         self.mu = ti.field(float, shape=())
         self.set_param("fluid.viscosity", fl["viscosity"])
-        # alpha c of the artificial viscosity (c the solver's signal speed, which follows k)
+        # alpha c of the artificial viscosity (c the solver's damping speed, which follows k)
         self.av_alpha = float(fl["artificial_viscosity"])
         self.av_coef = ti.field(float, shape=())
         self.update_signal_speed()
@@ -44,7 +44,7 @@ class Forces:
         self.fused_accelerations = not self.adaptive
 
     def update_signal_speed(self):
-        self.av_coef[None] = self.av_alpha * self.pressure.signal_speed()
+        self.av_coef[None] = self.av_alpha * self.pressure.damping_speed()
 
     def set_param(self, key: str, value) -> None:
         self.viscosity = float(value)       # the host's copy, for the viscous time-step bound

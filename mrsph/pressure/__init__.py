@@ -13,6 +13,9 @@ step (``solver.py``):
 - ``signal_speed()`` (host): the speed the CFL bound adds to |u| (the sound speed of a
   weakly compressible fluid); ``cfl_number(physics)`` and ``cfl_rate(c, |u|, l)``
   (``ti.func``): the CFL bound dt <= λ / rate;
+- ``damping_speed()`` (host): the c of the artificial viscosity's α c h, the sound speed
+  sqrt(k) of ``fluid.stiffness`` for both solvers, so that switching solvers keeps the
+  scene's dissipation;
 - ``after_density(n, dt, phase)`` and, for an ``implicit`` solver, ``solve(n, dt, phase)``:
   host hooks the step calls after the density pass and between the kick and the drift;
 - ``take_stats()``, ``reset_counters()``: iterations and density error for stats.csv;

@@ -40,6 +40,10 @@ class WCSPH:
         """The sound speed at rest, sqrt(k): the CFL bound is λ h/(c + |u|)."""
         return self._c
 
+    def damping_speed(self) -> float:
+        """The artificial viscosity's c: the sound speed, as in the CFL bound."""
+        return self._c
+
     def stiffness(self) -> float:
         return float(self.k[None])
 
