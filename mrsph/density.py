@@ -14,27 +14,17 @@ import taichi as ti
 from .kernels import poly6
 from .particles import is_real
 
-# Density loop without a branch per candidate, in both dimensions. In 2D a third of the
-# candidates of the 3x3 cells are neighbours and, once the fluid flows, which ones is
-# unpredictable: the mispredictions cost more than computing W for every candidate (dam
-# break, 50k particles, one thread: 7.6 -> 4.9 ms a pass). In 3D, with cells of a whole
-# support, one candidate in six was a neighbour and the branch won (30k: 15.1 ms with it,
-# 16.3 without); with half-support cells it was one in four, and on the flowing 30k dam
-# break (t = 0.2 s, two threads) the pass took 11.2-13.4 ms with the branch, 8.8-9.5
-# without. (The cells are now grid.CELLS_PER_SUPPORT's, fewer candidates again.) On the
-# initial lattice, where the branch is predictable, it is the other way round (5.2
-# against 7.4 ms at t = 0.05 s): what matters is the fluid once it moves.
+# Density loop without a branch per candidate, in both dimensions: once the fluid flows,
+# which candidates are neighbours is unpredictable and the mispredictions cost more than
+# computing W for every candidate (measurements: docs/performance.md, "The density pass").
 BRANCH_FREE = True
 
 # The density pass takes particles DENSITY_CLUSTER at a time: consecutive particles of a
 # column of cells share their block's rows, so one walk of those rows (over the union of
 # their spans) serves them all, each candidate loaded once and its distance to each of
 # them computed side by side (``_scan_cluster``). The row set-up, the loop-exit
-# mispredictions and the loads are shared, and the K distances vectorise. Same runs as
-# above, density pass, one thread: 3D K = 1 49.0 ms, 2 40.4, 3 40.6, 4 28.4, 6 32.8,
-# 8 33.2 (half-support cells); 2D K = 1 4.65 ms, 2 3.95, 4 2.56, 8 2.25 (cells of h).
-# Whole steps, two threads, median of 3 x 30 (3D) or 100 (2D) steps: 3D 100k 40.5 ->
-# 24.8 ms (2.36 -> 3.85 M particle-steps/s), 2D 50k 10.2 M particle-steps/s.
+# mispredictions and the loads are shared, and the K distances vectorise. K was chosen
+# by timing the pass (docs/performance.md, "The density pass").
 DENSITY_CLUSTER = {2: 8, 3: 4}
 
 

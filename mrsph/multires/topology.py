@@ -52,14 +52,10 @@ coarsest down (§5.4), rebuilding the grids between pairs, and for the coarse le
    and merges (their new particles are not in the grid until the next sort). So a coarse
    particle next to a group split in this pass gets its virtual children at the next
    pass, ``interval`` steps later, and so does a fine particle next to a group merged in
-   it; until then the two levels there do not see each other. Measured by sorting again
-   and rerunning steps 1, 4 and 5 after each level pair (the dam break of
-   tests/test_adaptive_flow.py, seven CFL numbers, docs/dam-front.md): the 3D front came
-   within -0.6..+1.0 % at six, +28.9 % at the seventh, and the 2D front went from
-   +1.8..+3.7 % to +0.6..+19.7 % (mean +13.7 %); the coarse side (step 4) makes the
-   whole difference, the fine side (step 5) none. A pass every step does the same
-   (``interval`` = 1 in the table there). Not in: the 2D fluid split at the block is
-   thrown further when its coarse neighbours take part at once.
+   it; until then the two levels there do not see each other. Rerunning steps 1, 4 and 5
+   after each level pair made the 2D dam-break front worse and the 3D one no better
+   (docs/dam-front.md, "Couplings of this pass's splits"): the 2D fluid split at the block
+   is thrown further when its coarse neighbours take part at once.
 6. ``_propose``/``_accept`` (a few rounds): neighbouring virtual parents whose groups fit
    in 2^d children and span at most ``gather_span`` of the release distance gather
    under one (mutual nearest pairs, so the parallel pass has no races) — merging is
