@@ -27,6 +27,11 @@ Nothing here touches Taichi at import time.
   ``python3 -m pytest -q -m open_issue`` (they print their numbers).
 - ``soak`` tests (long robustness runs, tools/soak.py) are skipped unless ``--soak`` is
   given or the ``-m`` expression names them: ``python3 -m pytest -q --soak -m soak``.
+- ``wallclock`` tests (the real window under Xvfb, slow too) measure what the window does
+  in wall-clock seconds: frames, a drag at the hand's speed, a solver compiling. Beside
+  a second process compiling they got half a core and failed (a drag that hardly stirred,
+  a switch still compiling after 300 s), so ``.ci/run`` runs them in one process after
+  the rest of ``-m slow``: ``python3 -m pytest -q -m "slow and wallclock" -n 0``.
 - Both runs use two processes (pytest-xdist, ``-n auto --dist loadgroup`` in pytest.ini;
   ``-n 0`` runs in one). Most of a test's time is Taichi compiling, which is one thread,
   so two processes halve the wall time on two cores. Tests that share an expensive
@@ -49,6 +54,8 @@ def pytest_configure(config):
         "markers", "slow: long validation runs, left out by default; run them with -m slow")
     config.addinivalue_line(
         "markers", "slow_params(*ids): mark slow only the parametrised cases with these ids")
+    config.addinivalue_line(
+        "markers", "wallclock: times the real window in wall-clock seconds; run it alone (-n 0)")
     config.addinivalue_line(
         "markers", "open_issue: xfail validations of an open issue's unfinished work; run with -m open_issue")
     config.addinivalue_line(

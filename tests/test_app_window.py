@@ -26,7 +26,7 @@ import pytest
 from mrsph.app import palette
 
 REPO = Path(__file__).resolve().parent.parent
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.wallclock]
 
 WIDTH, HEIGHT = 1024, 600
 #: First frame of the real solver includes compiling its kernels (tens of seconds on CPU).
