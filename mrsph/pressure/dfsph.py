@@ -47,9 +47,12 @@ from ..particles import is_real, is_virtual
 from .eos import sound_speed
 
 # Jacobi iterations per kernel launch: the host reads the convergence after each launch.
-# More wastes the iterations past convergence (each a loop over the pool that skips); fewer
-# pays a launch and a read (~15 µs) more often.
-ITERATIONS_PER_LAUNCH = 2
+# More saves a launch and a read (~15 µs, against ~1.5 ms an iteration at 10k particles)
+# per iteration, but each is a copy of the iteration's code in the kernel, and Taichi's
+# compile time grows faster than the code: the DFSPH kernels took ~4 minutes to compile
+# on this CPU with two (the window's solver switch waited for them, and the five first
+# DFSPH compiles were half of the test suite's time).
+ITERATIONS_PER_LAUNCH = 1
 
 # The share of the last step's pressure a density solve starts from, where the fluid is
 # compressed (see ``_warm``). SPlisHSPlasH takes half as well; the whole (1.0) made the
