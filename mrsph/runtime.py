@@ -101,7 +101,7 @@ def _pin(one_core: bool) -> None:
 
 
 def _current_core() -> int | None:
-    """The core this thread runs on now (Linux: field 39 of /proc/self/stat), or None.
+    """The core this thread runs on now (Linux: field 39 of /proc/thread-self/stat), or None.
     One-thread runs pin to it rather than to the lowest core, so that two of them side
     by side (two recordings, or ``pytest -n 2``) run on the two cores the scheduler
     has already given them instead of sharing one."""
