@@ -1,7 +1,9 @@
 """The window's hooks for tests and users: per-frame stats lines and screenshots.
 
 ``MRSPH_WINDOW_STATS=path``: append one JSON line per frame: frame, time,
-kinetic_energy, n_real, n_virtual, disturbance_active, paused, scene, wall_s, fps,
+kinetic_energy, n_real, n_virtual, disturbance_active, disturbance_speed (the mouse's
+target speed, m/s: the hand's speed in wall-clock time, capped; 0 without a push),
+paused, scene, wall_s, fps,
 speed (simulated seconds per wall second), camera_distance (3D, else null), surface,
 surface_ms (what computing the water view's surface took this frame; 0 when off or
 reused), loading (the frame shows the loading message), solver (the pressure solver; null
@@ -15,6 +17,7 @@ beside it, as ``<stem>_loading_<scene>_<n><suffix>`` (n counts them from 0); wit
 """
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
 
@@ -43,7 +46,10 @@ def stats_row(app, snap, disturbance) -> dict:
     return {"frame": int(snap.frame), "time": float(snap.time),
             "kinetic_energy": float(st.get("kinetic_energy", 0.0)),
             "n_real": int(st.get("n_real", 0)), "n_virtual": int(st.get("n_virtual", 0)),
-            "disturbance_active": disturbance is not None, "paused": app.paused,
+            "disturbance_active": disturbance is not None,
+            "disturbance_speed": (round(math.hypot(*disturbance.velocity), 6)
+                                  if disturbance is not None and disturbance.velocity else 0.0),
+            "paused": app.paused,
             "scene": app.scene_name, "wall_s": round(time.perf_counter() - app.start, 4),
             "fps": round(app.fps, 2), "speed": round(app.speed.value() or 0.0, 4),
             "camera_distance": (round(float(camera.distance), 6)
