@@ -65,6 +65,9 @@ class Integrator:
         # end, force limit, bad count, first bad); a field, not the kernel's result,
         # which costs more to pass back (see ``end_step``)
         self.step_report = ti.field(ti.f64, shape=4)
+        # the last step that went as its bounds chose it, before a cut to the frame's end
+        # (the stats row's dt; read once a frame, by ``chosen_dt``)
+        self.bound_dt = ti.field(ti.f64, shape=())
         advect = END_ADVECT if self.adaptive else 0
         if pressure.implicit:   # the pressure solve between the kick and the drift
             self.launches = (END_TIMESTEP | END_KICK, END_DRIFT | END_BOUNDARIES | advect)
@@ -186,6 +189,8 @@ class Integrator:
             if force_lim > 0.0:
                 dt = ti.min(dt, force_factor / ti.sqrt(force_lim))
             self.step_go[None] = ti.cast(self.red_i[0] == 0 and dt >= dt_min, ti.i32)
+            if self.step_go[None]:
+                self.bound_dt[None] = dt
             if ti.static(self.pressure.implicit):
                 # an implicit solve's κ goes as 1/dt²: a frame's last step cut to a sliver
                 # would correct the whole density error in it and leave a velocity kick
@@ -214,6 +219,14 @@ class Integrator:
         return out
 
     # ------------------------------------------------------------------ host
+    def chosen_dt(self) -> float:
+        """The last step's dt as its bounds chose it, before any cut to a frame's end."""
+        return float(self.bound_dt[None])
+
+    def set_chosen_dt(self, dt: float) -> None:
+        """Reset or restore what ``chosen_dt`` reads."""
+        self.bound_dt[None] = float(dt)
+
     def bounds(self):
         """(cap, viscous bound) of dt from the scene and the disturbances (host side).
 

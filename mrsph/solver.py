@@ -130,7 +130,7 @@ class Simulation:
         self.frame = 0
         self.steps = 0
         self.dt = float(s["physics"]["dt_max"])
-        self.chosen_dt = self.dt    # the last step as its bounds chose it (not cut to a frame)
+        self.integrator.set_chosen_dt(self.dt)
         self._events = dict.fromkeys(COUNTERS, 0)
         self._refused_reported = 0   # pool.refused at the last stats row
         self._events_due = False
@@ -190,11 +190,6 @@ class Simulation:
         self.time += dt
         self.steps += 1
         self.dt = dt
-        # else cut short to end on the frame (an implicit solver's last two steps may share
-        # what is left of it: see Integrator.end_step)
-        cut = max_dt is not None and dt >= (0.5 * max_dt * (1.0 - 1e-9) if self.pressure.implicit else max_dt)
-        if not cut:
-            self.chosen_dt = dt
         self._stirrers(self.time)
         return dt
 
@@ -327,7 +322,7 @@ class Simulation:
         v = parts["v"][real].astype(np.float64)
         mom = (m[:, None] * v).sum(axis=0) if len(m) else np.zeros(self.dim)
         # before the first step there is no step to report: dt 0, not dt_max
-        row = {"frame": self.frame, "time": self.time, "dt": self.chosen_dt if self.steps else 0.0,
+        row = {"frame": self.frame, "time": self.time, "dt": self.integrator.chosen_dt() if self.steps else 0.0,
                "n_real": int(real.sum()), "n_virtual": int((~real).sum()),
                "total_mass": math.fsum(m.tolist())}
         for k, ax in enumerate("xyz"[: self.dim]):
@@ -386,7 +381,7 @@ class Simulation:
         return {"attributes": {a.name: getattr(p, a.name).to_numpy() for a in ATTRIBUTES},
                 "children": self.pool.children.to_numpy(), "n": self.pool.count(),
                 "refused": int(self.pool.refused[None]),
-                "clock": (self.time, self.frame, self.steps, self.dt, self.chosen_dt),
+                "clock": (self.time, self.frame, self.steps, self.dt, self.integrator.chosen_dt()),
                 "emitters": list(self.emitters.progress), "capacity": self.capacity, "dim": self.dim}
 
     def restore_state(self, state: dict) -> None:
@@ -400,7 +395,8 @@ class Simulation:
         self.pool.n[None] = state["n"]
         self.pool.refused[None] = state["refused"]
         self._refused_reported = state["refused"]
-        self.time, self.frame, self.steps, self.dt, self.chosen_dt = state["clock"]
+        self.time, self.frame, self.steps, self.dt, chosen_dt = state["clock"]
+        self.integrator.set_chosen_dt(chosen_dt)
         self.emitters.progress = list(state["emitters"])
         self.coupling.reset()
         self._stirrers(self.time)
