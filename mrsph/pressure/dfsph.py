@@ -63,6 +63,48 @@ WARM_START = 0.5
 ITERS, DONE, HIT_MAX, RUNS = range(4)
 
 DENSITY, DIVERGENCE = 0, 1      # which solve an iteration kernel runs (template)
+SOLVE_NAMES = ("density", "divergence")
+MAX_KEYS = ("max_iterations", "divergence_max_iterations")
+
+
+class SolveCounts:
+    """What the solves did since the last ``take``, for the stats row: the iterations of
+    each solve per step, the last density error, and the solves that stopped at their
+    maximum iterations, the first of which is warned about (once a run)."""
+
+    def __init__(self, tolerance, max_iterations, warn):
+        self.tolerance, self.max_iterations, self.warn = tolerance, max_iterations, warn
+        self.reset()
+
+    def reset(self) -> None:
+        self._clear()
+        self.last_error = 0.0
+        self._warned = False
+
+    def _clear(self) -> None:
+        self.iterations = [0, 0]    # DENSITY, DIVERGENCE
+        self.steps = 0
+        self.unconverged = 0
+
+    def add(self, which: int, iterations: int, hit_max: bool) -> None:
+        self.iterations[which] += iterations
+        if which == DENSITY:
+            self.steps += 1
+        if hit_max:
+            self.unconverged += 1
+            if not self._warned:
+                self._warned = True
+                self.warn(f"dfsph: the {SOLVE_NAMES[which]} solve stopped at dfsph.{MAX_KEYS[which]} = "
+                          f"{self.max_iterations[which]} before reaching its tolerance "
+                          f"{self.tolerance[which]:g} (counted in stats as unconverged; warned once)")
+
+    def take(self) -> dict:
+        steps = max(self.steps, 1)
+        out = {"density_iterations": self.iterations[DENSITY] / steps,
+               "divergence_iterations": self.iterations[DIVERGENCE] / steps,
+               "density_error": self.last_error, "unconverged": self.unconverged}
+        self._clear()
+        return out
 
 
 @ti.data_oriented
@@ -99,10 +141,10 @@ class DFSPH:
         self._factor_images = ImageNeighbours(self.nb, self._factor_pair)
         self._rate_images = ImageNeighbours(self.nb, self._rate_pair)
         self._push_images = ImageNeighbours(self.nb, self._push_image)
-        self.reset_counters()
         # how a warning reaches the user: the Simulation sets its own (kept in its
         # ``warnings`` for the app, and given to Python's warnings)
-        self.warn = lambda msg: warnings.warn(msg, RuntimeWarning, stacklevel=3)
+        self.warn = lambda msg: warnings.warn(msg, RuntimeWarning, stacklevel=4)
+        self.counts = SolveCounts(self.tolerance, self.max_iterations, lambda msg: self.warn(msg))
 
     # ------------------------------------------------------------------ interface
     def signal_speed(self) -> float:
@@ -146,30 +188,19 @@ class DFSPH:
 
     # ------------------------------------------------------------------ host
     def reset_counters(self) -> None:
-        """The solves' figures since the last ``take_stats``."""
-        self.totals = {"density_iterations": 0, "divergence_iterations": 0, "solves": 0,
-                       "unconverged": 0, "density_error": 0.0}
-        self.last_error = 0.0
-        self._warned = False
+        self.counts.reset()
 
     def take_stats(self) -> dict:
         """Mean iterations per step of each solve, the last density error, and the solves
-        that stopped at their maximum, since the last call."""
-        t, steps = self.totals, max(self.totals["solves"], 1)
-        out = {"density_iterations": t["density_iterations"] / steps,
-               "divergence_iterations": t["divergence_iterations"] / steps,
-               "density_error": self.last_error, "unconverged": t["unconverged"]}
-        self.totals = {"density_iterations": 0, "divergence_iterations": 0, "solves": 0,
-                       "unconverged": 0, "density_error": 0.0}
-        return out
+        that stopped at their maximum, since the last call (``SolveCounts``)."""
+        return self.counts.take()
 
     def after_density(self, n: int, dt: float, phase) -> None:
         """The factors α, then the divergence solve (with the last step's dt)."""
         phase("pressure", self._factors, n)
         if self.divergence:
             its, _err, hit = phase("divergence", self._solve, n, dt, DIVERGENCE)
-            self.totals["divergence_iterations"] += its
-            self._count_unconverged(hit, "divergence")
+            self.counts.add(DIVERGENCE, its, hit)
 
     def solve(self, n: int, dt: float, phase) -> None:
         """The constant-density solve on the kicked velocities, then p = ρ Σ κ."""
@@ -179,22 +210,8 @@ class DFSPH:
             phase("pressure", self._cold, n)
         its, err, hit = phase("pressure", self._solve, n, dt, DENSITY)
         phase("pressure", self._pressures, n)
-        self.totals["density_iterations"] += its
-        self.totals["solves"] += 1
-        self.last_error = err
-        self._count_unconverged(hit, "density")
-
-    def _count_unconverged(self, hit: bool, which: str) -> None:
-        if not hit:
-            return
-        self.totals["unconverged"] += 1
-        if not self._warned:
-            self._warned = True
-            k = 0 if which == "density" else 1
-            key = "max_iterations" if k == 0 else "divergence_max_iterations"
-            self.warn(f"dfsph: the {which} solve stopped at dfsph.{key} = {self.max_iterations[k]} "
-                      f"before reaching its tolerance {self.tolerance[k]:g} (counted in stats as "
-                      f"unconverged; warned once)")
+        self.counts.last_error = err
+        self.counts.add(DENSITY, its, hit)
 
     def _solve(self, n: int, dt: float, which: int):
         """Jacobi iterations, ``ITERATIONS_PER_LAUNCH`` a launch, until the device says
