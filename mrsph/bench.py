@@ -165,7 +165,11 @@ def _row(case_name, scene_name, overrides, scene, sim, kind, warm, interval, wal
         "n_real": int(n_real), "n_virtual": st["n_virtual"],
         "per_level": [st[f"n_level_{l}"] for l in range(sim.levels)],
         "per_level_virtual": [st[f"n_virtual_level_{l}"] for l in range(sim.levels)],
-        "steps": int(steps), "wall_s": wall,
+        "steps": int(steps), "wall_s": wall, "mean_dt": interval / max(steps, 1),
+        "solver": st.get("solver"),
+        # an implicit solver's mean iterations a step over the profiled interval
+        **({k: st[k] for k in ("density_iterations", "divergence_iterations")}
+           if sim.pressure.implicit else {}),
         "steps_per_s": steps / wall, "particle_steps_per_s": n_real * steps / wall,
         "sim_s_per_wall_s": interval / wall, "compile_s": compile_s,
         "phase_share": {k: v / total for k, v in timers.items() if v > 0},
@@ -397,7 +401,11 @@ def _table(rows, pairs=()) -> str:
                            for k, v in sorted(r["phase_share"].items(), key=lambda kv: -kv[1])
                            if v >= 0.005)
         levels = f"levels {r['per_level']}, " if r["levels"] > 1 else ""
-        out.append(f"    {levels}{r['rss_mb']:.0f} MB; phases: {shares}")
+        steps = f"{r['solver']} mean dt {r['mean_dt']:.3g} s" if "mean_dt" in r else ""
+        if r.get("density_iterations") is not None:
+            steps += (f", iterations a step: density {r['density_iterations']:.2f}, divergence "
+                      f"{r['divergence_iterations']:.2f}")
+        out.append(f"    {levels}{r['rss_mb']:.0f} MB; {steps + '; ' if steps else ''}phases: {shares}")
         if r["kind"] == "demo":
             out.append(f"    => {r['frames_per_s']:.2f} rendered frames/s ({r['renderer']}, "
                        f"{r['width']}x{r['height']}, {r['render_ms']:.0f} ms a frame, "
