@@ -70,10 +70,16 @@ def pytest_configure(config):
 # - test_adaptive_flow 2d-dfsph: all 8 pass (refined pool 0.0037 sqrt(gH), uniform
 #   0.0205; the dam break's front, splits, merges and density error); back in -m slow
 #   since CI's run took 41 of its 90 minutes;
-# - test_physics 3d-dfsph tank: fluid kept, pressure +1.43 %, density error within the
-#   tolerance; it does not settle: 0.0126 sqrt(gH) after 1.5 s (needs <= 0.01);
-# - not yet run: the 3D DFSPH dam break, and test_adaptive_flow 3d-dfsph.
-UNVERIFIED_DFSPH = (("test_physics.py", "3d-dfsph"), ("test_adaptive_flow.py", "3d-dfsph"))
+# - test_physics 3d-dfsph: all pass but the tank's settling (0.0126 sqrt(gH) after 1.8 s;
+#   needs <= 0.01), now a strict xfail of test_physics.DFSPH_FAILURES; the dam break
+#   against Martin & Moyce passes (Z = 1.58, 2.13, 2.74, 3.31 at T = 1.43..2.96); back
+#   in -m slow;
+# - test_adaptive_flow 3d-dfsph: 7 of 8 pass (the front at 1 s 1.607 m against the
+#   uniform run's 1.581 m, 5.14x fewer particles, splits, merges, density error); the
+#   refined pool does not stay at rest: 0.0121 sqrt(gH) (its uniform twin 0.0156), the
+#   velocity noise of the 3D tank (test_physics.DFSPH_FAILURES). Left here: its two
+#   module runs took ~14 minutes beside another job, more than CI has to spare.
+UNVERIFIED_DFSPH = (("test_adaptive_flow.py", "3d-dfsph"),)
 
 # Modules whose tests read a module fixture that is expensive to build: with the fixture's
 # case (the test id) -> one xdist group per case; None -> one group for the module.

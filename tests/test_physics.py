@@ -32,8 +32,18 @@ KNOWN_FAILURES: dict[tuple[str, int], str] = {}
 # DFSPH cases that fail because of the solver, marked xfail(strict=True) with what was
 # measured when they were marked (reported to the lead; the tolerance is not loosened):
 # {(test key, case id): reason}. Strict: the day the solver passes, the mark must go.
-DFSPH_FAILURES: dict[tuple[str, str], str] = {}
-# None at present: the 2D tank, listed here until the artificial viscosity took its c from
+DFSPH_FAILURES: dict[tuple[str, str], str] = {
+    # The 3D tank (10 layers of 3 cm) keeps a velocity noise of ~eta s / dt: each step's
+    # density solve stops once the average compression is within eta (0.1 %) and the
+    # correction of what is left is a kick of that order. Measured 2026-11-26, this
+    # tank with one key changed a run: default 0.0126 sqrt(gH); dt_max 1 ms 0.0312, 4 ms 0.0127;
+    # density_tolerance 7e-4 0.0099, 5e-4 0.0084 (2.99 iterations a step against 1.64),
+    # 3e-4 0.0062; min_iterations 2 0.0100, 3 0.0065; a divergence solve of at least one
+    # iteration 0.0146; artificial viscosity 0.4 0.0114; no warm start 0.0125. A tighter
+    # default costs the flowing runs iterations that issue 31's speed ratio needs.
+    ("tank_speed", "3d-dfsph"): "3D DFSPH tank settles to 0.0126 sqrt(gH), not 0.01 (issue 31)",
+}
+# The 2D tank was listed here until the artificial viscosity took its c from
 # fluid.stiffness under dfsph too (it settled at 0.0125 sqrt(gH), a particle on a wall) and
 # the band pressure was sampled every step (every fifth step read +12 %); measured
 # 2026-11-26: 0.0073 sqrt(gH), -0.4 %, closest particle 0.43 spacings from a wall.
