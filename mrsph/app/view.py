@@ -18,6 +18,10 @@ import numpy as np
 #: Empty border around the domain in 2D, as a fraction of the smaller window side,
 #: so the domain outline is not clipped by the window edge.
 MARGIN_FRACTION = 0.04
+#: Camera speeds of held keys: arrows orbit at this many rad/s; z/x zoom by e^(rate dt)
+#: (drags: mrsph.app.pointer).
+ORBIT_KEY_RATE = 1.5
+ZOOM_KEY_RATE = 1.2
 
 
 class View2D:
@@ -149,6 +153,16 @@ class OrbitCamera:
     def zoom(self, factor: float) -> None:
         """factor < 1 moves closer."""
         self.distance = float(np.clip(self.distance * factor, self.min_distance, self.max_distance))
+
+    def keys(self, left: float, right: float, up: float, down: float, closer: float,
+             farther: float) -> None:
+        """Held keys, each given as the seconds it acted this frame: the arrows orbit,
+        closer / farther (z / x) zoom."""
+        yaw, pitch = (left - right) * ORBIT_KEY_RATE, (up - down) * ORBIT_KEY_RATE
+        if yaw or pitch:
+            self.orbit(yaw, pitch)
+        if farther != closer:
+            self.zoom(math.exp((farther - closer) * ZOOM_KEY_RATE))
 
     def pan(self, dx: float, dy: float) -> None:
         """Move the target in the view plane; dx, dy in units of the view height at the

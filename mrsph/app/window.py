@@ -61,22 +61,21 @@ from .marks import frame_marks
 from .switch import next_solver, running_solver, why_not
 from .view import scene_setting
 
-#: Camera speeds: arrows orbit at this many rad/s; z/x zoom by e^(rate dt) (drags:
-#: mrsph.app.pointer).
-ORBIT_KEY_RATE = 1.5
-ZOOM_KEY_RATE = 1.2
 #: Keys that change the mouse radius: one press = this many wheel notches.
 RADIUS_KEY_NOTCHES = 1.0
 #: A tapped camera key (seen pressed and released between two frames) acts as if held
-#: this long: one tap of z zooms by e^(-ZOOM_KEY_RATE * TAP_S), 17 %.
+#: this long: one tap of z zooms by e^(-view.ZOOM_KEY_RATE * TAP_S), 17 %.
 TAP_S = 0.15
 #: Frames that say "loading SCENE (compiling the step ...)" before the first advance
 #: compiles it: ImGui lays out a new window on its first frame and draws it from the
 #: second, so with one frame the app's first message was never seen (a test's
 #: screenshot of it had no text).
 LOADING_FRAMES = 2
-#: Keys whose action lasts while they are held (3D camera): taps of them are latched.
+#: Keys whose action lasts while they are held (3D camera, with the arrows): taps of them
+#: are latched.
 CAMERA_KEYS = ("z", "x")
+#: Keys that flip a flag of the window: the attribute flipped.
+TOGGLE_KEYS = {" ": "paused", "h": "show_help", "u": "show_hud", "v": "show_virtual", "w": "surface"}
 
 def _accepts_overrides(make_sim) -> bool:
     """Whether make_sim takes a second argument (the scene overrides)."""
@@ -372,63 +371,40 @@ class _App:
 
     def _keys(self) -> bool:
         """Pressed-key events; False when the app should quit."""
-        ti = self.ti
-        for e in self.window.get_events(ti.ui.PRESS):
+        ui = self.ti.ui
+        actions = {"n": self._step_once, "r": self._reset, ui.TAB: self._next_scene,
+                   "c": lambda: setattr(self, "color_mode", palette.next_mode(self.color_mode)),
+                   "q": lambda: self.mouse.scroll(-RADIUS_KEY_NOTCHES),
+                   "e": lambda: self.mouse.scroll(RADIUS_KEY_NOTCHES),
+                   "f": self.renderer.reset_view,
+                   "s": lambda: self.later(self.switch_solver),   # draws loading frames of its own
+                   "p": lambda: setattr(self, "want_screenshot", True)}  # after this frame is drawn
+        for e in self.window.get_events(ui.PRESS):
             k = e.key
-            if k == ti.ui.ESCAPE:
+            if k == ui.ESCAPE:
                 self.window.running = False
                 return False
-            if k == ti.ui.SPACE:
-                self.paused = not self.paused
-            elif k == "n":
-                self.paused, self.step_once = True, True
-            elif k == "r":
-                self._reset()
-            elif k == "h":
-                self.show_help = not self.show_help
-            elif k == "u":
-                self.show_hud = not self.show_hud
-            elif k == "v":
-                self.show_virtual = not self.show_virtual
-            elif k == "c":
-                self.color_mode = palette.next_mode(self.color_mode)
-            elif k == ti.ui.TAB:
-                self._next_scene()
-            elif k == "q":
-                self.mouse.scroll(-RADIUS_KEY_NOTCHES)
-            elif k == "e":
-                self.mouse.scroll(RADIUS_KEY_NOTCHES)
-            elif k == "f":
-                self.renderer.reset_view()
-            elif k == "w":
-                self.surface = not self.surface
-            elif k == "s":
-                self.later(self.switch_solver)   # draws loading frames of its own
-            elif k in CAMERA_KEYS or k in (ti.ui.LEFT, ti.ui.RIGHT, ti.ui.UP, ti.ui.DOWN):
+            if k in TOGGLE_KEYS:
+                setattr(self, TOGGLE_KEYS[k], not getattr(self, TOGGLE_KEYS[k]))
+            elif k in CAMERA_KEYS or k in (ui.LEFT, ui.RIGHT, ui.UP, ui.DOWN):
                 self.taps.add(k)     # latched: acts this frame even if already released
-            elif k == "p":
-                self.want_screenshot = True  # taken after this frame is drawn
+            elif k in actions:
+                actions[k]()
         return True
 
+    def _step_once(self) -> None:
+        self.paused, self.step_once = True, True
+
     def _held_keys(self, dt: float) -> None:
-        """Camera keys act while held (3D only)."""
+        """Camera keys act while held (3D only); a tap released before this frame could
+        see it held acts for TAP_S."""
         taps, self.taps = self.taps, set()
         if self.snap is None or self.snap.dim != 3:
             return
-        cam = self.renderer.ensure_camera(self.snap)
-        w, ti = self.window, self.ti
-
-        def held(key) -> float:
-            """Seconds the key acted this frame: the frame while held, TAP_S for a tap
-            that was released before this frame could see it held."""
-            return dt if w.is_pressed(key) else (TAP_S if key in taps else 0.0)
-        yaw = (held(ti.ui.LEFT) - held(ti.ui.RIGHT)) * ORBIT_KEY_RATE
-        pitch = (held(ti.ui.UP) - held(ti.ui.DOWN)) * ORBIT_KEY_RATE
-        if yaw or pitch:
-            cam.orbit(yaw, pitch)
-        zoom = (held("x") - held("z")) * ZOOM_KEY_RATE
-        if zoom:
-            cam.zoom(math.exp(zoom))
+        w, ui = self.window, self.ti.ui
+        held = [dt if w.is_pressed(k) else (TAP_S if k in taps else 0.0)
+                for k in (ui.LEFT, ui.RIGHT, ui.UP, ui.DOWN, "z", "x")]
+        self.renderer.ensure_camera(self.snap).keys(*held)
 
     def _reset(self) -> None:
         try:
