@@ -10,11 +10,14 @@ def box(dim, lo2, hi2, z=(0.0, 0.1)):
     return [float(v) for v in lo2] + [float(z[0])], [float(v) for v in hi2] + [float(z[1])]
 
 
-def known_xfail(request, known: dict, dim: int, key: str, measured: float) -> None:
-    """Mark the running test xfail (not strict) if ``known`` lists (key, dim) as a known
-    library failure: it runs and prints its numbers, with this run's in the reason, and
-    its failure does not fail the suite."""
-    reason = known.get((key, dim))
+def known_xfail(request, known: dict, case: str, key: str, measured: float) -> None:
+    """Mark the running test xfail (not strict) if ``known`` lists (key, case) as a known
+    library failure (``case`` as ``case_id`` names it: "2d", "3d-dfsph"): it runs and
+    prints its numbers, with this run's in the reason, and its failure does not fail the
+    suite. Not strict: the failures listed are noise measured near its bound, which a
+    run on another machine (another thread count, another order of the atomic sums) can
+    read on either side; a pass shows as XPASS in the summary."""
+    reason = known.get((key, case))
     if reason:
         request.applymarker(pytest.mark.xfail(strict=False, reason=f"{reason} (this run: {measured:.4g})"))
 

@@ -31,7 +31,20 @@ pytestmark = pytest.mark.usefixtures("fresh_program")
 # Tests that fail because of the library: (name, dim) -> what was measured. None now; the
 # 3D dam-break front was listed here until the split stopped throwing fluid (see
 # ``refined_dam`` and docs/dam-front.md).
-KNOWN_FAILURES: dict = {}
+KNOWN_FAILURES: dict[tuple[str, str], str] = {
+    # The rest noise of the DFSPH solve (see test_physics.KNOWN_FAILURES, the 3D tank): the
+    # pool's mean speed comes in bursts of 0.005-0.018 sqrt(gH) at 0.5 s intervals, and
+    # the test's 0.2 s window samples one. Measured 2026-11-26 (the test's scene, one
+    # thread): 0.0072 at defaults, 0.0096 with dfsph.min_iterations = 2 (10.7 density
+    # iterations a step either way); CI's run (more threads) read 0.0116. The wcsph pool
+    # reads 0.0025-0.0070 in 2D.
+    ("rest_speed", "2d-dfsph"): "2D DFSPH pool with a refined box: rest noise 0.007-0.012 sqrt(gH) "
+                                "around the 0.01 bound (issue 31)",
+    # Under -m open_issue (conftest.UNVERIFIED_DFSPH), measured 2026-11-26: 0.0121, its
+    # uniform twin 0.0156.
+    ("rest_speed", "3d-dfsph"): "3D DFSPH pool with a refined box settles to 0.0121 sqrt(gH) "
+                                "(uniform 0.0156), not 0.01 (issue 31)",
+}
 
 
 def make_sim(scene: dict):
@@ -134,7 +147,7 @@ def pool_runs(request):
 def test_refined_pool_stays_at_rest(pool_runs, request):
     dim, a = pool_runs["dim"], pool_runs["adaptive"]
     ratio = a["speed"] / math.sqrt(G * POOL_H)
-    known_xfail(request, KNOWN_FAILURES, dim, "rest_speed", ratio)
+    known_xfail(request, KNOWN_FAILURES, pool_runs["case"], "rest_speed", ratio)
     a["log"].check(f"{pool_runs['case']} refined pool, adaptive run")
     assert ratio <= 0.01, (f"{pool_runs['case']}: mean speed {a['speed']:.4f} m/s = {ratio:.4f} sqrt(gH) after "
                            f"{SETTLE_S} s with a refined box; expected <= 0.01 sqrt(gH)")
@@ -144,7 +157,7 @@ def test_refined_pool_stays_at_rest(pool_runs, request):
 def test_density_next_to_the_interface_matches_uniform(pool_runs, request):
     dim, a, u = pool_runs["dim"], pool_runs["adaptive"], pool_runs["uniform"]
     err = a["peak"] / u["peak"] - 1.0
-    known_xfail(request, KNOWN_FAILURES, dim, "rest_peak", err)
+    known_xfail(request, KNOWN_FAILURES, pool_runs["case"], "rest_peak", err)
     # The issue asks for 3 %. Held to 0.5 %: measured within 0.1 % over four runs each,
     # and the weaker coupling (`symmetric`, limiter off) reads +0.9 % / +1.6 % (README),
     # which 3 % would let through.
@@ -293,7 +306,7 @@ def test_adaptive_dam_break_splits_and_couples(dam_runs):
 @pytest.mark.slow
 def test_adaptive_dam_break_merges(dam_runs, request):
     dim, a = dam_runs["dim"], dam_runs["adaptive"]
-    known_xfail(request, KNOWN_FAILURES, dim, "dam_merges", a["merges_late"])
+    known_xfail(request, KNOWN_FAILURES, dam_runs["case"], "dam_merges", a["merges_late"])
     assert a["merges_late"] > 0, (f"{dim}D: {a['splits']} splits by {DAM_T} s but no merge by {MERGE_T} s "
                                   f"in the adaptive dam break")
 
@@ -302,7 +315,7 @@ def test_adaptive_dam_break_merges(dam_runs, request):
 def test_adaptive_dam_break_holds_fewer_particles(dam_runs, request):
     dim, saving = dam_runs["dim"], dam_runs["saving"]
     want = 3.0 if dim == 2 else 5.0
-    known_xfail(request, KNOWN_FAILURES, dim, "dam_saving", saving)
+    known_xfail(request, KNOWN_FAILURES, dam_runs["case"], "dam_saving", saving)
     assert saving >= want, (f"{dim}D: the adaptive run holds {saving:.2f}x fewer real particles than the "
                             f"uniform one on average; expected >= {want}x")
 
@@ -321,7 +334,7 @@ def test_adaptive_dam_break_front_is_not_far_off(dam_runs):
 def test_adaptive_dam_break_front_matches_uniform(dam_runs, request):
     dim, a, u = dam_runs["dim"], dam_runs["adaptive"], dam_runs["uniform"]
     err = a["front"] / u["front"] - 1.0
-    known_xfail(request, KNOWN_FAILURES, dim, "dam_front", err)
+    known_xfail(request, KNOWN_FAILURES, dam_runs["case"], "dam_front", err)
     assert abs(err) <= 0.05, (f"{dam_runs['case']}: front of the adaptive run at {a['front']:.3f} m, uniform "
                               f"{u['front']:.3f} m at {DAM_T} s ({100 * err:+.1f} %, expected within 5 %)")
 
