@@ -86,10 +86,13 @@ class SolveCounts:
         self.steps = 0
         self.unconverged = 0
 
-    def add(self, which: int, iterations: int, hit_max: bool) -> None:
+    def add(self, which: int, iterations: int, error: float, hit_max: bool) -> None:
+        """One solve's outcome: its iterations, its final average error (kept for the
+        density solve, the row's ``density_error``), whether it stopped at its maximum."""
         self.iterations[which] += iterations
         if which == DENSITY:
             self.steps += 1
+            self.last_error = error
         if hit_max:
             self.unconverged += 1
             if not self._warned:
@@ -199,8 +202,7 @@ class DFSPH:
         """The factors α, then the divergence solve (with the last step's dt)."""
         phase("pressure", self._factors, n)
         if self.divergence:
-            its, _err, hit = phase("divergence", self._solve, n, dt, DIVERGENCE)
-            self.counts.add(DIVERGENCE, its, hit)
+            self.counts.add(DIVERGENCE, *phase("divergence", self._solve, n, dt, DIVERGENCE))
 
     def solve(self, n: int, dt: float, phase) -> None:
         """The constant-density solve on the kicked velocities, then p = ρ Σ κ."""
@@ -208,10 +210,8 @@ class DFSPH:
             phase("pressure", self._warm, n, dt)
         else:
             phase("pressure", self._cold, n)
-        its, err, hit = phase("pressure", self._solve, n, dt, DENSITY)
+        self.counts.add(DENSITY, *phase("pressure", self._solve, n, dt, DENSITY))
         phase("pressure", self._pressures, n)
-        self.counts.last_error = err
-        self.counts.add(DENSITY, its, hit)
 
     def _solve(self, n: int, dt: float, which: int):
         """Jacobi iterations, ``ITERATIONS_PER_LAUNCH`` a launch, until the device says
