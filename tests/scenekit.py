@@ -14,7 +14,7 @@ def known_xfail(request, known: dict, case: str, key: str, measured: float) -> N
     """Mark the running test xfail (not strict) if ``known`` lists (key, case) as a known
     library failure (``case`` as ``case_id`` names it: "2d", "3d-dfsph"): it runs and
     prints its numbers, with this run's in the reason, and its failure does not fail the
-    suite. Not strict: the failures listed are noise measured near its bound, which a
+    suite. Not strict: the failures listed are noise measured near their bounds, which a
     run on another machine (another thread count, another order of the atomic sums) can
     read on either side; a pass shows as XPASS in the summary."""
     reason = known.get((key, case))

@@ -28,9 +28,9 @@ DIMS = (2, 3)
 
 pytestmark = pytest.mark.usefixtures("fresh_program")
 
-# Tests that fail because of the library: (name, dim) -> what was measured. None now; the
-# 3D dam-break front was listed here until the split stopped throwing fluid (see
-# ``refined_dam`` and docs/dam-front.md).
+# Tests that fail because of the library: (name, case id) -> what was measured
+# (``scenekit.known_xfail``). The 3D dam-break front was listed here until the split
+# stopped throwing fluid (see ``refined_dam`` and docs/dam-front.md).
 KNOWN_FAILURES: dict[tuple[str, str], str] = {
     # The rest noise of the DFSPH solve (see test_physics.KNOWN_FAILURES, the 3D tank): the
     # pool's mean speed comes in bursts of 0.005-0.018 sqrt(gH) at 0.5 s intervals, and
