@@ -133,17 +133,23 @@ class ParticlePool:
         self.n[None] = 0
 
     @ti.func
-    def claim(self, count):
-        """Claim ``count`` consecutive slots; returns the first, or -1 if they do not fit.
+    def claim(self, count, reserve=0):
+        """Claim ``count`` consecutive slots; returns the first, or -1 if they do not fit
+        with ``reserve`` slots still free after them.
 
         A refused claim leaves its slots DEAD (every slot past ``n`` is DEAD), so the
         caller's kernel only has to clamp ``n`` once the claims are done (:meth:`clamp_n`).
+        A refused claim also moves ``n`` on, so it is tried only where it looks like it
+        fits: claims refused for their reserve do not use up the reserve.
         """
-        base = ti.atomic_add(self.n[None], count)
-        result = base
-        if base + count > self.capacity:
+        result = -1
+        limit = self.capacity - reserve
+        if self.n[None] + count <= limit:
+            base = ti.atomic_add(self.n[None], count)
+            if base + count <= limit:
+                result = base
+        if result < 0:
             ti.atomic_add(self.refused[None], 1)
-            result = -1
         return result
 
     @ti.func

@@ -360,6 +360,33 @@ def test_pool_arrays_are_sized_so_that_they_do_not_alias(asked):
     assert set(sizes.values()) == {slots}, f"arrays of other lengths than the pool's {slots} slots: {sizes}"
 
 
+
+def test_a_claim_leaves_its_reserve_free_for_claims_without_one():
+    """``ParticlePool.claim(count, reserve)``: splits claim with a reserve so that a full
+    pool can still coarsen (the gathers a merge starts from claim without one; see
+    ``multires.topology.MERGE_RESERVE``). A claim that would eat into its reserve is
+    refused and counted, and does not use up the reserve for a claim without one."""
+    import taichi as ti
+
+    from mrsph.particles import ParticlePool
+    pool = ParticlePool(2, 16)
+    cap = pool.capacity
+
+    @ti.kernel
+    def claim(count: ti.i32, reserve: ti.i32) -> ti.i32:
+        return pool.claim(count, reserve)
+
+    got = [claim(4, 8) for _ in range(cap // 4)]
+    fitted = [b for b in got if b >= 0]
+    assert fitted == list(range(0, cap - 8, 4)), (
+        f"capacity {cap}, claims of 4 with a reserve of 8 got {got}; expected slots up to {cap - 8} only")
+    refused = int(pool.refused[None])
+    assert refused == len(got) - len(fitted), f"{refused} refusals counted for {got}"
+    last = [claim(1, 0) for _ in range(10)]
+    assert last[:8] == list(range(cap - 8, cap)) and last[8:] == [-1, -1], (
+        f"claims of 1 without a reserve after those got {last}; expected the reserve's slots "
+        f"{cap - 8} ... {cap - 1}, then refusals")
+
 # ------------------------------------------------------------------ the density pass
 DENSITY_RUNS = {  # scene, overrides, simulated seconds before the check (the fluid moves)
     (2, False): ("dam_break_2d", ["particles.spacing=0.01"], 0.15),

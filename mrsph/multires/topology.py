@@ -99,6 +99,13 @@ _FLAGS = (NEAR_FINE, NEAR_COARSE, MUST_SPLIT, VP_ANCHORED, RELEASED, FRESH, NEAR
 
 GATHER_ROUNDS = 3  # pairings per pass: 1 → 2 → 4 → 8 children in the best case
 
+# The share of the pool that splits and new parent roles leave free, for the virtual
+# parents a merge starts from (``_couple_fine``). Without it, a pool filled by splits
+# could never coarsen again: every gather needs a slot, and a merge is what frees them
+# (the stirred DFSPH soak filled demo_2d's 17,168 slots with real particles and then made
+# no merge in 1,500 steps, though the stirring had stopped).
+MERGE_RESERVE = 1.0 / 32.0
+
 # Event counters, read by ``take_counters`` (refused splits are the pool's ``refused``).
 # Mass is divided on a split and summed on a merge (``particles.ATTRIBUTES``); the kernels
 # below write it by hand, as the merge's means need it, so an attribute given either rule
@@ -127,6 +134,7 @@ class Multires:
         self.criteria, self.boundary, self.disturbances = parts.criteria, parts.boundary, parts.disturbances
         self.rest_density = float(parts.scene["fluid"]["rest_density"])
         self.nmax = 2 ** self.dim
+        self.reserve = int(MERGE_RESERVE * self.pool.capacity)    # slots splits leave free
         a = parts.scene["adaptivity"]
         self.hysteresis = float(a["hysteresis"])
         self.release_factor = float(a["release_factor"])
@@ -314,7 +322,7 @@ class Multires:
                 if p[i].lam < c - self.hysteresis or (p[i].flags & MUST_SPLIT) != 0 or near_regular:
                     ok = True
                     if k == REGULAR:
-                        base = self.pool.claim(self.nmax)
+                        base = self.pool.claim(self.nmax, ti.static(self.reserve))
                         if base < 0:
                             ok = False
                         else:
@@ -365,7 +373,7 @@ class Multires:
             if is_real(k) and p[i].level == c:
                 near = (p[i].flags & NEAR_FINE) != 0
                 if near and (k & ROLE_PARENT) == 0:
-                    base = self.pool.claim(self.nmax)
+                    base = self.pool.claim(self.nmax, ti.static(self.reserve))
                     if base >= 0:
                         for q in range(self.nmax):
                             self._spawn_child(i, base + q, q, f, s_f)
