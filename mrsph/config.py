@@ -164,10 +164,9 @@ SCHEMA = Table(required=True, keys={
                                  "predicted compression (rho* - rho0)/rho0 of the real particles is "
                                  "within this (0.001 = 0.1 %)"),
         "max_density_error": Key("float", 0.01, "> 0", doc="and until no real particle's predicted "
-                                 "compression is above this (0.01 = 1 %): the average alone let a "
-                                 "hot spot of a few dozen particles at a wall stay 15 % compressed, "
-                                 "and its correction, all within one ever shorter step, grew until "
-                                 "the stirred soak blew up"),
+                                 "compression is above this (0.01 = 1 %): a hot spot of a few dozen "
+                                 "particles hides in the average (docs/performance.md, the stirred "
+                                 "soak); larger is faster"),
         "divergence_tolerance": Key("float", 0.01, "> 0", doc="the divergence solve stops when the "
                                     "average density rate of change times dt, over rho0, is within this"),
         "min_iterations": Key("int", 1, ">= 0", doc="velocity updates of the density solve at least"),

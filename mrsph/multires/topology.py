@@ -102,8 +102,7 @@ GATHER_ROUNDS = 3  # pairings per pass: 1 → 2 → 4 → 8 children in the best
 # The share of the pool that splits and new parent roles leave free, for the virtual
 # parents a merge starts from (``_couple_fine``). Without it, a pool filled by splits
 # could never coarsen again: every gather needs a slot, and a merge is what frees them
-# (the stirred DFSPH soak filled demo_2d's 17,168 slots with real particles and then made
-# no merge in 1,500 steps, though the stirring had stopped).
+# (seen in the stirred soak, docs/performance.md).
 MERGE_RESERVE = 1.0 / 32.0
 
 # Event counters, read by ``take_counters`` (refused splits are the pool's ``refused``).

@@ -7,7 +7,7 @@ Per step (``solver.py`` calls the hooks in this order):
 1. ``after_density``: the factor of each real particle,
    α_i = ρ_i / (|Σ_j m_j ∇W_ij|² + m_i Σ_j m_j |∇W_ij|²) (the second sum is the reaction
    of i's pressure on its neighbours; with equal masses it is the paper's Σ_j |m_j ∇W_ij|²,
-   see ``_factor_pair``),
+   see ``_reaction_term``),
    then the divergence solve (``dfsph.divergence_solve``): Jacobi iterations on the
    velocities until the density's rate of change, Dρ_i/Dt = Σ_j m_j (u_i − u_j)·∇W_ij
    (compression only), averaged over the real particles, times the step, is within
@@ -298,11 +298,9 @@ class DFSPH:
 
     @ti.func
     def _reaction_term(self, i, mg, g):
-        """m_i m_j |∇W_ij|²: how much i's own κ changes its rate of compression through
-        neighbour j, pushed back by the reaction m_i κ_i/ρ_i ∇W_ij. The paper's
-        |m_j ∇W_ij|² assumes m_i = m_j; after a partial merge (or a split of a light
-        particle) one level holds masses 8x apart, and with m_j² a heavy particle among
-        light ones had a factor up to 8x too large, and its Jacobi update overshot."""
+        """m_i m_j |∇W_ij|²: i's own κ acting back on its rate through the reaction it hands
+        neighbour j. The paper's |m_j ∇W_ij|² holds for m_i = m_j only, and partial merges
+        leave one level with masses 8x apart (a factor up to 8x too large)."""
         return self.pool.p[i].m * mg.dot(g)
 
     @ti.func
