@@ -16,9 +16,9 @@ coupling, the placement of split children) visits it through this object:
 
 The density, force and coupling passes keep one partial sum per image (the image's visit
 sums its candidates and adds the result), so that sums are grouped as the method writes
-them: own level, then each image. ``for_each_neighbour`` composes the two into one sum,
-with one visit for i's own candidates and one for its images' (the implicit pressure
-solver's passes).
+them: own level, then each image. The implicit pressure solver, which needs no partial
+sums, visits its own level with ``listed_candidates`` or ``grid_candidates`` and then its
+images, into one sum.
 The lists are written by the density pass (``density.py``), which is the only place that
 scans the grid for the whole pool; a particle with more neighbours than a list holds (a
 fluid compressed ~3×) falls back to the grid everywhere (``is_listed``).
@@ -53,19 +53,35 @@ class Neighbours:
         """``visit(i, j, xq, L, p0, nrm, check, ctx, acc)`` for each candidate j of level l
         near xq (x_i or one of its images, with the image's context, see ``images``): i's
         list when ``listed`` (i itself first with ``with_self``), else the grid block's
-        rows. ``ctx``: the pass's constants for particle i (a local vector, read only);
+        rows; always the grid for an obstacle image (``check``), whose neighbours are not
+        i's. ``ctx``: the pass's constants for particle i (a local vector, read only);
         ``acc``: what the visit adds to."""
-        if listed:
-            if ti.static(with_self):
-                visit(i, i, xq, L, p0, nrm, check, ctx, acc)
-            for q in range(self.count[i]):
-                visit(i, self.lists[i, q], xq, L, p0, nrm, check, ctx, acc)
+        if ti.static(check):
+            self.grid_candidates(i, xq, L, p0, nrm, check, l, visit, ctx, acc)
+        elif listed:
+            self.listed_candidates(i, xq, L, p0, nrm, check, with_self, visit, ctx, acc)
         else:
-            base = self.grids.around(xq, l)
-            for o in ti.grouped(ti.ndrange(*self.grids.row_axes)):
-                lo, hi = self.grids.row(base, o, l)
-                for j in range(lo, hi):
-                    visit(i, j, xq, L, p0, nrm, check, ctx, acc)
+            self.grid_candidates(i, xq, L, p0, nrm, check, l, visit, ctx, acc)
+
+    # The two halves of ``candidates``, for a pass that knows which one it needs: every
+    # copy of a visit inlined into a kernel costs compile time (about a second each for
+    # the implicit solver's, docs/performance.md).
+    @ti.func
+    def listed_candidates(self, i, xq, L, p0, nrm, check: ti.template(), with_self: ti.template(),
+                          visit: ti.template(), ctx: ti.template(), acc: ti.template()):
+        if ti.static(with_self):
+            visit(i, i, xq, L, p0, nrm, check, ctx, acc)
+        for q in range(self.count[i]):
+            visit(i, self.lists[i, q], xq, L, p0, nrm, check, ctx, acc)
+
+    @ti.func
+    def grid_candidates(self, i, xq, L, p0, nrm, check: ti.template(), l, visit: ti.template(),
+                        ctx: ti.template(), acc: ti.template()):
+        base = self.grids.around(xq, l)
+        for o in ti.grouped(ti.ndrange(*self.grids.row_axes)):
+            lo, hi = self.grids.row(base, o, l)
+            for j in range(lo, hi):
+                visit(i, j, xq, L, p0, nrm, check, ctx, acc)
 
     @ti.func
     def images(self, i, h, visit: ti.template(), ctx: ti.template(), acc: ti.template()):
@@ -94,20 +110,6 @@ class Neighbours:
         phi, _n = self.boundary.obstacle_sdf(img)
         return phi < 0.0
 
-    @ti.func
-    def for_each_neighbour(self, i, l, h, listed, own: ti.template(), image: ti.template(),
-                           ctx: ti.template(), acc: ti.template()):
-        """Every candidate of particle i's neighbourhood into one ``acc``: ``own(i, j, x_i,
-        I, …)`` for its same-level candidates, then ``image.visit`` (an ``ImageNeighbours``)
-        for each wall and obstacle image, which visits that image's candidates (i itself
-        included, as its image sees it). For a pass that needs no per-image partial sums
-        (the implicit pressure solver)."""
-        xi = self.pool.p[i].x
-        eye = ti.Matrix.identity(float, self.dim)
-        self.candidates(i, xi, eye, xi, xi, False, l, listed, False, own, ctx, acc)
-        self.images(i, h, image.visit, ctx, acc)
-
-
 @ti.data_oriented
 class ImageNeighbours:
     """An image visit (for ``Neighbours.images``) that visits the image's candidates with
@@ -119,8 +121,5 @@ class ImageNeighbours:
 
     @ti.func
     def visit(self, i, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
-        listed = self.nb.is_listed(i)
-        if ti.static(check):
-            listed = False      # an obstacle image's neighbours are not i's: the grid
-        self.nb.candidates(i, xq, L, p0, nrm, check, self.nb.pool.p[i].level, listed, True,
-                           self.pair, ctx, acc)
+        self.nb.candidates(i, xq, L, p0, nrm, check, self.nb.pool.p[i].level, self.nb.is_listed(i),
+                           True, self.pair, ctx, acc)

@@ -29,6 +29,10 @@ RUNS = [
     ("pour_3d", "scenes/pour_3d.toml", {}),
     ("obstacle_3d", "scenes/dam_break_obstacle_3d.toml", {}),
     ("region_2d_symmetric", "scenes/region_2d.toml", {"adaptivity.coupling": "symmetric"}),
+    # the implicit solver: uniform, and adaptive with an obstacle and the opening stir
+    ("dam_break_2d_dfsph", "scenes/dam_break_2d.toml", {"fluid.solver": "dfsph"}),
+    ("demo_2d_dfsph", "scenes/demo_2d.toml", {"fluid.solver": "dfsph"}),
+    ("obstacle_3d_dfsph", "scenes/dam_break_obstacle_3d.toml", {"fluid.solver": "dfsph"}),
 ]
 
 

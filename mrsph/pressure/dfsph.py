@@ -331,10 +331,10 @@ class DFSPH:
                 xi = p[i].x
                 eye = ti.Matrix.identity(float, self.dim)
                 if listed:
-                    self.nb.candidates(i, xi, eye, xi, xi, False, l, True, False, self._store_pair, ctx, acc)
-                    self.nb.images(i, h, self._factor_images.visit, ctx, acc)
+                    self.nb.listed_candidates(i, xi, eye, xi, xi, False, False, self._store_pair, ctx, acc)
                 else:
-                    self.nb.for_each_neighbour(i, l, h, False, self._factor_pair, self._factor_images, ctx, acc)
+                    self.nb.grid_candidates(i, xi, eye, xi, xi, False, l, self._factor_pair, ctx, acc)
+                self.nb.images(i, h, self._factor_images.visit, ctx, acc)
                 s = ti.Vector([acc[k] for k in ti.static(range(self.dim))])
                 den = s.norm_sqr() + acc[self.dim]
                 # an isolated particle has no neighbour to push: no pressure
@@ -352,9 +352,10 @@ class DFSPH:
             vi = p[i].v
             for q in range(self.nb.count[i]):
                 rate += (vi - p[self.nb.lists[i, q]].v).dot(self.gw[i, q])
-            self.nb.images(i, h, self._rate_images.visit, ctx, rate)
         else:
-            self.nb.for_each_neighbour(i, l, h, False, self._rate_pair, self._rate_images, ctx, rate)
+            self.nb.grid_candidates(i, p[i].x, ti.Matrix.identity(float, self.dim), p[i].x, p[i].x,
+                                    False, l, self._rate_pair, ctx, rate)
+        self.nb.images(i, h, self._rate_images.visit, ctx, rate)
         return rate
 
     @ti.func
@@ -372,9 +373,10 @@ class DFSPH:
                 f = (ki + self.coupling.partner_pressure(p[j].kind, self.kappa[j]) / p[j].rho) * self.gw[i, q]
                 acc += f
                 self.coupling.hand_reaction(j, -mi * f)
-            self.nb.images(i, h, self._push_images.visit, ctx, acc)
         else:
-            self.nb.for_each_neighbour(i, l, h, False, self._push_own, self._push_images, ctx, acc)
+            self.nb.grid_candidates(i, p[i].x, ti.Matrix.identity(float, self.dim), p[i].x, p[i].x,
+                                    False, l, self._push_own, ctx, acc)
+        self.nb.images(i, h, self._push_images.visit, ctx, acc)
         return acc
 
     @ti.func
