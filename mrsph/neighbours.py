@@ -102,6 +102,20 @@ class Neighbours:
             visit(i, xo, Lo, 0.5 * (xi + xo), nrm, True, ctx, acc)
 
     @ti.func
+    def image_normal(self, x, L, nrm, check: ti.template()):
+        """The unit normal into the fluid of the wall(s) an image of x reflects across: the
+        obstacle's normal ``nrm`` (``check``), or the sum of the domain walls' inward axes
+        (where L[k, k] = −1: the nearer of lo and hi on that axis)."""
+        n = nrm
+        if ti.static(not check):
+            n = ti.Vector.zero(float, self.dim)
+            for k in ti.static(range(self.dim)):
+                if L[k, k] < 0.0:
+                    n[k] = 1.0 if x[k] - self.boundary.lo[k] < self.boundary.hi[k] - x[k] else -1.0
+            n = n.normalized()
+        return n
+
+    @ti.func
     def image_in_solid(self, xj, p0, nrm):
         """Is x_j's mirror image across the plane (p0, nrm) inside an obstacle? Near a
         convex corner the tangent-plane mirror puts some images back in the fluid; those

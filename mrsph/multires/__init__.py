@@ -1,7 +1,9 @@
 """Adaptive multiresolution (METHOD.md §2–6): the levels' topology and their coupling.
 
 - ``topology.py``: ``Multires``, the adaptivity pass (criteria, split, merge, release,
-  gather) that changes which particles exist and how they are linked;
+  gather) that changes which particles exist and how they are linked, with
+  ``placement.py`` (where a split's children go) and ``gather.py`` (virtual parents
+  pooling their groups before a merge);
 - ``coupling.py``: one object per ``adaptivity.coupling`` mode (``Uniform`` without
   adaptivity), whose hooks the density, force and integration passes call;
 - ``limiter.py``: the virtual-mass limiter the coupling runs before the density pass.

@@ -56,7 +56,7 @@ coarsest down (§5.4), rebuilding the grids between pairs, and for the coarse le
    after each level pair made the 2D dam-break front worse and the 3D one no better
    (docs/dam-front.md, "Couplings of this pass's splits"): the 2D fluid split at the block
    is thrown further when its coarse neighbours take part at once.
-6. ``_propose``/``_accept`` (a few rounds): neighbouring virtual parents whose groups fit
+6. ``gather.py`` (a few rounds): neighbouring virtual parents whose groups fit
    in 2^d children and span at most ``gather_span`` of the release distance gather
    under one (mutual nearest pairs, so the parallel pass has no races) — merging is
    incremental. By default only where the criteria want level c (``gather_coarse_only``).
@@ -83,6 +83,7 @@ import itertools
 import numpy as np
 import taichi as ti
 
+from .gather import Gathering
 from .placement import FRESH, Placement   # FRESH: real child made by a split in this pass
 from ..particles import (DEAD, REGULAR, ROLE_CHILD, ROLE_PARENT, VIRTUAL_CHILD,
                         VIRTUAL_PARENT, is_real, merge_mass_mean, split_inherited)
@@ -96,8 +97,6 @@ VP_ANCHORED = 8    # virtual parent with a real particle of its own level within
 RELEASED = 16      # virtual parent whose group is being released (claimed atomically)
 NEAR_REGULAR = 64  # real level-c particle with a regular (uncoupled) level-f particle within h_c
 _FLAGS = (NEAR_FINE, NEAR_COARSE, MUST_SPLIT, VP_ANCHORED, RELEASED, FRESH, NEAR_REGULAR)   # distinct bits (a test holds it)
-
-GATHER_ROUNDS = 3  # pairings per pass: 1 → 2 → 4 → 8 children in the best case
 
 # The share of the pool that splits and new parent roles leave free, for the virtual
 # parents a merge starts from (``_couple_fine``). Without it, a pool filled by splits
@@ -138,10 +137,7 @@ class Multires:
         self.hysteresis = float(a["hysteresis"])
         self.release_factor = float(a["release_factor"])
         self.merge_min = int(a["merge_min_children"])   # 0 resolved by the config
-        self.gather_factor = float(a["gather_factor"])
-        self.gather_span = float(a["gather_span"])
         self.merge_remnants = bool(a["merge_remnants"])
-        self.gather_coarse_only = bool(a["gather_coarse_only"])
         self.split_near_regular = bool(a["split_near_regular"])
         self.relax_by_density = a["split_relax"] == "density"
         self.offsets = ti.Vector.field(self.dim, float, shape=self.nmax)
@@ -151,8 +147,8 @@ class Multires:
         # them, once an ``advance`` (a read and a clear after every pass cost ~50 µs)
         self.counters = ti.field(ti.i64, shape=len(COUNTERS))
         self._taken = np.zeros(len(COUNTERS), np.int64)
-        self.partner = ti.field(ti.i32, shape=self.pool.capacity)
         self.place = Placement(parts)   # where the children of this pass's splits go
+        self.gather = Gathering(parts, self.counters, EV_GATHERED)
 
     # ------------------------------------------------------------------ host driver
     def adapt(self, time: float) -> None:
@@ -178,9 +174,7 @@ class Multires:
             self.place.relax(c)
         self._parent_roles(n, c)
         self._couple_fine(n, c)
-        for _ in ti.static(range(GATHER_ROUNDS)):
-            self._propose(n, c)
-            self._accept(n, c)
+        self.gather.rounds(n, c)
         self._merge(n, c)
         self.pool.clamp_n()
 
@@ -409,91 +403,6 @@ class Multires:
                     p[i].kind = k | ROLE_CHILD
 
     @ti.func
-    def _union_spread(self, i, j):
-        """Largest distance between two children of virtual parents i and j together."""
-        p = ti.static(self.pool.p)
-        spread = 0.0
-        for a in range(p[i].nchild + p[j].nchild):
-            ca = self._child_of_pair(i, j, a)
-            for b in range(a + 1, p[i].nchild + p[j].nchild):
-                cb = self._child_of_pair(i, j, b)
-                spread = ti.max(spread, (p[ca].x - p[cb].x).norm())
-        return spread
-
-    @ti.func
-    def _child_of_pair(self, i, j, a):
-        ni = self.pool.p[i].nchild
-        ch = 0
-        if a < ni:
-            ch = self.pool.children[i, a]
-        else:
-            ch = self.pool.children[j, a - ni]
-        return ch
-
-    @ti.func
-    def _may_gather(self, i, c):
-        """``adaptivity.gather_coarse_only``: a virtual parent gathers only where the
-        criteria want level c (λ > c), the only place where its group may go on to merge.
-        Elsewhere a gather does nothing but move mass at level c: two virtual parents
-        become one at their centre of mass, a ~1 % jump in the coarse density next to it,
-        and the group is released again when its children drift apart. Measured in the 2D
-        pool of tests/test_adaptive_flow.py with the limiter off: mean speed 0.022
-        sqrt(gH) with gathers everywhere, 0.013 without any."""
-        return (not ti.static(self.gather_coarse_only)) or self.pool.p[i].lam > c
-
-    @ti.func
-    def _propose(self, n, c):
-        p = ti.static(self.pool.p)
-        reach = self.gather_factor * self.lev.s[c]
-        # a gathered group must stay well inside the release limit, or it is released at
-        # the next pass and gathered again, and every such cycle moves the virtual parents
-        # (measured in a resting pool: ~3000 releases and gathers per second among ~240
-        # transient particles, and an interface that never came to rest). The default 0.9
-        # is the first tenth above a 3D lattice cell's diagonal, sqrt(3)/2 = 0.87 of the
-        # release distance: at 0.8 no cell of eight could gather, and a 3D fluid left by
-        # a stirrer kept 462 of its 2000 real particles fine (190 of 1791 at 0.9;
-        # tests/test_multires.py, test_fine_fluid_a_stirrer_left_merges_back)
-        keep = self.gather_span * self.release_factor * self._h(c - 1)
-        for i in range(n):
-            self.partner[i] = -1
-            if p[i].kind == VIRTUAL_PARENT and p[i].level == c and p[i].nchild < self.nmax \
-                    and self._may_gather(i, c):
-                xi = p[i].x
-                best, best_d2 = -1, reach * reach
-                base = self.g.around(xi, c)
-                for o in ti.grouped(ti.ndrange(*self.g.row_axes)):
-                    lo, hi = self.g.row(base, o, c)
-                    for j in range(lo, hi):
-                        if j != i and p[j].kind == VIRTUAL_PARENT and \
-                                p[i].nchild + p[j].nchild <= self.nmax and self._may_gather(j, c):
-                            d2 = (xi - p[j].x).norm_sqr()
-                            if d2 < best_d2 or (d2 == best_d2 and j < best):
-                                if self._union_spread(i, j) <= keep:
-                                    best, best_d2 = j, d2
-                self.partner[i] = best
-
-    @ti.func
-    def _accept(self, n, c):
-        p = ti.static(self.pool.p)
-        for i in range(n):
-            j = self.partner[i]
-            if j > i and self.partner[j] == i:
-                ni, nj = p[i].nchild, p[j].nchild
-                for q in range(nj):
-                    ch = self.pool.children[j, q]
-                    self.pool.children[i, ni + q] = ch
-                    self.pool.children[j, q] = -1
-                    p[ch].parent = i
-                mi, mj = p[i].m, p[j].m
-                p[i].x = (mi * p[i].x + mj * p[j].x) / (mi + mj)
-                p[i].v = (mi * p[i].v + mj * p[j].v) / (mi + mj)
-                p[i].m = mi + mj
-                p[i].nchild = ni + nj
-                p[j].nchild = 0
-                p[j].kind = DEAD
-                ti.atomic_add(self.counters[EV_GATHERED], 1)
-
-    @ti.func
     def _merge(self, n, c):
         p = ti.static(self.pool.p)
         for i in range(n):
@@ -508,7 +417,7 @@ class Multires:
             if ti.static(self.merge_remnants) and (p[i].flags & VP_ANCHORED) != 0:
                 least = 1
             if p[i].kind == VIRTUAL_PARENT and p[i].level == c and \
-                    (k == self.nmax or (k >= least and self.partner[i] == -1)) \
+                    (k == self.nmax or (k >= least and self.gather.partner[i] == -1)) \
                     and p[i].lam > c + self.hysteresis and (p[i].flags & MUST_SPLIT) == 0:
                 ok = True
                 for q in range(p[i].nchild):

@@ -254,23 +254,8 @@ class DFSPH:
             # density excess (the image's W(0)) but its neighbours, and the solve pushed
             # them without bound (the 2D dam break blew up in a corner at 0.4 s).
             ok = True
-            g = (-3.0 * ctx[1] * h * h) * self._inward(p[i].x, L, nrm, check)
+            g = (-3.0 * ctx[1] * h * h) * self.nb.image_normal(p[i].x, L, nrm, check)
         return ok, g
-
-    @ti.func
-    def _inward(self, x, L, nrm, check: ti.template()):
-        """The unit normal into the fluid of the wall(s) a mirror image reflects across:
-        the obstacle's normal, or the sum of the domain walls' inward axes (where
-        L[k, k] = −1: the nearer of lo and hi on that axis)."""
-        n = nrm
-        if ti.static(not check):
-            n = ti.Vector.zero(float, self.dim)
-            b = self.nb.boundary
-            for k in ti.static(range(self.dim)):
-                if L[k, k] < 0.0:
-                    n[k] = 1.0 if x[k] - b.lo[k] < b.hi[k] - x[k] else -1.0
-            n = n.normalized()
-        return n
 
     @ti.func
     def _ctx(self, i):
