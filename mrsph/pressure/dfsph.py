@@ -65,7 +65,7 @@ WARM_START = 0.5
 # state[]: iterations applied, done, hit the maximum, whether this iteration runs
 ITERS, DONE, HIT_MAX, RUNS = range(4)
 
-DENSITY, DIVERGENCE = 0, 1      # which solve an iteration kernel runs (template)
+DENSITY, DIVERGENCE, WARM = 0, 1, 2     # what a sweep (``_sweep``) runs: a solve's iteration, or the warm start
 SOLVE_NAMES = ("density", "divergence")
 MAX_KEYS = ("max_iterations", "divergence_max_iterations")
 
@@ -223,8 +223,8 @@ class DFSPH:
         done; returns (iterations, average error, stopped at the maximum)."""
         self._start(self.tolerance[which], self.min_iterations[which], self.max_iterations[which])
         while True:
-            self._iterate(n, dt, which, self.tolerance[which], self.min_iterations[which],
-                          self.max_iterations[which])
+            self._sweep(n, dt, which, self.tolerance[which], self.min_iterations[which],
+                        self.max_iterations[which])
             st = self.state.to_numpy()
             if st[DONE]:
                 return int(st[ITERS]), float(self.error[None]), bool(st[HIT_MAX])
@@ -426,32 +426,50 @@ class DFSPH:
         self.error[None] = 0.0
 
     @ti.kernel
-    def _iterate(self, n: ti.i32, dt: ti.f64, which: ti.template(), tol: ti.f64, min_it: ti.i32,
-                 max_it: ti.i32):
-        """``ITERATIONS_PER_LAUNCH`` Jacobi iterations of one solve: each measures the
-        error of the current velocities and sets κ (one loop), decides on the device
-        whether to stop (converged after at least ``min_it`` updates, or ``max_it``
-        reached), and otherwise updates the velocities (``_update``)."""
+    def _sweep(self, n: ti.i32, dt: ti.f64, mode: ti.i32, tol: ti.f64, min_it: ti.i32, max_it: ti.i32):
+        """One kernel for the three sweeps over the fluid, ``mode`` a runtime argument: a
+        Jacobi iteration of the density or the divergence solve (``ITERATIONS_PER_LAUNCH``
+        of them), or the density solve's warm start. Each measures the rate of the current
+        velocities, sets κ from it, and updates the velocities (``_update``); an iteration
+        first decides on the device whether to stop (converged after at least ``min_it``
+        updates, or ``max_it`` reached). One kernel, not three, because every copy of the
+        neighbour sums costs compile time (the three took 3x as long, docs/performance.md).
+
+        The warm start: where the kicked velocities compress a particle (ρ*_i > ρ0), κ_i
+        starts at ``WARM_START`` times the last step's p_i/ρ_i (0 for a new particle),
+        elsewhere at 0. Less than the whole of the last pressure, and none where the fluid
+        is not compressed, since a solve only adds pressure (its errors are compressions):
+        a warm start past the solution is not taken back within the step, and the next
+        step starts from it again."""
         p = ti.static(self.pool.p)
         rho0 = ti.static(self.rest_density)
         h_dt = ti.cast(dt, float)
         for _ in ti.static(range(ITERATIONS_PER_LAUNCH)):
             self.err[None] = 0.0
             self.peak[None] = 0.0
-            self.state[RUNS] = 1 - self.state[DONE]
+            self.state[RUNS] = 1 if mode == WARM else 1 - self.state[DONE]
             for i in range(n):
                 if self.state[RUNS] and is_real(p[i].kind):
                     rate = self._rate(i)
-                    if ti.static(which == DENSITY):
+                    if mode == DENSITY:
                         e = ti.max(p[i].rho + h_dt * rate - rho0, 0.0)    # ρ* − ρ0, compression only
                         self.kappa[i] = e * self.alpha[i] / (h_dt * h_dt)
                         self.err[None] += ti.cast(e, ti.f64)
                         ti.atomic_max(self.peak[None], e)
-                    else:
+                    elif mode == DIVERGENCE:
                         e = ti.max(rate, 0.0)                              # Dρ/Dt, compression only
                         self.kappa[i] = e * self.alpha[i]
                         self.err[None] += ti.cast(e * h_dt, ti.f64)
-            if self.state[RUNS]:
+                    else:
+                        k = 0.0
+                        if p[i].rho + h_dt * rate > rho0:
+                            k = ti.static(WARM_START) * p[i].p / p[i].rho
+                        self.kappa[i] = k
+                        self.ksum[i] = k
+                elif mode == WARM:
+                    self.kappa[i] = 0.0
+                    self.ksum[i] = 0.0
+            if mode != WARM and self.state[RUNS]:
                 avg = self.err[None] / ti.max(self.n_real[None], 1) / rho0
                 self.error[None] = avg
                 its = self.state[ITERS]
@@ -466,34 +484,15 @@ class DFSPH:
                     self.state[RUNS] = 0
                 else:
                     self.state[ITERS] = its + 1
-            if ti.static(which == DENSITY):
+            if mode == DENSITY:
                 for i in range(n):
                     if self.state[RUNS] and is_real(p[i].kind):
                         self.ksum[i] += self.kappa[i]
-                self._update(n, h_dt)
-            else:
-                self._update(n, 1.0)
+            self._update(n, 1.0 if mode == DIVERGENCE else h_dt)
 
-    @ti.kernel
-    def _warm(self, n: ti.i32, dt: ti.f64):
-        """Warm start: where the kicked velocities compress a particle (ρ*_i > ρ0), κ_i
-        starts at ``WARM_START`` times the last step's p_i/ρ_i (0 for a new particle),
-        elsewhere at 0; one velocity update with it. Less than the whole of the last
-        pressure, and none where the fluid is not compressed, since a solve only adds
-        pressure (its errors are compressions): a warm start past the solution is not
-        taken back within the step, and the next step starts from it again."""
-        p = ti.static(self.pool.p)
-        rho0 = ti.static(self.rest_density)
-        h_dt = ti.cast(dt, float)
-        self.state[RUNS] = 1
-        for i in range(n):
-            k = 0.0
-            if is_real(p[i].kind):
-                if p[i].rho + h_dt * self._rate(i) > rho0:
-                    k = ti.static(WARM_START) * p[i].p / p[i].rho
-            self.kappa[i] = k
-            self.ksum[i] = k
-        self._update(n, h_dt)
+    def _warm(self, n: int, dt: float) -> None:
+        """The warm start (``_sweep``), one velocity update with it."""
+        self._sweep(n, dt, WARM, 0.0, 0, 0)
 
     @ti.kernel
     def _cold(self, n: ti.i32):
