@@ -124,6 +124,7 @@ class Neighbours:
         phi, _n = self.boundary.obstacle_sdf(img)
         return phi < 0.0
 
+
 @ti.data_oriented
 class ImageNeighbours:
     """An image visit (for ``Neighbours.images``) that visits the image's candidates with
