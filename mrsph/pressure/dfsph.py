@@ -54,7 +54,9 @@ from .eos import sound_speed
 # per iteration, but each is a copy of the iteration's code in the kernel, and Taichi's
 # compile time grows faster than the code: the DFSPH kernels took ~4 minutes to compile
 # on this CPU with two (the window's solver switch waited for them, and the five first
-# DFSPH compiles were half of the test suite's time).
+# DFSPH compiles were half of the test suite's time). ``_sweep`` also runs the warm start
+# in this loop, so with more than one a launch it would warm-start more than once: take
+# the warm start out of the loop first.
 ITERATIONS_PER_LAUNCH = 1
 
 # The share of the last step's pressure a density solve starts from, where the fluid is
