@@ -478,6 +478,12 @@ def main(argv=None) -> int:
     if problem:     # before the cases run, not after
         print(f"python3 main.py bench: {problem}", file=sys.stderr)
         return 2
+    flag = os.environ.get("TI_ADVANCED_OPTIMIZATION", "").strip()    # as Taichi reads it
+    optimised = not flag.isdigit() or int(flag) != 0
+    if not optimised:   # the default test run sets it (tests/conftest.py)
+        print("python3 main.py bench: warning: TI_ADVANCED_OPTIMIZATION=0: Taichi compiles "
+              "without its optimisation passes, so these timings are not the program's",
+              file=sys.stderr)
     scale = args.interval_scale
     cases = [c._replace(warm=c.warm * scale, interval=c.interval * scale) for c in cases]
     rows, pairs = run_cases(cases, args.repeats, args.arch, args.threads,
@@ -488,5 +494,6 @@ def main(argv=None) -> int:
         with open(args.json, "w") as fh:
             json.dump({"machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
                        "arch": args.arch, "threads": args.threads, "repeats": args.repeats,
-                       "interval_scale": scale, "cases": rows, "pairs": pairs}, fh, indent=2)
+                       "interval_scale": scale,
+                       "advanced_optimization": optimised, "cases": rows, "pairs": pairs}, fh, indent=2)
     return 0

@@ -32,12 +32,21 @@ Nothing here touches Taichi at import time.
   a second process compiling they got half a core and failed (a drag that hardly stirred,
   a switch still compiling after 300 s), so ``.ci/run`` runs them in one process after
   the rest of ``-m slow``: ``python3 -m pytest -q -m "slow and wallclock" -n 0``.
+- The default run compiles without Taichi's advanced optimisation passes
+  (``TI_ADVANCED_OPTIMIZATION=0``, set in ``pytest_configure`` for ``-m "not slow"``
+  unless the variable is already set; subprocesses inherit it): those passes were most
+  of each kernel's compile, and a short test is mostly compile (region_2d's first two
+  steps from an empty cache 21 s → 8.7 s; the whole run 12:01 → 9:40). The kernels
+  compute the same sums; the long validation (``-m slow``, any other ``-m``) keeps the
+  optimised kernels that users run, and ``bench`` warns when the variable is set.
 - Both runs use two processes (pytest-xdist, ``-n auto --dist loadgroup`` in pytest.ini;
   ``-n 0`` runs in one). Most of a test's time is Taichi compiling, which is one thread,
   so two processes halve the wall time on two cores. Tests that share an expensive
   module fixture (one flow run read by several tests, one Xvfb server) are kept in one
   process by an ``xdist_group`` named after their module and fixture case (``GROUPED``).
 """
+
+import os
 
 import pytest
 
@@ -50,6 +59,8 @@ def pytest_addoption(parser):
 
 
 def pytest_configure(config):
+    if (config.getoption("-m") or "").strip() == "not slow":     # the default run (pytest.ini)
+        os.environ.setdefault("TI_ADVANCED_OPTIMIZATION", "0")
     config.addinivalue_line(
         "markers", "slow: long validation runs, left out by default; run them with -m slow")
     config.addinivalue_line(

@@ -6,6 +6,7 @@ writes the documented JSON keys, not what the timings are.
 """
 import json
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -119,6 +120,10 @@ def test_bench_smoke_writes_json_with_every_key(tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     result = json.loads(out.read_text())
     rows = {r["case"]: r for r in result["cases"]}
+    # the default test run compiles without Taichi's optimisation passes (conftest.py)
+    optimised = os.environ.get("TI_ADVANCED_OPTIMIZATION", "").strip() != "0"
+    assert result["advanced_optimization"] is optimised
+    assert ("TI_ADVANCED_OPTIMIZATION=0" in proc.stderr) is not optimised, proc.stderr[-2000:]
     assert list(rows) == ["dam_break_2d uniform ~10k", "dam_break_obstacle_2d s=3.5mm adaptive",
                           "dam_break_obstacle_2d s=3.5mm uniform", "demo_2d rendered"]
     for r in rows.values():
