@@ -149,12 +149,13 @@ _NOTICES_SHOWN: set[str] = set()
 
 
 def _row(case_name, scene_name, overrides, scene, sim, kind, warm, interval, walls, steps_l,
-         reals, compile_s, timers, repeats) -> dict:
-    """The result row shared by every kind of case."""
+         reals, compile_s, timers, repeats, solve=None) -> dict:
+    """The result row shared by every kind of case; ``solve``, where given, replaces the
+    implicit solver's iterations that ``sim.stats()`` holds since its last call."""
     wall = statistics.median(walls)
     steps = statistics.median(steps_l)
     n_real = statistics.median(reals)
-    st = sim.stats()
+    st = {**sim.stats(), **(solve or {})}
     total = sum(timers.values()) or 1.0
     return {
         "case": case_name, "kind": kind, "scene": scene_name, "overrides": list(overrides),
@@ -198,6 +199,15 @@ def run_case(name, scene_name, overrides, warm, interval, repeats, arch, threads
     sim.advance(interval)
     return _row(name, scene_name, overrides, scene, sim, kind, warm, interval, walls, steps_l,
                 reals, compile_s, sim.timers, repeats)
+
+
+def solve_iterations(solves) -> dict:
+    """Mean iterations a step of each solve over frames given as (steps, snapshot stats)."""
+    steps = sum(n for n, _ in solves)
+    keys = ("density_iterations", "divergence_iterations")
+    if not steps or any(st.get(k) is None for _, st in solves for k in keys):
+        return {}
+    return {k: sum(n * st[k] for n, st in solves) / steps for k in keys}
 
 
 def _start_profile(sim) -> None:
@@ -299,10 +309,14 @@ def run_demo(name, scene_name, overrides, warm, interval, repeats, arch, threads
     t0 = time.perf_counter()
     source = _open_frames("auto", width, height, Style.from_scene(scene), scene)
 
+    solves = []     # (steps, the snapshot's stats): a snapshot takes the solver's counters
+
     def frame() -> tuple[int, float]:
         steps = sim.advance_frame()
         t = time.perf_counter()
-        source.render(sim.snapshot(), "level", False, sim.rest_density)
+        snap = sim.snapshot()
+        solves.append((steps, snap.stats))
+        source.render(snap, "level", False, sim.rest_density)
         return steps, time.perf_counter() - t
 
     try:
@@ -320,12 +334,13 @@ def run_demo(name, scene_name, overrides, warm, interval, repeats, arch, threads
             reals.append(sim.stats()["n_real"])
         surface_s, window_frame_s, surface_net_s = _surface_cost(source, sim, repeats)
         _start_profile(sim)
+        del solves[:]
         render = sum(frame()[1] for _ in range(n_frames))
         timers = {**sim.timers, "render": render}
     finally:
         source.close()
     row = _row(name, scene_name, overrides, scene, sim, "demo", warm, n_frames / fps, walls,
-               steps_l, reals, compile_s, timers, repeats)
+               steps_l, reals, compile_s, timers, repeats, solve_iterations(solves))
     volume = fluid_volume(scene)
     reference = (volume / DEMO_REFERENCE_PARTICLES) ** (1.0 / sim.dim)
     wall = row["wall_s"]
@@ -429,6 +444,18 @@ def _table(rows, pairs=()) -> str:
     return "\n".join(out)
 
 
+def _scene_problems(cases) -> list[str]:
+    """Every problem of the cases' scenes with their overrides, once each (none: [])."""
+    from .config import SceneError, load_scene
+    problems = []
+    for c in cases:
+        try:
+            load_scene(c.scene, list(c.overrides))
+        except SceneError as e:     # a bad --set is the same problem in every case
+            problems += [line for line in e.problems if line not in problems]
+    return problems
+
+
 def run_cases(cases, repeats, arch, threads="auto", log=None) -> tuple[list, list]:
     """Run cases in order: (rows, pair summaries)."""
     rows, pairs = [], []
@@ -463,6 +490,9 @@ def main(argv=None) -> int:
     ap.add_argument("--json", metavar="FILE", help="also write the results as JSON (default: no file)")
     ap.add_argument("--case", action="append", default=None,
                     help="run only cases whose name contains this text (repeatable; default: all)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
+                    help="a scene override added to every chosen case, after the case's own "
+                         "(repeatable), e.g. --set 'fluid.solver=\"dfsph\"' (default: none)")
     ap.add_argument("--list", action="store_true", help="list the cases and exit")
     args = ap.parse_args(argv)
     cases = [c for c in _cases(args.full) if not args.case or any(t in c.name for t in args.case)]
@@ -478,14 +508,20 @@ def main(argv=None) -> int:
     if problem:     # before the cases run, not after
         print(f"python3 main.py bench: {problem}", file=sys.stderr)
         return 2
+    scale = args.interval_scale
+    cases = [c._replace(warm=c.warm * scale, interval=c.interval * scale,
+                        overrides=c.overrides + tuple(args.overrides)) for c in cases]
+    problems = _scene_problems(cases)
+    if problems:        # a bad --set, found before the first case compiles
+        for line in problems:
+            print(f"python3 main.py bench: {line}", file=sys.stderr)
+        return 2
     flag = os.environ.get("TI_ADVANCED_OPTIMIZATION", "").strip()    # as Taichi reads it
     optimised = not flag.isdigit() or int(flag) != 0
     if not optimised:   # the default test run sets it (tests/conftest.py)
         print("python3 main.py bench: warning: TI_ADVANCED_OPTIMIZATION=0: Taichi compiles "
               "without its optimisation passes, so these timings are not the program's",
               file=sys.stderr)
-    scale = args.interval_scale
-    cases = [c._replace(warm=c.warm * scale, interval=c.interval * scale) for c in cases]
     rows, pairs = run_cases(cases, args.repeats, args.arch, args.threads,
                             log=lambda m: print(m, file=sys.stderr, flush=True))
     print(_table(rows, pairs))
@@ -494,6 +530,6 @@ def main(argv=None) -> int:
         with open(args.json, "w") as fh:
             json.dump({"machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
                        "arch": args.arch, "threads": args.threads, "repeats": args.repeats,
-                       "interval_scale": scale,
+                       "interval_scale": scale, "overrides": args.overrides,
                        "advanced_optimization": optimised, "cases": rows, "pairs": pairs}, fh, indent=2)
     return 0

@@ -13,7 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from mrsph.bench import MULTIRES_PHASES, UNIFORM_OVERRIDE, _cases, _table, fluid_volume, pair_summary
+from mrsph.bench import (MULTIRES_PHASES, UNIFORM_OVERRIDE, _cases, _table, fluid_volume, pair_summary,
+                         solve_iterations)
 from mrsph.config import load_scene
 from toolload import load_tool
 
@@ -100,11 +101,26 @@ def test_case_names_match_their_particle_counts():
     assert quick_pairs == {2, 3}
 
 
+def test_demo_iterations_are_the_step_weighted_mean_of_its_frames():
+    """The demo row's iterations come from its frames' snapshots, each of which takes the
+    solver's counters (a row read after them said 0.00 iterations a step)."""
+    frames = [(10, {"density_iterations": 2.0, "divergence_iterations": 1.0}),
+              (30, {"density_iterations": 6.0, "divergence_iterations": 0.0})]
+    got = solve_iterations(frames)
+    assert got == pytest.approx({"density_iterations": 5.0, "divergence_iterations": 0.25}), got
+    wcsph = [(10, {"density_iterations": None, "divergence_iterations": None})]
+    assert solve_iterations(wcsph) == {} and solve_iterations([]) == {}
+
+
 def test_fluid_volume_of_the_demo():
     scene = load_scene("demo_2d")
     blocks = scene.data["fluid"]["blocks"]
     expected = sum((b["max"][0] - b["min"][0]) * (b["max"][1] - b["min"][1]) for b in blocks)
     assert fluid_volume(scene) == pytest.approx(expected, rel=1e-12)
+
+
+#: The smoke run's --set: a key whose change recompiles no kernel (the demo already has it).
+SMOKE_SET = "fluid.viscosity=4.0"
 
 
 def test_bench_smoke_writes_json_with_every_key(tmp_path):
@@ -115,7 +131,7 @@ def test_bench_smoke_writes_json_with_every_key(tmp_path):
     proc = subprocess.run(
         [sys.executable, "main.py", "bench", "--case", "dam_break_2d uniform ~10k",
          "--case", "dam_break_obstacle_2d s=3.5mm", "--case", "demo_2d", "--repeats", "1",
-         "--interval-scale", "0.05", "--json", str(out)],
+         "--interval-scale", "0.05", "--json", str(out), "--set", SMOKE_SET],
         cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S)
     assert proc.returncode == 0, proc.stderr[-3000:]
     result = json.loads(out.read_text())
@@ -126,8 +142,10 @@ def test_bench_smoke_writes_json_with_every_key(tmp_path):
     assert ("TI_ADVANCED_OPTIMIZATION=0" in proc.stderr) is not optimised, proc.stderr[-2000:]
     assert list(rows) == ["dam_break_2d uniform ~10k", "dam_break_obstacle_2d s=3.5mm adaptive",
                           "dam_break_obstacle_2d s=3.5mm uniform", "demo_2d rendered"]
+    assert result["overrides"] == [SMOKE_SET]
     for r in rows.values():
         assert ROW_KEYS <= set(r), ROW_KEYS - set(r)
+        assert SMOKE_SET in r["overrides"], r["overrides"]
         assert r["repeats"] == 1 and len(r["walls"]) == 1 and r["wall_s"] > 0 and r["steps"] > 0
         if not r["adaptive"]:
             assert r["per_level"] == [r["n_real"]]
@@ -155,6 +173,18 @@ def test_bench_rejects_an_unknown_case():
     proc = subprocess.run([sys.executable, "main.py", "bench", "--case", "no such case"],
                           cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S)
     assert proc.returncode == 2 and "no case matches" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_bench_refuses_a_bad_override_before_running():
+    """A bad --set is one line per problem and exit 2 before any case compiles, said once
+    even though it is wrong in both chosen cases."""
+    proc = subprocess.run([sys.executable, "main.py", "bench", "--case", "demo",
+                           "--set", 'fluid.solver="implicit"'],
+                          cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.strip().splitlines() == [
+        'python3 main.py bench: --set fluid.solver: unknown choice (got "implicit"; '
+        'expected one of "wcsph", "dfsph")'], proc.stderr
 
 
 def test_bench_refuses_an_unwritable_json_before_running(tmp_path):
