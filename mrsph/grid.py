@@ -45,8 +45,11 @@ CELLS_PER_SUPPORT = {2: (1, 2), 3: (1, 1, 4)}
 @ti.data_oriented
 class LevelGrids:
     def __init__(self, dim: int, levels: int, domain_min, domain_max, h0: float, capacity: int,
-                 cells_per_support: int | tuple = 1):
+                 cells_per_support: int | tuple = 1, parallel: bool = False):
         self.dim = dim
+        # the sort's ranks and prefix sum: serial (the same order every run; the fastest
+        # on a CPU) or parallel (a GPU runs a serial loop on one of its threads)
+        self.parallel = bool(parallel)
         self.levels = levels
         ks = (cells_per_support,) * dim if isinstance(cells_per_support, int) else cells_per_support
         if len(ks) != dim:
@@ -80,7 +83,13 @@ class LevelGrids:
         self.count = ti.field(ti.i32, shape=total + 1)
         # particles per block of SCAN_BLOCK consecutive cells, so that the prefix sum
         # fills the starts of an empty block without reading its counts
-        self.block_count = ti.field(ti.i32, shape=(total + SCAN_BLOCK) // SCAN_BLOCK)
+        blocks = (total + SCAN_BLOCK) // SCAN_BLOCK
+        self.block_count = ti.field(ti.i32, shape=blocks)
+        if self.parallel:
+            # the parallel prefix sum's two upper tiers: where each block starts, and the
+            # particles and start of each run of SCAN_BLOCK blocks
+            self.block_start = ti.field(ti.i32, shape=blocks)
+            self.super_start = ti.field(ti.i32, shape=(blocks + SCAN_BLOCK - 1) // SCAN_BLOCK)
         self.start = ti.field(ti.i32, shape=total + 2)
         self.key = ti.field(ti.i32, shape=capacity)
         # the key of the particle in each slot, and n, as the last sort left them: a sort
@@ -136,6 +145,73 @@ class LevelGrids:
         return self.start[first], self.start[first + span]
 
     # --- counting sort ---------------------------------------------------------------
+    @ti.func
+    def _cell_starts(self, b, total):
+        """Block b's cell starts from its first, ``total``, zeroing its counts for the
+        next sort (fields start zeroed); an empty block's counts are not read."""
+        c0 = b * SCAN_BLOCK
+        c1 = ti.min(c0 + SCAN_BLOCK, self.total_cells + 1)
+        t = total
+        if self.block_count[b] == 0:
+            for c in range(c0, c1):
+                self.start[c] = t
+        else:
+            for c in range(c0, c1):
+                self.start[c] = t
+                t += self.count[c]
+                self.count[c] = 0
+            self.block_count[b] = 0
+        return t
+
+    @ti.func
+    def _rank_and_scan_serial(self, n):
+        """The ranks in slot order and the prefix sum, each one thread's loop."""
+        ti.loop_config(serialize=True)
+        for i in range(n):
+            k = self.key[i]
+            self.rank[i] = self.count[k]
+            self.count[k] += 1
+            self.block_count[k // SCAN_BLOCK] += 1
+        ti.loop_config(serialize=True)
+        for _ in range(self.moved[None]):
+            total = 0
+            for b in range(self.block_count.shape[0]):
+                total = self._cell_starts(b, total)
+            self.start[self.total_cells + 1] = total
+
+    @ti.func
+    def _rank_and_scan_parallel(self, n):
+        """The ranks by atomic counts (so the order inside a cell, and with it the order
+        of the sums over neighbours, varies from run to run) and a three-tier prefix sum:
+        the blocks' counts summed per run of ``SCAN_BLOCK`` blocks, those runs scanned by
+        one thread (a few hundred at 100k particles), then the blocks' and the cells'
+        starts in parallel."""
+        for i in range(n):
+            k = self.key[i]
+            self.rank[i] = ti.atomic_add(self.count[k], 1)
+            ti.atomic_add(self.block_count[k // SCAN_BLOCK], 1)
+        blocks = self.block_count.shape[0]
+        runs = self.super_start.shape[0] * self.moved[None]
+        for r in range(runs):
+            total = 0
+            for b in range(r * SCAN_BLOCK, ti.min((r + 1) * SCAN_BLOCK, blocks)):
+                total += self.block_count[b]
+            self.super_start[r] = total
+        for _ in range(self.moved[None]):
+            total = 0
+            for r in range(self.super_start.shape[0]):
+                run = self.super_start[r]
+                self.super_start[r] = total
+                total += run
+            self.start[self.total_cells + 1] = total
+        for r in range(runs):
+            total = self.super_start[r]
+            for b in range(r * SCAN_BLOCK, ti.min((r + 1) * SCAN_BLOCK, blocks)):
+                self.block_start[b] = total
+                total += self.block_count[b]
+        for b in range(blocks * self.moved[None]):
+            self._cell_starts(b, self.block_start[b])
+
     def sort(self, pool: ParticlePool) -> int:
         """Reorder the pool in cell order, drop DEAD slots, remap links; returns n."""
         return self._sort(pool)
@@ -168,28 +244,10 @@ class LevelGrids:
                 self.moved[None] = 1
         if not self.moved[None]:
             n = 0           # the loops below do nothing
-        ti.loop_config(serialize=True)
-        for i in range(n):
-            k = self.key[i]
-            self.rank[i] = self.count[k]
-            self.count[k] += 1
-            self.block_count[k // SCAN_BLOCK] += 1
-        ti.loop_config(serialize=True)
-        for _ in range(self.moved[None]):
-            total = 0
-            for b in range((self.total_cells + SCAN_BLOCK) // SCAN_BLOCK):
-                c0 = b * SCAN_BLOCK
-                c1 = ti.min(c0 + SCAN_BLOCK, self.total_cells + 1)
-                if self.block_count[b] == 0:
-                    for c in range(c0, c1):    # an empty block: its counts are all zero
-                        self.start[c] = total
-                else:
-                    for c in range(c0, c1):
-                        self.start[c] = total
-                        total += self.count[c]
-                        self.count[c] = 0   # ready for the next sort (fields start zeroed)
-                    self.block_count[b] = 0
-            self.start[self.total_cells + 1] = total
+        if ti.static(self.parallel):
+            self._rank_and_scan_parallel(n)
+        else:
+            self._rank_and_scan_serial(n)
         for i in range(n):
             j = self.start[self.key[i]] + self.rank[i]
             self.new_index[i] = j

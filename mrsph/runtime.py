@@ -132,6 +132,12 @@ def auto_threads(scene, threads="auto"):
     return 1 if small else None
 
 
+def on_gpu() -> bool:
+    """Whether Taichi runs on a GPU (after ``ensure``): serial loops there run on one of
+    its threads, so the passes that have a parallel form take it."""
+    return _state["arch_name"] in _GPU_ARCHES
+
+
 def notice() -> str | None:
     """A one-line message about a fallback made by the last :func:`ensure`, if any."""
     return _state["notice"]

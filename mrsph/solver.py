@@ -91,7 +91,7 @@ class Simulation:
         self.lev = Levels(d, L, float(part["spacing"]), float(part["support"]), self.rest_density, symmetric)
         self.s0, self.h0, self.m0 = self.lev.s0, self.lev.h0, self.lev.m0
         self.grids = LevelGrids(d, L, s["domain"]["min"], s["domain"]["max"], self.h0, self.capacity,
-                                CELLS_PER_SUPPORT[d])
+                                CELLS_PER_SUPPORT[d], parallel=runtime.on_gpu())
         self.boundary = Boundary(d, s["domain"]["min"], s["domain"]["max"], s["obstacles"],
                                  s["domain"]["restitution"], s["domain"]["friction"])
         self.disturbances = Disturbances(d)

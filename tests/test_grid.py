@@ -26,8 +26,10 @@ MAX_NEIGHBOURS = 160
 BORDERLINE = 1e-5
 
 
-def build(dim, xs, levels, kinds=None, extra_capacity=8, cells_per_support=1):
-    """A ParticlePool and LevelGrids holding the given particles (ids stored in ``slot``)."""
+def build(dim, xs, levels, kinds=None, extra_capacity=8, cells_per_support=1, parallel=False):
+    """A ParticlePool and LevelGrids holding the given particles (ids stored in ``slot``);
+    ``parallel``: the sort's GPU form (atomic ranks, three-tier prefix sum), run here on
+    the CPU."""
     from mrsph.grid import LevelGrids
     from mrsph.particles import ParticlePool
 
@@ -35,7 +37,7 @@ def build(dim, xs, levels, kinds=None, extra_capacity=8, cells_per_support=1):
     pool = ParticlePool(dim, n + extra_capacity)
     cap = pool.capacity          # rounded up to an odd multiple of 16 (storage_slots)
     grids = LevelGrids(dim, LEVELS, [DOMAIN_MIN] * dim, [DOMAIN_MAX] * dim, H0, cap,
-                       cells_per_support)
+                       cells_per_support, parallel)
     pad = lambda a, fill: np.concatenate([a, np.full((cap - n,) + a.shape[1:], fill, a.dtype)])  # noqa: E731
     pool.p.x.from_numpy(pad(xs.astype(np.float32), 0.0))
     pool.p.v.from_numpy(pad((xs * 3.0 + 1.0).astype(np.float32), 0.0))
@@ -138,6 +140,9 @@ def jittered_lattice(rng, dim, spacing):
 
 
 CELLS = pytest.mark.parametrize("cells", [1, 2, "solver"], ids=["h-cells", "half-h-cells", "solver-cells"])
+# the sort's two forms: serial (CPU) and parallel (GPU; in 3D with the solver's cells its
+# prefix sum has several runs of blocks)
+SORTS = pytest.mark.parametrize("parallel", [False, True], ids=["serial-sort", "parallel-sort"])
 
 
 def per_axis(cells, dim):
@@ -147,9 +152,10 @@ def per_axis(cells, dim):
     return tuple(CELLS_PER_SUPPORT[dim]) if cells == "solver" else (cells,) * dim
 
 
+@SORTS
 @CELLS
 @pytest.mark.parametrize("layout", ["random", "lattice"])
-def test_grid_neighbours_equal_brute_force(dim, layout, cells):
+def test_grid_neighbours_equal_brute_force(dim, layout, cells, parallel):
     rng = np.random.default_rng(100 * dim + (layout == "lattice"))
     if layout == "random":
         xs = random_positions(rng, dim, 1500 if dim == 2 else 2500)
@@ -160,7 +166,7 @@ def test_grid_neighbours_equal_brute_force(dim, layout, cells):
     # put the particles at the domain edges and corners too (clamped cells, padding)
     xs[:dim, :] = DOMAIN_MIN
     xs[dim: 2 * dim, :] = DOMAIN_MAX
-    pool, grids = build(dim, xs, levels, cells_per_support=per_axis(cells, dim))
+    pool, grids = build(dim, xs, levels, cells_per_support=per_axis(cells, dim), parallel=parallel)
     n = grids.sort(pool)
     assert n == len(xs), f"sort returned {n} particles; expected {len(xs)} (none is DEAD)"
     expected, borderline = brute_force(xs, levels)
@@ -168,15 +174,16 @@ def test_grid_neighbours_equal_brute_force(dim, layout, cells):
 
 
 
+@SORTS
 @CELLS
-def test_a_sort_after_the_particles_moved_finds_their_new_neighbours(dim, cells):
+def test_a_sort_after_the_particles_moved_finds_their_new_neighbours(dim, cells, parallel):
     """Each sort starts from cell counts that the previous one left zeroed (its prefix
     pass clears them): a second sort, after every particle moved, must still bin them
     right."""
     rng = np.random.default_rng(31 + dim)
     xs = random_positions(rng, dim, 1200 if dim == 2 else 2000)
     levels = (rng.uniform(size=len(xs)) < 0.35).astype(np.int32)
-    pool, grids = build(dim, xs, levels, cells_per_support=per_axis(cells, dim))
+    pool, grids = build(dim, xs, levels, cells_per_support=per_axis(cells, dim), parallel=parallel)
     n = grids.sort(pool)
     moved = random_positions(rng, dim, len(xs))
     ids = pool.p.slot.to_numpy()[:n]
@@ -240,12 +247,13 @@ def test_a_sort_with_nothing_moved_skips_and_any_change_resorts(dim, cells):
         f"{dim}D: a particle appended past n was not sorted in (n = {k}, expected {m + 1})"
 
 
+@SORTS
 @CELLS
-def test_sort_orders_by_cell_and_carries_every_attribute(dim, cells):
+def test_sort_orders_by_cell_and_carries_every_attribute(dim, cells, parallel):
     rng = np.random.default_rng(7 + dim)
     xs = random_positions(rng, dim, 400)
     levels = (rng.uniform(size=len(xs)) < 0.5).astype(np.int32)
-    pool, grids = build(dim, xs, levels, cells_per_support=per_axis(cells, dim))
+    pool, grids = build(dim, xs, levels, cells_per_support=per_axis(cells, dim), parallel=parallel)
     n = grids.sort(pool)
     ids = pool.p.slot.to_numpy()[:n]
     assert sorted(ids.tolist()) == list(range(len(xs))), "the sort is not a permutation"
@@ -272,12 +280,15 @@ def test_sort_orders_by_cell_and_carries_every_attribute(dim, cells):
     keys = np.array(keys)
     assert np.all(np.diff(keys) >= 0), \
         f"pool not in cell order after the sort: {int((np.diff(keys) < 0).sum())} descents"
-    # the sort is stable within a cell (ids ascending), so it is deterministic
+    # the serial sort is stable within a cell (ids ascending), so it is deterministic;
+    # the parallel one ranks by atomic counts, in whatever order the threads come
     same = np.diff(keys) == 0
-    assert np.all(np.diff(ids)[same] > 0), "particles of one cell are not in their original order"
+    if not parallel:
+        assert np.all(np.diff(ids)[same] > 0), "particles of one cell are not in their original order"
 
 
-def test_sort_compacts_dead_slots_and_remaps_links(dim):
+@SORTS
+def test_sort_compacts_dead_slots_and_remaps_links(dim, parallel):
     """DEAD holes vanish; parent and children indices follow their particles."""
     rng = np.random.default_rng(31 + dim)
     nreal = 300
@@ -296,7 +307,7 @@ def test_sort_compacts_dead_slots_and_remaps_links(dim):
         kinds = np.append(kinds, VIRTUAL_PARENT)
     dead = rng.choice(np.flatnonzero(kinds == REGULAR), 60, replace=False)
     kinds[dead] = DEAD
-    pool, grids = build(dim, xs, levels, kinds)
+    pool, grids = build(dim, xs, levels, kinds, parallel=parallel)
     parent = np.full(len(xs), -1, np.int32)
     nchild = np.zeros(len(xs), np.int32)
     children = np.full((pool.capacity, nmax), -1, np.int32)
