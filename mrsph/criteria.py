@@ -23,14 +23,16 @@ import numpy as np
 import taichi as ti
 
 from .config import MAX_CRITERIA
-from .interaction import path_sample
 
 TYPES = {"region": 0, "obstacles": 1, "disturbance": 2}
 
 
 @ti.data_oriented
 class Criteria:
-    def __init__(self, dim: int, specs: list, band: float, background: float):
+    def __init__(self, dim: int, specs: list, band: float, background: float, paths=None,
+                 first_path: int = 0):
+        """``paths`` (``interaction.Paths``) holds, from ``first_path`` on, the path of
+        each region that has one, in the order of ``specs`` (``moving_paths``)."""
         assert len(specs) <= MAX_CRITERIA, "too many criteria (the scene check refuses them)"
         self.dim = dim
         self.specs = specs
@@ -47,7 +49,18 @@ class Criteria:
         self.background = ti.field(float, shape=())
         self.band[None] = band
         self.background[None] = background
-        self._base_centre = {}
+        self.paths, self.first_path = paths, first_path
+        moving = [i for i, s in enumerate(specs) if s["type"] == "region" and s.get("path")]
+        self.moving = len(moving)
+        shape = max(self.moving, 1)
+        # a moving region's centre is (its centre as written + the path's position) −
+        # the path's first waypoint, summed in that order in f64 as the scene reads
+        self.moving_index = ti.field(ti.i32, shape=shape)
+        self.moving_base = ti.Vector.field(dim, ti.f64, shape=shape)
+        self.moving_first = ti.Vector.field(dim, ti.f64, shape=shape)
+        for r, i in enumerate(moving):
+            self.moving_index[r] = i
+            self.moving_first[r] = [float(v) for v in specs[i]["path"][0][1:]]
         for i, s in enumerate(specs):
             self.type[i] = TYPES[s["type"]]
             self.level[i] = float(s.get("level", 0))
@@ -61,19 +74,21 @@ class Criteria:
                     c = (lo + hi) / 2
                     self.half[i] = ((hi - lo) / 2).tolist()
                 self.center[i] = c.tolist()
-                self._base_centre[i] = c
+                if i in moving:
+                    self.moving_base[moving.index(i)] = c.tolist()
             elif s["type"] == "obstacles":
                 self.distance[i] = float(s.get("distance", 0.0))
-        self._moved = None
 
     def update(self, t: float) -> None:
-        """Move regions that follow a path to their place at time t."""
-        for i, s in enumerate(self.specs):
-            path = s.get("path") if s["type"] == "region" else None
-            if path:
-                pos, _ = path_sample(path, t, s.get("loop", False))
-                first = np.asarray(path[0][1:], float)
-                self.center[i] = (self._base_centre[i] + pos - first).tolist()
+        """Move regions that follow a path to their place at time t (one launch)."""
+        if self.moving:
+            self._follow(self.paths, self.first_path, t)
+
+    @ti.kernel
+    def _follow(self, paths: ti.template(), first: ti.i32, t: ti.f64):
+        for r in range(self.moving):
+            pos, _vel = paths.sample(first + r, t)
+            self.center[self.moving_index[r]] = ti.cast(self.moving_base[r] + pos - self.moving_first[r], float)
 
     @ti.func
     def wanted(self, x, boundary: ti.template(), disturbances: ti.template()):

@@ -66,6 +66,57 @@ def path_sample(path, t: float, loop: bool):
 
 
 @ti.data_oriented
+class Paths:
+    """Waypoint paths on the device, sampled as :func:`path_sample` samples them (in
+    f64), so that stirrers and moving regions follow theirs with one launch and no field
+    written from Python. ``paths``: (waypoints [[t, x, y(, z)], ...], loop) pairs."""
+
+    def __init__(self, dim: int, paths: list):
+        self.dim = dim
+        self.count = len(paths)
+        width = max([len(w) for w, _ in paths] + [1])
+        shape = (max(self.count, 1), width)
+        self.times = ti.field(ti.f64, shape=shape)
+        self.points = ti.Vector.field(dim, ti.f64, shape=shape)
+        self.length = ti.field(ti.i32, shape=shape[0])
+        self.loop = ti.field(ti.i32, shape=shape[0])
+        times, points = np.zeros(shape), np.zeros(shape + (dim,))
+        length, loop = np.ones(shape[0], np.int32), np.zeros(shape[0], np.int32)
+        for k, (waypoints, looped) in enumerate(paths):
+            w = np.asarray(waypoints, np.float64)
+            times[k, : len(w)], points[k, : len(w)] = w[:, 0], w[:, 1:]
+            length[k], loop[k] = len(w), int(looped)
+        self.times.from_numpy(times)
+        self.points.from_numpy(points)
+        self.length.from_numpy(length)
+        self.loop.from_numpy(loop)
+
+    @ti.func
+    def sample(self, k, t):
+        """Position and velocity of path k at time t (f64): linear between waypoints,
+        at rest before the first and after the last, repeated if it loops."""
+        n = self.length[k]
+        t0, t1 = self.times[k, 0], self.times[k, n - 1]
+        s = t
+        if self.loop[k] and t1 > t0:
+            s = t0 + (s - t0) % (t1 - t0)     # floored, as Python's
+        pos = self.points[k, 0]
+        vel = ti.Vector.zero(ti.f64, self.dim)
+        if s >= t1:
+            pos = self.points[k, n - 1]
+        elif s > t0:
+            j = 0
+            for q in range(n - 1):          # the last waypoint at or before s
+                if self.times[k, q] <= s:
+                    j = q
+            span = self.times[k, j + 1] - self.times[k, j]
+            step = self.points[k, j + 1] - self.points[k, j]
+            vel = step / span
+            pos = self.points[k, j] + (s - self.times[k, j]) / span * step
+        return pos, vel
+
+
+@ti.data_oriented
 class Disturbances:
     """Device-side table of active disturbances."""
 
@@ -99,6 +150,16 @@ class Disturbances:
 
     def get(self, slot: int) -> Disturbance | None:
         return self._host[slot]
+
+    @ti.kernel
+    def follow(self, paths: ti.template(), first: ti.i32, count: ti.i32, t: ti.f64):
+        """Move slots first … first + count − 1 to paths 0 … count − 1 at time t (their
+        radius, strength and mode were ``set`` once; the host's copy keeps the centre
+        it was set with)."""
+        for k in range(count):
+            pos, vel = paths.sample(k, t)
+            self.center[first + k] = ti.cast(pos, float)
+            self.velocity[first + k] = ti.cast(vel, float)
 
     def max_strength(self) -> float:
         return max((d.strength for d in self._host if d is not None), default=0.0)

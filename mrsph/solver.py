@@ -40,7 +40,7 @@ from .emitters import Emitters
 from .forces import Forces
 from .grid import CELLS_PER_SUPPORT, LevelGrids
 from .integrator import Integrator, SimulationError
-from .interaction import MOUSE_SLOT, Disturbance, Disturbances, path_sample
+from .interaction import MOUSE_SLOT, Disturbance, Disturbances, Paths, path_sample
 from .levels import Levels
 from .multires import COUNTERS, Multires, make_coupling
 from .neighbours import Neighbours
@@ -97,8 +97,13 @@ class Simulation:
         self.disturbances = Disturbances(d)
         # band and background_level as config.py resolved them (given or automatic); a
         # uniform run (adaptivity off) has one level whatever the scene's background
-        self.criteria = Criteria(d, s["criteria"] if self.adaptive else [], float(a["band"]),
-                                 float(min(a["background_level"], L - 1)))
+        specs = s["criteria"] if self.adaptive else []
+        # every waypoint path on the device: the stirrers', then the moving regions'
+        stirring = [(st["path"], st["loop"]) for st in s["stirrers"]]
+        self.paths = Paths(d, stirring + [(c["path"], c.get("loop", False)) for c in specs
+                                          if c["type"] == "region" and c.get("path")])
+        self.criteria = Criteria(d, specs, float(a["band"]), float(min(a["background_level"], L - 1)),
+                                 self.paths, len(stirring))
         parts = SimpleNamespace(scene=s, dim=d, levels=L, adaptive=self.adaptive, pool=self.pool,
                                 lev=self.lev, grids=self.grids, boundary=self.boundary,
                                 disturbances=self.disturbances, criteria=self.criteria)
@@ -290,10 +295,16 @@ class Simulation:
         warnings.warn(msg, RuntimeWarning, stacklevel=4)
 
     def _stirrers(self, t):
-        for i, st in enumerate(self.scene.data["stirrers"]):     # at most MAX_STIRRERS (config)
-            pos, vel = path_sample(st["path"], t, st["loop"])
-            self.disturbances.set(1 + i, Disturbance(tuple(pos), st["radius"], st["strength"],
-                                                     st["mode"], tuple(vel)))
+        """The stirrers at time t: their slots are set once (radius, strength, mode; the
+        host's copy keeps where each was then), then follow their paths on the device."""
+        stirrers = self.scene.data["stirrers"]     # at most MAX_STIRRERS (config)
+        for i, st in enumerate(stirrers):
+            if self.disturbances.get(1 + i) is None:
+                pos, vel = path_sample(st["path"], t, st["loop"])
+                self.disturbances.set(1 + i, Disturbance(tuple(pos), st["radius"], st["strength"],
+                                                         st["mode"], tuple(vel)))
+        if stirrers:
+            self.disturbances.follow(self.paths, 1, len(stirrers), t)
 
     # ================================================================== reading out
     def particles(self, virtual: bool = True) -> dict:

@@ -103,3 +103,71 @@ def test_offscreen_frame_of_an_adaptive_scene_shows_two_levels(name):
         guard.cleanup()
     counts = palette.count_level_pixels(img, snap.levels)
     assert sum(c > 50 for c in counts) >= 2, f"{name}: fewer than two level colours visible: {counts}"
+
+
+PATHS = [
+    ([[0.0, 0.1, 0.2], [1.2, 0.9, 0.2], [1.6, 0.9, 0.7]], False),     # demo_2d's stirrer
+    ([[0.0, 0.28, 0.12], [3.0, 1.0, 0.12], [6.0, 0.28, 0.12]], True),  # region_2d's region
+    ([[0.5, 0.3, 0.4]], False),                                         # one waypoint: still
+    ([[0.25, 0.0, 0.0], [0.5, 0.3, -0.1], [0.75, 0.3, 0.4], [2.0, 1.0, 1.0]], True),
+]
+
+
+def test_paths_on_the_device_sample_as_the_host_does():
+    """``Paths.sample`` (the stirrers' and moving regions' paths, on the device) gives the
+    positions and velocities of ``path_sample`` to f64 round-off: before the first
+    waypoint, on and between waypoints, after the last, and through several loops."""
+    import taichi as ti
+
+    from mrsph import runtime
+    from mrsph.interaction import Paths, path_sample
+
+    runtime.ensure("cpu", "f32")
+    paths = Paths(2, PATHS)
+    times = np.concatenate([np.linspace(-1.0, 13.0, 281), [0.0, 0.25, 0.5, 0.75, 1.2, 1.6, 2.0, 3.0, 6.0]])
+    out_x = ti.Vector.field(2, ti.f64, shape=(len(PATHS), len(times)))
+    out_v = ti.Vector.field(2, ti.f64, shape=(len(PATHS), len(times)))
+    ts = ti.field(ti.f64, shape=len(times))
+    ts.from_numpy(times)
+
+    @ti.kernel
+    def sample():
+        for k, q in ti.ndrange(len(PATHS), len(times)):
+            out_x[k, q], out_v[k, q] = paths.sample(k, ts[q])
+
+    sample()
+    xs, vs = out_x.to_numpy(), out_v.to_numpy()
+    for k, (waypoints, loop) in enumerate(PATHS):
+        for q, t in enumerate(times):
+            x, v = path_sample(waypoints, t, loop)
+            assert np.allclose(xs[k, q], x, rtol=0, atol=1e-12) and np.allclose(vs[k, q], v, rtol=0, atol=1e-9), \
+                f"path {k} at t = {t}: device ({xs[k, q]}, {vs[k, q]}), host ({x}, {v})"
+
+
+def test_a_stirrer_is_where_its_path_says_after_every_step(dim):
+    """The stirrers follow their paths on the device, one launch a step: after each step
+    (and after a restore) a stirrer's slot holds the path's position and velocity at the
+    simulation's time, in the solver's precision."""
+    from mrsph.interaction import path_sample
+    scene = block_scene(dim)
+    path = [[0.0] + [0.2] * dim, [0.01] + [0.8] * dim, [0.02] + [0.5] * dim]
+    scene["stirrers"] = [{"radius": 0.1, "strength": 20.0, "path": path, "loop": True}]
+    sim = Simulation(load_scene(scene), arch="cpu")
+
+    def check():
+        x, v = path_sample(path, sim.time, True)
+        got_x, got_v = sim.disturbances.center.to_numpy()[1], sim.disturbances.velocity.to_numpy()[1]
+        assert np.array_equal(got_x, x.astype(np.float32)) and np.array_equal(got_v, v.astype(np.float32)), \
+            f"t = {sim.time}: stirrer at {got_x} moving {got_v}; its path says {x}, {v}"
+
+    check()
+    steps = 0
+    while sim.time < 0.025:         # past both waypoints and into the second lap
+        sim.step()
+        check()
+        steps += 1
+        assert steps < 5000, f"{steps} steps reached only t = {sim.time}"
+    state = sim.save_state()
+    sim.step()
+    sim.restore_state(state)
+    check()
