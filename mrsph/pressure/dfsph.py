@@ -224,12 +224,18 @@ class DFSPH:
         """Jacobi iterations, ``ITERATIONS_PER_LAUNCH`` a launch, until the device says
         done; returns (iterations, average error, stopped at the maximum)."""
         self._start(self.tolerance[which], self.min_iterations[which], self.max_iterations[which])
-        while True:
-            self._sweep(n, dt, which, self.tolerance[which], self.min_iterations[which],
-                        self.max_iterations[which])
-            st = self.state.to_numpy()
-            if st[DONE]:
-                return int(st[ITERS]), float(self.error[None]), bool(st[HIT_MAX])
+        # each launch returns whether the solve is done: one call an iteration, and the
+        # outcome read once at the end (a read of the state after each launch was a
+        # second call, 13 of a demo_2d step's 43)
+        while not self._sweep(n, dt, which, self.tolerance[which], self.min_iterations[which],
+                              self.max_iterations[which]):
+            pass
+        iterations, error, hit_max = self._outcome()
+        return int(iterations), float(error), bool(hit_max)
+
+    @ti.kernel
+    def _outcome(self) -> ti.types.vector(3, ti.f64):
+        return ti.Vector([self.state[ITERS], self.error[None], self.state[HIT_MAX]], ti.f64)
 
     # ------------------------------------------------------------------ device
     @ti.func
@@ -428,7 +434,8 @@ class DFSPH:
         self.error[None] = 0.0
 
     @ti.kernel
-    def _sweep(self, n: ti.i32, dt: ti.f64, mode: ti.i32, tol: ti.f64, min_it: ti.i32, max_it: ti.i32):
+    def _sweep(self, n: ti.i32, dt: ti.f64, mode: ti.i32, tol: ti.f64, min_it: ti.i32,
+               max_it: ti.i32) -> ti.i32:
         """One kernel for the three sweeps over the fluid, ``mode`` a runtime argument: a
         Jacobi iteration of the density or the divergence solve (``ITERATIONS_PER_LAUNCH``
         of them), or the density solve's warm start. Each measures the rate of the current
@@ -494,6 +501,7 @@ class DFSPH:
                 if self.state[RUNS] and is_real(p[i].kind):
                     self.ksum[i] += self.kappa[i]
             self._update(n, 1.0 if mode == DIVERGENCE else h_dt)
+        return self.state[DONE]
 
     def _warm(self, n: int, dt: float) -> None:
         """The warm start (``_sweep``), one velocity update with it."""
