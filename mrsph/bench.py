@@ -444,6 +444,21 @@ def _table(rows, pairs=()) -> str:
     return "\n".join(out)
 
 
+def gpu_name(arches) -> str | None:
+    """The CUDA card's name as ``nvidia-smi`` gives it, where a case ran on CUDA (None
+    on the CPU, and where the name cannot be had)."""
+    if "cuda" not in arches:
+        return None
+    import subprocess
+    try:
+        out = subprocess.run(["nvidia-smi", "--query-gpu=name,memory.total,driver_version",
+                              "--format=csv,noheader"], capture_output=True, text=True, timeout=20)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    lines = out.stdout.strip().splitlines()
+    return lines[0].strip() if out.returncode == 0 and lines else None
+
+
 def _scene_problems(cases) -> list[str]:
     """Every problem of the cases' scenes with their overrides, once each (none: [])."""
     from .config import SceneError, load_scene
@@ -529,6 +544,7 @@ def main(argv=None) -> int:
         import platform
         with open(args.json, "w") as fh:
             json.dump({"machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
+                       "gpu": gpu_name({r["arch"] for r in rows}),
                        "arch": args.arch, "threads": args.threads, "repeats": args.repeats,
                        "interval_scale": scale, "overrides": args.overrides,
                        "advanced_optimization": optimised, "cases": rows, "pairs": pairs}, fh, indent=2)

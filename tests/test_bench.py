@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from mrsph.bench import (MULTIRES_PHASES, UNIFORM_OVERRIDE, _cases, _table, fluid_volume, pair_summary,
-                         solve_iterations)
+from mrsph.bench import (MULTIRES_PHASES, UNIFORM_OVERRIDE, _cases, _table, fluid_volume, gpu_name,
+                         pair_summary, solve_iterations)
 from mrsph.config import load_scene
 from toolload import load_tool
 
@@ -112,6 +112,21 @@ def test_demo_iterations_are_the_step_weighted_mean_of_its_frames():
     assert solve_iterations(wcsph) == {} and solve_iterations([]) == {}
 
 
+def test_gpu_name_is_asked_only_of_a_cuda_run(monkeypatch, tmp_path):
+    """The JSON's ``gpu`` names the card a CUDA run used (nvidia-smi's line), and is None
+    for CPU runs and where nvidia-smi is missing or fails."""
+    assert gpu_name({"x64"}) is None
+    fake = tmp_path / "nvidia-smi"
+    fake.write_text("#!/bin/sh\necho 'NVIDIA H200, 143771 MiB, 580.159.04'\n")
+    fake.chmod(0o755)
+    monkeypatch.setenv("PATH", f"{tmp_path}{os.pathsep}{os.environ['PATH']}")
+    assert gpu_name({"cuda"}) == "NVIDIA H200, 143771 MiB, 580.159.04"
+    fake.write_text("#!/bin/sh\nexit 9\n")
+    assert gpu_name({"cuda"}) is None
+    monkeypatch.setenv("PATH", str(tmp_path / "nowhere"))
+    assert gpu_name({"cuda"}) is None
+
+
 def test_fluid_volume_of_the_demo():
     scene = load_scene("demo_2d")
     blocks = scene.data["fluid"]["blocks"]
@@ -143,6 +158,7 @@ def test_bench_smoke_writes_json_with_every_key(tmp_path):
     assert list(rows) == ["dam_break_2d uniform ~10k", "dam_break_obstacle_2d s=3.5mm adaptive",
                           "dam_break_obstacle_2d s=3.5mm uniform", "demo_2d rendered"]
     assert result["overrides"] == [SMOKE_SET]
+    assert result["gpu"] is None, result["gpu"]      # this suite runs on the CPU
     for r in rows.values():
         assert ROW_KEYS <= set(r), ROW_KEYS - set(r)
         assert SMOKE_SET in r["overrides"], r["overrides"]
