@@ -444,6 +444,17 @@ def _table(rows, pairs=()) -> str:
     return "\n".join(out)
 
 
+def advanced_optimization() -> bool:
+    """Whether Taichi compiles with its advanced optimisation passes: off only where
+    ``TI_ADVANCED_OPTIMIZATION`` is an integer that reads 0, as ``ti.init`` reads it
+    (``bool(int(value))``; unset or empty: on; not an integer: ``ti.init`` refuses it)."""
+    flag = os.environ.get("TI_ADVANCED_OPTIMIZATION", "")
+    try:
+        return not flag or bool(int(flag))
+    except ValueError:
+        return True
+
+
 def gpu_name(arches) -> str | None:
     """The CUDA card's name as ``nvidia-smi`` gives it, where a case ran on CUDA (None
     on the CPU, and where the name cannot be had)."""
@@ -531,8 +542,7 @@ def main(argv=None) -> int:
         for line in problems:
             print(f"python3 main.py bench: {line}", file=sys.stderr)
         return 2
-    flag = os.environ.get("TI_ADVANCED_OPTIMIZATION", "").strip()    # as Taichi reads it
-    optimised = not flag.isdigit() or int(flag) != 0
+    optimised = advanced_optimization()
     if not optimised:   # the default test run sets it (tests/conftest.py)
         print("python3 main.py bench: warning: TI_ADVANCED_OPTIMIZATION=0: Taichi compiles "
               "without its optimisation passes, so these timings are not the program's",

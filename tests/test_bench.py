@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from mrsph.bench import (MULTIRES_PHASES, UNIFORM_OVERRIDE, _cases, _table, fluid_volume, gpu_name,
-                         pair_summary, solve_iterations)
+from mrsph.bench import (MULTIRES_PHASES, UNIFORM_OVERRIDE, _cases, _table, advanced_optimization,
+                         fluid_volume, gpu_name, pair_summary, solve_iterations)
 from mrsph.config import load_scene
 from toolload import load_tool
 
@@ -112,6 +112,16 @@ def test_demo_iterations_are_the_step_weighted_mean_of_its_frames():
     assert solve_iterations(wcsph) == {} and solve_iterations([]) == {}
 
 
+@pytest.mark.parametrize("flag, expected", [(None, True), ("0", False), (" 0 ", False), ("-0", False),
+                                            ("1", True), ("", True), ("2", True)])
+def test_advanced_optimization_reads_the_flag_as_taichi_does(monkeypatch, flag, expected):
+    if flag is None:
+        monkeypatch.delenv("TI_ADVANCED_OPTIMIZATION", raising=False)
+    else:
+        monkeypatch.setenv("TI_ADVANCED_OPTIMIZATION", flag)
+    assert advanced_optimization() is expected, flag
+
+
 def test_gpu_name_is_asked_only_of_a_cuda_run(monkeypatch, tmp_path):
     """The JSON's ``gpu`` names the card a CUDA run used (nvidia-smi's line), and is None
     for CPU runs and where nvidia-smi is missing or fails."""
@@ -152,7 +162,7 @@ def test_bench_smoke_writes_json_with_every_key(tmp_path):
     result = json.loads(out.read_text())
     rows = {r["case"]: r for r in result["cases"]}
     # the default test run compiles without Taichi's optimisation passes (conftest.py)
-    optimised = os.environ.get("TI_ADVANCED_OPTIMIZATION", "").strip() != "0"
+    optimised = advanced_optimization()
     assert result["advanced_optimization"] is optimised
     assert ("TI_ADVANCED_OPTIMIZATION=0" in proc.stderr) is not optimised, proc.stderr[-2000:]
     assert list(rows) == ["dam_break_2d uniform ~10k", "dam_break_obstacle_2d s=3.5mm adaptive",
