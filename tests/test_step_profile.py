@@ -1,0 +1,29 @@
+"""tools/step_profile.py: one short run through its command line (it leans on Taichi's
+profiler internals, which a Taichi update could move)."""
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def test_step_profile_lists_tasks_and_calls():
+    proc = subprocess.run([sys.executable, "tools/step_profile.py", "dam_break_2d", "--set",
+                           "particles.spacing=0.02", "--warm", "2", "--steps", "3", "--top", "5"],
+                          cwd=REPO, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    out = proc.stdout
+    assert "dam_break_2d particles.spacing=0.02:" in out and "solver wcsph" in out, out
+    tasks = out.split("task\n")[1].split("\n\n")[0].splitlines()
+    assert len(tasks) == 5 and any("_range_for" in t for t in tasks), out
+    # a step launches the sort, the density, the forces and the end of the step
+    for kernel in ("LevelGrids._sort", "Density.run", "Forces.run", "Integrator.end_step"):
+        assert f"  {kernel}\n" in out, out
+    assert "calls from Python into Taichi: " in out
+
+
+def test_step_profile_refuses_a_bad_override():
+    proc = subprocess.run([sys.executable, "tools/step_profile.py", "dam_break_2d", "--set", "fluid.nope=1"],
+                          cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    assert proc.stderr.startswith("step_profile: --set fluid.nope: unknown key"), proc.stderr
