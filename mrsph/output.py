@@ -203,7 +203,7 @@ def _write_vtu(path: Path, a: dict) -> None:
 #: Columns a stats row may carry beyond the base ones, in the order they are written;
 #: per-level columns come in level order. Any other key follows, sorted by name.
 _EXTRA_ORDER = ("n_virtual_level_*", "n_transient", "solver", "density_iterations", "divergence_iterations",
-                "density_error", "unconverged", "splits", "merges", "refused")
+                "density_error", "unconverged", "splits", "merges", "absorbed", "refused")
 
 
 def stats_columns(dim: int, levels: int) -> list[str]:

@@ -362,6 +362,7 @@ class Simulation:
         self._collect_events()
         row["splits"] = self._events["splits"]
         row["merges"] = self._events["merges"]
+        row["absorbed"] = self._events["absorbed"]     # of the merges: groups given to a neighbour
         refused = int(self.pool.refused[None])    # a running total in the pool
         row["refused"] = refused - self._refused_reported
         self._refused_reported = refused

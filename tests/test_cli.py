@@ -270,7 +270,7 @@ def test_headless_dump_npz(tmp_path):
         rows = list(csv.reader(f))
     header = rows[0]
     assert header[: len(stats_columns(2, 1))] == stats_columns(2, 1)
-    for extra in ["n_virtual_level_0", "n_transient", "splits", "merges", "refused"]:
+    for extra in ["n_virtual_level_0", "n_transient", "splits", "merges", "absorbed", "refused"]:
         assert extra in header
     body = [dict(zip(header, r)) for r in rows[1:]]
     assert [int(r["frame"]) for r in body] == list(range(FRAMES + 1))

@@ -603,6 +603,40 @@ def test_fine_fluid_a_stirrer_left_merges_back(dim, remnants):
                                     f"{100 * share:g} %")
 
 
+@pytest.mark.slow_params("3d-absorbed", "3d-merged")
+@pytest.mark.parametrize("absorb", [0.5, 0.0], ids=["absorbed", "merged"])
+def test_no_particle_falls_below_half_its_level_mass(dim, absorb):
+    """Light groups go to a coarse neighbour (``adaptivity.absorb_below``): no real
+    particle ends up lighter than half its level's nominal mass or heavier than twice it
+    (``ABSORB_CAP``), and the real mass holds. Without it
+    (absorb_below = 0) a remnant of one fine particle merges into a coarse particle of
+    2^-d of its level's mass, whose children are as light, and so on down (docs/
+    performance.md, the mass cascade): the second case shows the check can fail."""
+    from mrsph.multires.topology import ABSORB_CAP
+    sim = make_sim(stirred_slab_scene(dim, merge_remnants=True, absorb_below=absorb))
+    p0 = sim.particles(virtual=False)
+    mass0 = math.fsum(p0["m"].astype(np.float64))
+    absorbed, lightest = 0, math.inf
+    for _ in range(20):
+        sim.advance(0.01)
+        p = sim.particles(virtual=False)
+        rel = p["m"] / (sim.m0 * 2.0 ** (dim * p["level"]))
+        lightest = min(lightest, float(rel.min()))
+        absorbed += sim.stats()["absorbed"]
+        if absorb:
+            assert rel.min() >= 0.5 * (1 - 1e-6) and rel.max() <= ABSORB_CAP * (1 + 1e-6), (
+                f"{dim}D at t = {sim.time:.2f} s: masses from {rel.min():.4f} to {rel.max():.4f} of "
+                f"their level's nominal; expected within [0.5, {ABSORB_CAP}]")
+    mass = math.fsum(p["m"].astype(np.float64))
+    assert abs(mass - mass0) <= 1e-6 * mass0, f"{dim}D: real mass {mass} against {mass0} at the start"
+    print(f"\n{dim}D absorb_below={absorb}: {absorbed} groups absorbed, lightest particle "
+          f"{lightest:.3f} of nominal")
+    if absorb:
+        assert absorbed > 0, f"{dim}D: no group was absorbed; the test proves nothing"
+    else:
+        assert lightest < 0.5, f"{dim}D without absorption: lightest {lightest:.3f}; the stir made no cascade"
+
+
 @pytest.mark.parametrize("on", [False, True], ids=["criteria-only", "near-regular"])
 def test_transient_parent_next_to_a_regular_fine_particle_splits_when_asked(dim, on):
     """METHOD.md §5.2's other trigger (``adaptivity.split_near_regular``): a transient

@@ -185,7 +185,7 @@ def stats_row(dim: int, levels: int, frame: int = 0) -> dict:
     for l in reversed(range(levels)):              # the writer orders columns itself
         row[f"n_level_{l}"] = 100 + l
         row[f"n_virtual_level_{l}"] = l
-    row.update({"refused": 0, "merges": 2, "splits": 3, "n_transient": 8})
+    row.update({"refused": 0, "merges": 2, "absorbed": 1, "splits": 3, "n_transient": 8})
     return row
 
 
@@ -201,7 +201,7 @@ def test_stats_csv_columns(tmp_path, dim):
     expected = (["frame", "time", "dt", "n_real", "n_virtual", "total_mass"] + momenta
                 + ["kinetic_energy", "max_density_ratio", "n_level_0", "n_level_1", "n_level_2",
                    "n_virtual_level_0", "n_virtual_level_1", "n_virtual_level_2",
-                   "n_transient", "splits", "merges", "refused"])
+                   "n_transient", "splits", "merges", "absorbed", "refused"])
     assert rows[0] == expected
     assert rows[0][: len(stats_columns(dim, levels))] == stats_columns(dim, levels)
     assert len(rows) == 4 and all(len(r) == len(expected) for r in rows)

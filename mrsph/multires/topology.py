@@ -71,11 +71,22 @@ coarsest down (§5.4), rebuilding the grids between pairs, and for the coarse le
    also wherever a fine particle's position wants level c (``_couple_fine``), so that a
    region fine all through can coarsen once nothing wants it fine; so merges happen
    there too, not only in the transition layer of §6.
+8. ``_absorb``: a group that would merge into a particle lighter than
+   ``adaptivity.absorb_below`` (0 by default, 0.5 in the demos) of level c's nominal mass is given instead
+   to the nearest real regular level-c particle within h_c, which takes its mass and
+   the mass-weighted position and velocity (up to ``ABSORB_CAP`` times nominal); with no
+   such neighbour the group stays fine. Without it, partial merges made light coarse
+   particles, their splits light children, and those merged lighter still: under a
+   strong stir the median particle fell to 0.21-0.50 of its level's mass and the pool
+   filled (docs/performance.md, the mass cascade). With 0.5 every real particle stays
+   within [1/2, 2] of its level's nominal mass. Not the default: it moved the 3D adaptive
+   dam-break front 11 % ahead of the uniform run's (tests/test_adaptive_flow.py).
 
 Choices left open by the thesis (scene keys, defaults in docs/scenes.md): spring rate of
 the virtual particles' Hooke springs, the sampling pattern above, the hysteresis η, the
 release distance factor, the smallest group that may merge, the gathering distance, the
-relaxation of split children (``split_relax_iterations``, ``split_min_distance``).
+relaxation of split children (``split_relax_iterations``, ``split_min_distance``), and the
+lightest particle a merge may make (``absorb_below``).
 """
 
 import itertools
@@ -108,8 +119,12 @@ MERGE_RESERVE = 1.0 / 32.0
 # Mass is divided on a split and summed on a merge (``particles.ATTRIBUTES``); the kernels
 # below write it by hand, as the merge's means need it, so an attribute given either rule
 # must be written there too (a test holds that the mass is the only one).
-COUNTERS = ("splits", "merges", "released", "gathered")
-EV_SPLITS, EV_MERGES, EV_RELEASED, EV_GATHERED = range(len(COUNTERS))   # indices into them
+COUNTERS = ("splits", "merges", "released", "gathered", "absorbed")
+EV_SPLITS, EV_MERGES, EV_RELEASED, EV_GATHERED, EV_ABSORBED = range(len(COUNTERS))   # indices into them
+
+# A particle that takes a light group (``Multires._absorb``) stays within this multiple of
+# its level's nominal mass, so that absorption cannot make arbitrarily heavy particles.
+ABSORB_CAP = 2.0
 
 
 def sampling_offsets(dim: int):
@@ -138,6 +153,11 @@ class Multires:
         self.release_factor = float(a["release_factor"])
         self.merge_min = int(a["merge_min_children"])   # 0 resolved by the config
         self.merge_remnants = bool(a["merge_remnants"])
+        # groups lighter than this share of their level's nominal mass are absorbed by
+        # a coarse neighbour instead of merging (``_absorb``); 0: they merge
+        self.absorb_below = float(a["absorb_below"])
+        self.absorbing = ti.field(ti.i32, shape=self.pool.capacity)
+        self.n_absorbing = ti.field(ti.i32, shape=())
         self.split_near_regular = bool(a["split_near_regular"])
         self.relax_by_density = a["split_relax"] == "density"
         self.offsets = ti.Vector.field(self.dim, float, shape=self.nmax)
@@ -176,6 +196,8 @@ class Multires:
         self._couple_fine(n, c)
         self.gather.rounds(n, c)
         self._merge(n, c)
+        if ti.static(self.absorb_below > 0.0):
+            self._absorb(c)
         self.pool.clamp_n()
 
     def take_counters(self) -> dict:
@@ -423,27 +445,86 @@ class Multires:
                 for q in range(p[i].nchild):
                     if (p[self.pool.children[i, q]].kind & ROLE_PARENT) != 0:
                         ok = False
+                if ok and ti.static(self.absorb_below > 0.0):
+                    if self._group_mass(i) < ti.static(self.absorb_below) * self.lev.m[c]:
+                        ok = False      # too light to stand alone: given to a neighbour below
+                        self.absorbing[ti.atomic_add(self.n_absorbing[None], 1)] = i
                 if ok:
-                    # summed in f64 and rounded once: a partial group's children need not
-                    # be equal, and an f32 running sum rounded at every child, so the
-                    # scene's real mass drifted (demo_2d: 2.6e-9 relative in 4 s)
-                    mass64 = ti.cast(0.0, ti.f64)
-                    for q in range(p[i].nchild):
-                        mass64 += ti.cast(p[self.pool.children[i, q]].m, ti.f64)
-                    mass = ti.cast(mass64, float)
+                    mass = ti.cast(self._group_mass(i), float)
                     for fld in ti.static(self._fields(merge_mass_mean())):
                         acc = fld[i] * 0.0
                         for q in range(p[i].nchild):
                             ch = self.pool.children[i, q]
                             acc += p[ch].m * fld[ch]
                         fld[i] = acc / mass
-                    for q in range(p[i].nchild):
-                        ch = self.pool.children[i, q]
-                        p[ch].kind = DEAD
-                        p[ch].parent = -1
-                        self.pool.children[i, q] = -1
+                    self._kill_group(i)
                     p[i].m = mass
-                    p[i].nchild = 0
                     p[i].parent = -1
                     p[i].kind = REGULAR
                     ti.atomic_add(self.counters[EV_MERGES], 1)
+
+    @ti.func
+    def _group_mass(self, i):
+        """The mass of virtual parent i's children, summed in f64: a partial group's
+        children need not be equal, and an f32 running sum rounded at every child, so the
+        scene's real mass drifted (demo_2d: 2.6e-9 relative in 4 s). Rounded once by
+        the caller."""
+        mass64 = ti.cast(0.0, ti.f64)
+        for q in range(self.pool.p[i].nchild):
+            mass64 += ti.cast(self.pool.p[self.pool.children[i, q]].m, ti.f64)
+        return mass64
+
+    @ti.func
+    def _kill_group(self, i):
+        """Remove virtual parent i's children (the caller decides what i becomes)."""
+        p = ti.static(self.pool.p)
+        for q in range(p[i].nchild):
+            ch = self.pool.children[i, q]
+            p[ch].kind = DEAD
+            p[ch].parent = -1
+            self.pool.children[i, q] = -1
+        p[i].nchild = 0
+
+    @ti.func
+    def _absorb(self, c):
+        """The groups ``_merge`` found too light (under ``absorb_below`` of level c's
+        nominal mass) go to the nearest real regular level-c particle within h_c whose
+        mass stays within ``ABSORB_CAP`` of nominal: it takes their mass and the
+        mass-weighted means (position and velocity, so momentum holds), and the group and
+        its virtual parent go. A group with no such neighbour stays fine. A merge of
+        such a group would make a light coarse particle, its split light children, and
+        so on down (the mass cascade of docs/performance.md). One thread, in the order
+        the groups were found, so that two groups never fill one receiver past the cap."""
+        p = ti.static(self.pool.p)
+        h = self._h(c)
+        cap = ti.static(ABSORB_CAP) * self.lev.m[c]
+        ti.loop_config(serialize=True)
+        for q in range(self.n_absorbing[None]):
+            i = self.absorbing[q]
+            group = self._group_mass(i)
+            xi = p[i].x
+            best, best_d2 = -1, h * h
+            base = self.g.around(xi, c)
+            for o in ti.grouped(ti.ndrange(*self.g.row_axes)):
+                lo, hi = self.g.row(base, o, c)
+                for j in range(lo, hi):
+                    d2 = (xi - p[j].x).norm_sqr()
+                    if p[j].kind == REGULAR and p[j].level == c and d2 < best_d2 and \
+                            ti.cast(p[j].m, ti.f64) + group <= cap:
+                        best, best_d2 = j, d2
+            if best >= 0:
+                total64 = ti.cast(p[best].m, ti.f64) + group
+                total = ti.cast(total64, float)
+                for fld in ti.static(self._fields(merge_mass_mean())):
+                    acc = p[best].m * fld[best]
+                    for k in range(p[i].nchild):
+                        ch = self.pool.children[i, k]
+                        acc += p[ch].m * fld[ch]
+                    fld[best] = acc / total
+                p[best].m = total
+                self._kill_group(i)
+                p[i].kind = DEAD
+                p[i].parent = -1
+                ti.atomic_add(self.counters[EV_MERGES], 1)
+                ti.atomic_add(self.counters[EV_ABSORBED], 1)
+        self.n_absorbing[None] = 0
