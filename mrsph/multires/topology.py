@@ -230,14 +230,9 @@ class Multires:
 
     @ti.func
     def _kill_virtual_children(self, i):
-        p = ti.static(self.pool.p)
-        for k in range(p[i].nchild):
-            ch = self.pool.children[i, k]
-            p[ch].kind = DEAD
-            p[ch].parent = -1
-            self.pool.children[i, k] = -1
-        p[i].nchild = 0
-        p[i].kind = p[i].kind & ~ROLE_PARENT
+        """Transient parent i drops its virtual children and the parent role."""
+        self._kill_group(i)
+        self.pool.p[i].kind = self.pool.p[i].kind & ~ROLE_PARENT
 
     # ------------------------------------------------------------------ kernels
     @ti.func
@@ -476,7 +471,8 @@ class Multires:
 
     @ti.func
     def _kill_group(self, i):
-        """Remove virtual parent i's children (the caller decides what i becomes)."""
+        """Remove the children of i, a virtual parent or a transient parent (the caller
+        decides what i becomes)."""
         p = ti.static(self.pool.p)
         for q in range(p[i].nchild):
             ch = self.pool.children[i, q]
