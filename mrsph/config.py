@@ -241,14 +241,13 @@ SCHEMA = Table(required=True, keys={
                               "coarse particle within its virtual parent's support) and no "
                               "group can join it, down to 2^-dim of the nominal mass; false = "
                               "such remnants stay fine (and keep the time step fine)"),
-        "absorb_below": Key("float", 0.0, "[0, 1]", doc="a group that would merge into a "
+        "absorb_below": Key("float", 0.5, "[0, 1]", doc="a group that would merge into a "
                             "particle lighter than this share of its level's nominal mass is "
                             "given instead to the nearest real regular particle of that level "
-                            "within its support (which keeps within 2x nominal), or stays fine "
-                            "where there is none; 0.5: no particle falls below half its level's "
-                            "mass through repeated splits and merges (the demos, stirred for "
-                            "minutes); 0 = such groups merge (the default: with 0.5 the 3D "
-                            "adaptive dam-break front ran 11 % ahead of the uniform run's)"),
+                            "within its support (its mass and momentum; it keeps its place and "
+                            "within 2x nominal), or stays fine where there is none; so no "
+                            "particle falls below half its level's mass through repeated "
+                            "splits and merges; 0 = such groups merge"),
         "gather_factor": Key("float", 1.0, "(0, 2]", doc="virtual parents closer than "
                              "gather_factor * coarse spacing may gather"),
         "gather_span": Key("float", 0.9, "(0, 1)", doc="a gathered group spans at most "

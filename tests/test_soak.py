@@ -128,8 +128,9 @@ def test_mass_ratios_are_per_level_medians_of_the_real_particles():
 
 DFSPH_SOAK_FAILURE = pytest.mark.xfail(strict=False, reason=(
     "issue 31 item 6, open: measured 2026-11-27 (one thread), demo_2d under dfsph runs 88,613 "
-    "of the 100,000 steps (t = 23.1 s) since light groups are absorbed instead of merged "
-    "(adaptivity.absorb_below; it failed at step 2,144 before), then a level-1 transient "
+    "of the 100,000 steps (t = 23.1 s) once light groups were absorbed instead of merged "
+    "(adaptivity.absorb_below, with the receiver then moved to the mass-weighted position; "
+    "it failed at step 2,144 before), then a level-1 transient "
     "child is thrown past physics.max_speed (257 m/s), reported as a SimulationError "
     "(docs/performance.md, 'The mass cascade fixed')"))
 
