@@ -32,7 +32,7 @@ class Criteria:
     def __init__(self, dim: int, specs: list, band: float, background: float, paths=None,
                  first_path: int = 0):
         """``paths`` (``interaction.Paths``) holds, from ``first_path`` on, the path of
-        each region that has one, in the order of ``specs`` (``moving_paths``)."""
+        each region that has one, in the order of ``specs``."""
         assert len(specs) <= MAX_CRITERIA, "too many criteria (the scene check refuses them)"
         self.dim = dim
         self.specs = specs

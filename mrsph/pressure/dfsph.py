@@ -221,12 +221,11 @@ class DFSPH:
         phase("pressure", self._pressures, n)
 
     def _solve(self, n: int, dt: float, which: int):
-        """Jacobi iterations, ``ITERATIONS_PER_LAUNCH`` a launch, until the device says
-        done; returns (iterations, average error, stopped at the maximum)."""
+        """Jacobi iterations, ``ITERATIONS_PER_LAUNCH`` a launch, each launch returning
+        whether the device says done (its outcome is read once, at the end: a state read
+        per launch was 13 of a demo_2d step's 43 calls); returns (iterations, average
+        error, stopped at the maximum)."""
         self._start(self.tolerance[which], self.min_iterations[which], self.max_iterations[which])
-        # each launch returns whether the solve is done: one call an iteration, and the
-        # outcome read once at the end (a read of the state after each launch was a
-        # second call, 13 of a demo_2d step's 43)
         while not self._sweep(n, dt, which, self.tolerance[which], self.min_iterations[which],
                               self.max_iterations[which]):
             pass
