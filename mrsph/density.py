@@ -117,6 +117,10 @@ class Density:
 
     @ti.kernel
     def list_fine(self, n: ti.i32):
+        self.list_fine_func(n)
+
+    @ti.func
+    def list_fine_func(self, n):
         """The neighbour search for the real particles below the coarsest level, done
         ahead of the density pass because the virtual-mass limiter
         (``multires.limiter``) reads the lists first: the grid scan and recording of
@@ -138,6 +142,10 @@ class Density:
 
     @ti.kernel
     def run(self, n: ti.i32):
+        self.run_func(n)
+
+    @ti.func
+    def run_func(self, n):
         """The density of every particle the coupling does not skip, its neighbour list,
         and what the pressure solver and the pair forces take from it.
 

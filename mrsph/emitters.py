@@ -70,7 +70,7 @@ class Emitters:
         return refused
 
     @ti.kernel
-    def hold(self, n: ti.i32, count: ti.i32):
+    def hold(self, count: ti.i32):
         """The nozzles: every real particle within one support (of the emitted level) of
         an emitting disc, ahead of it or behind, and within its radius (plus half a
         spacing), leaves the step at the emitter's velocity.
@@ -82,7 +82,7 @@ class Emitters:
         behind its disc (docs/performance.md keeps the figures). The nozzle holds the fluid
         it contains at the inflow velocity, as the pipe of a real hose does."""
         p = ti.static(self.pool.p)
-        for i in range(n):
+        for i in range(self.pool.n[None]):
             if is_real(p[i].kind):
                 for e in range(count):
                     if self.nozzle_on[e]:

@@ -158,6 +158,10 @@ class Forces:
 
     @ti.kernel
     def run(self, n: ti.i32, c_sound: float, stirred: ti.i32):
+        self.run_func(n, c_sound, stirred)
+
+    @ti.func
+    def run_func(self, n, c_sound, stirred):
         """Internal forces on real particles, left in ``a``. With the variational
         coupling the reactions of the virtual neighbours are handed on to their owners in
         the same pass (the symmetric coupling does it after, in its own pass).

@@ -218,7 +218,12 @@ class LevelGrids:
 
     @ti.kernel
     def _sort(self, pool: ti.template()) -> ti.i32:
-        """One kernel, five passes (one launch: at a few thousand particles the launches,
+        return self.sort_func(pool)
+
+    @ti.func
+    def sort_func(self, pool: ti.template()):
+        """The sort as a device function, for a launch that runs it with other phases;
+        returns n. One kernel, five passes (one launch: at a few thousand particles the launches,
         not the passes, were the cost): keys, ranks (serial, so that the order and every
         floating-point sum after it are the same from run to run), the prefix sum
         (serial; it also zeroes the counts for the next sort, which saves a parallel pass

@@ -169,6 +169,10 @@ class Integrator:
     @ti.kernel
     def end_step(self, n: ti.i32, c_sound: float, stirred: ti.i32, cfl: ti.f64, force_factor: ti.f64,
                  cap: ti.f64, dt_min: ti.f64, max_dt: ti.f64, parts: ti.template()) -> ti.f64:
+        return self.end_step_func(n, c_sound, stirred, cfl, force_factor, cap, dt_min, max_dt, parts)
+
+    @ti.func
+    def end_step_func(self, n, c_sound, stirred, cfl, force_factor, cap, dt_min, max_dt, parts: ti.template()):
         """The phases after the forces, those in ``parts`` (END_* bits): time step (with
         the accelerations, unless the force pass took them), integrate, boundaries (in
         integrate's loop when both are asked), virtual advection. Returns the dt taken,
@@ -249,6 +253,14 @@ class Integrator:
             cap = min(cap, viscous_dt)
         return cap, viscous_dt
 
+    def step_args(self, max_dt: float | None, stirred: int) -> tuple:
+        """``end_step``'s arguments after n: (c, stirred, cfl, force factor, cap, dt_min,
+        max_dt), ``max_dt`` None for no cut to a frame's end."""
+        ph = self.physics
+        cap, _ = self.bounds()
+        return (self.pressure.signal_speed(), stirred, self.pressure.cfl_number(ph), float(ph["force_factor"]),
+                cap, float(ph["dt_min"]), math.inf if max_dt is None else float(max_dt))
+
     def finish(self, n: int, max_dt: float | None, stirred: int, phase, profile: bool,
                where: str) -> float:
         """Accelerations, the time step, integration, boundaries and (adaptive runs) the
@@ -256,10 +268,7 @@ class Integrator:
         loop, or when profiling one call a phase (``phase(name, fn, *args)``), each timed
         as its own. Returns dt; raises ``SimulationError`` (``where``: the step and time,
         for the message) when the step cannot go."""
-        ph = self.physics
-        cap, viscous_dt = self.bounds()
-        args = (n, self.pressure.signal_speed(), stirred, self.pressure.cfl_number(ph), float(ph["force_factor"]),
-                cap, float(ph["dt_min"]), math.inf if max_dt is None else float(max_dt))
+        args = (n,) + self.step_args(max_dt, stirred)
         dt = 0.0
         for k, launch in enumerate(self.launches):
             if k > 0:
@@ -284,6 +293,13 @@ class Integrator:
                     dt = out
         if dt >= 0.0:
             return dt
+        self.refuse(where)
+
+    def refuse(self, where: str):
+        """Raise the ``SimulationError`` that says why the step just tried did not go
+        (``end_step`` returned -1; ``where``: the step and time, for the message)."""
+        ph = self.physics
+        _, viscous_dt = self.bounds()
         stable_dt, force_lim, bad, first_bad = self.step_report.to_numpy().tolist()
         if bad > 0:
             self.report_bad(int(first_bad), int(bad), where)

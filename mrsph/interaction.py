@@ -153,6 +153,10 @@ class Disturbances:
 
     @ti.kernel
     def follow(self, paths: ti.template(), first: ti.i32, count: ti.i32, t: ti.f64):
+        self.follow_func(paths, first, count, t)
+
+    @ti.func
+    def follow_func(self, paths: ti.template(), first, count, t):
         """Move slots first … first + count − 1 to paths 0 … count − 1 at time t (their
         radius, strength and mode were ``set`` once; the host's copy keeps the centre
         it was set with)."""

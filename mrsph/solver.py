@@ -20,7 +20,9 @@ Where each phase lives (docs/ARCHITECTURE.md draws it):
 - ``seeding.py``, ``emitters.py``: particles in.
 
 Each phase is one or a few Taichi kernels and can be timed on its own
-(``Simulation(…, profile=True)``, used by ``python3 main.py bench``).
+(``Simulation(…, profile=True)``, used by ``python3 main.py bench``); unprofiled, a
+weakly compressible step runs everything after the adaptivity pass as one launch
+(``fused.py``).
 """
 
 import math
@@ -38,6 +40,7 @@ from .criteria import Criteria
 from .density import Density
 from .emitters import Emitters
 from .forces import Forces
+from .fused import FusedStep
 from .grid import CELLS_PER_SUPPORT, LevelGrids
 from .integrator import Integrator, SimulationError
 from .interaction import MOUSE_SLOT, Disturbance, Disturbances, Paths, path_sample
@@ -121,6 +124,11 @@ class Simulation:
         self.seeder = Seeder(parts, self.integrator.gravity, self.pressure.stiffness)
         self.emitters = Emitters(parts, self.seeder)
         self.pressure.warn = self._warn
+        # a step in one launch where the solver allows it (see step)
+        self.fused = None
+        if self.pressure.one_launch and not self.profile:
+            self.fused = FusedStep(self.grids, self.pool, self.coupling, self.density, self.forces,
+                                   self.integrator, self.disturbances, self.paths, len(s["stirrers"]))
 
     # ================================================================== state
     def reset(self) -> None:
@@ -178,40 +186,54 @@ class Simulation:
 
     def step(self, max_dt: float | None = None) -> float:
         """Advance by one time step (METHOD.md §1); returns the dt taken. ``max_dt``: cut
-        the step to end there (the end of a frame)."""
+        the step to end there (the end of a frame).
+
+        After the emitters and the adaptivity pass, the phases run as one launch
+        (``FusedStep``, the same device functions in the same order) unless the step is
+        profiled or the pressure solver solves on the host (DFSPH); then as below."""
         self._phase("emit", self._emit)
         if self.adaptive and self.steps % int(self.scene.data["adaptivity"]["interval"]) == 0:
             self._phase("adapt", self._adapt)
-        n = self._phase("grid", self.grids.sort, self.pool)
-        self._density_phase(n)
         stirred = int(self.disturbances.any_active())
-        self._force_phase(n, stirred)
-        # accelerations, the time step, integration, boundaries, and (after the owners
-        # moved, so that the anchors are current) the virtual particles' advection
-        dt = self.integrator.finish(n, max_dt, stirred, self._phase, self.profile,
-                                    f"step {self.steps} (t = {self.time:.6g} s)")
+        if self.fused is not None:
+            dt = self.fused.run(max_dt, stirred, self.time)
+            if dt < 0.0:
+                self.integrator.refuse(self._where())
+        else:
+            n = self._phase("grid", self.grids.sort, self.pool)
+            self._density_phase(n)
+            self._force_phase(n, stirred)
+            # accelerations, the time step, integration, boundaries, and (after the owners
+            # moved, so that the anchors are current) the virtual particles' advection
+            dt = self.integrator.finish(n, max_dt, stirred, self._phase, self.profile, self._where())
+            self._follow_paths(self.time + dt)
         if self.emitters.any_on():
-            self._phase("emit", self.emitters.hold, n, len(self.emitters.on))
+            self._phase("emit", self.emitters.hold, len(self.emitters.on))
         self.time += dt
         self.steps += 1
         self.dt = dt
-        self._stirrers(self.time)
         return dt
+
+    def _where(self) -> str:
+        return f"step {self.steps} (t = {self.time:.6g} s)"
 
     def _density_phase(self, n: int) -> None:
         """Density, with the coupling's passes on either side: the virtual masses (the
         limiter) before, the virtual state (variational coupling) after; then what the
         pressure solver takes from it (DFSPH: its factors and the divergence solve)."""
-        self.coupling.before_density(n, self._phase)
+        for ps in self.coupling.before_density():
+            self._phase(ps.timer, ps.kernel, n)
         self._phase("density", self.density.run, n)
-        self.coupling.after_density(n, self._phase)
+        for ps in self.coupling.after_density():
+            self._phase(ps.timer, ps.kernel, n)
         self.pressure.after_density(n, self.dt, self._phase)
 
     def _force_phase(self, n: int, stirred: int) -> None:
         """The pair forces, then the coupling's reactions and virtual velocities
         (symmetric coupling; the variational one hands its reactions on in the force pass)."""
         self._phase("forces", self.forces.run, n, self.pressure.signal_speed(), stirred)
-        self.coupling.after_forces(n, self._phase)
+        for ps in self.coupling.after_forces():
+            self._phase(ps.timer, ps.kernel, n)
 
     def run_phases(self, *names: str) -> int:
         """Run the first phases of a step on the current state without integrating, for
@@ -296,15 +318,19 @@ class Simulation:
 
     def _stirrers(self, t):
         """The stirrers at time t: their slots are set once (radius, strength, mode; the
-        host's copy keeps where each was then), then follow their paths on the device."""
+        host's copy keeps where each was then), then follow their paths on the device
+        (each step: ``_follow_paths``, or the fused step's launch)."""
         stirrers = self.scene.data["stirrers"]     # at most MAX_STIRRERS (config)
         for i, st in enumerate(stirrers):
             if self.disturbances.get(1 + i) is None:
                 pos, vel = path_sample(st["path"], t, st["loop"])
                 self.disturbances.set(1 + i, Disturbance(tuple(pos), st["radius"], st["strength"],
                                                          st["mode"], tuple(vel)))
-        if stirrers:
-            self.disturbances.follow(self.paths, 1, len(stirrers), t)
+        self._follow_paths(t)
+
+    def _follow_paths(self, t):
+        if self.scene.data["stirrers"]:
+            self.disturbances.follow(self.paths, 1, len(self.scene.data["stirrers"]), t)
 
     # ================================================================== reading out
     def particles(self, virtual: bool = True) -> dict:

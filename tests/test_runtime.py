@@ -36,13 +36,18 @@ def test_one_thread_is_pinned_and_released():
 
 
 def _loops_hidden_in_kernel_ifs(source: str) -> list[str]:
-    """Every ``@ti.kernel`` whose body has a loop inside a run-time ``if`` at its top level
-    (a ``ti.static`` condition or loop is unrolled at compile time and looked through)."""
+    """Every ``@ti.kernel``, and every ``ti.func`` named ``*_func`` (a pass's body, which its
+    kernel and the fused step call at their top level: fused.py), whose body has a loop
+    inside a run-time ``if`` at its top level (a ``ti.static`` condition or loop is
+    unrolled at compile time and looked through)."""
     import ast
     found = []
     tree = ast.parse(source)
     for fn in ast.walk(tree):
-        if not isinstance(fn, ast.FunctionDef) or not any("kernel" in ast.unparse(d) for d in fn.decorator_list):
+        if not isinstance(fn, ast.FunctionDef):
+            continue
+        decorators = [ast.unparse(d) for d in fn.decorator_list]
+        if not any("kernel" in d or ("func" in d and fn.name.endswith("_func")) for d in decorators):
             continue
 
         def walk(stmts):
@@ -71,3 +76,5 @@ def test_no_kernel_hides_a_particle_loop_inside_a_top_level_if():
     # the check itself finds one
     planted = "@ti.kernel\ndef k(n: ti.i32, m: ti.i32):\n    if m == 1:\n        for i in range(n):\n            pass\n"
     assert _loops_hidden_in_kernel_ifs(planted) == ["k (line 3: if m == 1)"]
+    assert _loops_hidden_in_kernel_ifs(planted.replace("@ti.kernel\ndef k(", "@ti.func\ndef k_func(")) == \
+        ["k_func (line 3: if m == 1)"]

@@ -1,12 +1,13 @@
 """The level coupling (METHOD.md §3–4, thesis §3.3): what virtual particles carry and how
 their forces reach the real particles they stand for. One object per
 ``adaptivity.coupling`` mode; the density, force and integration passes call its hooks
-(``ti.func``s), and the step calls its host hooks at fixed points:
+(``ti.func``s), and the step runs its passes at fixed points, each a ``Pass`` (a timer's
+name, the kernel a profiled step launches, the device function a fused step inlines):
 
-- ``before_density``: the virtual-mass limiter (``limiter.py``), when it is on;
-- ``after_density``: the virtual state (variational: virtual particles take their owners'
-  density, pressure and velocity);
-- ``after_forces``: the reactions and virtual velocities (symmetric coupling);
+- ``before_density()``: the virtual-mass limiter (``limiter.py``), when it is on;
+- ``after_density()``: the virtual state (variational: virtual particles take their
+  owners' density, pressure and velocity);
+- ``after_forces()``: the reactions and virtual velocities (symmetric coupling);
 - device hooks: ``sum_mass``/``sum_scale`` (how a sum weighs a particle), ``density_skip``,
   ``partner_pressure``, ``skip2``/``interacts`` (which pairs meet), ``hand_reaction``
   (force pass), ``take_reaction`` (integrator), ``advect`` (the virtual particles follow
@@ -16,11 +17,22 @@ their forces reach the real particles they stand for. One object per
 default, ``Symmetric`` METHOD.md §4's form.
 """
 
+from typing import NamedTuple
+
 import taichi as ti
 
 from ..kernels import poly6
 from ..particles import DEAD, ROLE_PARENT, VIRTUAL_CHILD, VIRTUAL_PARENT, is_real, is_virtual
 from .limiter import VirtualMassLimiter
+
+
+class Pass(NamedTuple):
+    """One of a step's passes over the pool, ``(n)`` its only argument: ``timer`` names the
+    phase it is timed in, ``kernel`` launches it alone, ``func`` is the same work as a
+    device function for a launch that runs several phases."""
+    timer: str
+    kernel: object
+    func: object
 
 
 @ti.data_oriented
@@ -46,14 +58,14 @@ class Uniform:
     def set_param(self, key: str, value) -> None:
         pass
 
-    def before_density(self, n: int, phase) -> None:
-        pass
+    def before_density(self) -> tuple:
+        return ()
 
-    def after_density(self, n: int, phase) -> None:
-        pass
+    def after_density(self) -> tuple:
+        return ()
 
-    def after_forces(self, n: int, phase) -> None:
-        pass
+    def after_forces(self) -> tuple:
+        return ()
 
     # ------------------------------------------------------------------ device hooks
     @ti.func
@@ -123,12 +135,13 @@ class Adaptive(Uniform):
     def set_param(self, key: str, value) -> None:
         self.spring_rate[None] = float(value)
 
-    def before_density(self, n: int, phase) -> None:
+    def before_density(self) -> tuple:
         # the limiter reads the neighbour lists of the fine particles, listed ahead of
         # the density pass (timed as density), and sets the virtual masses (coupling work)
-        if self.limiter is not None:
-            phase("density", self.density.list_fine, n)
-            phase("virtual_coupling", self.limiter.limit, n)
+        if self.limiter is None:
+            return ()
+        return (Pass("density", self.density.list_fine, self.density.list_fine_func),
+                Pass("virtual_coupling", self.limiter.limit, self.limiter.limit_func))
 
     @ti.func
     def sum_mass(self, j):
@@ -245,8 +258,8 @@ class Variational(Adaptive):
     def reset(self) -> None:
         self.reaction.fill(0.0)
 
-    def after_density(self, n: int, phase) -> None:
-        phase("virtual_coupling", self.virtual_state, n)
+    def after_density(self) -> tuple:
+        return (Pass("virtual_coupling", self.virtual_state, self.virtual_state_func),)
 
     @ti.func
     def density_skip(self, i):
@@ -277,6 +290,10 @@ class Variational(Adaptive):
 
     @ti.kernel
     def virtual_state(self, n: ti.i32):
+        self.virtual_state_func(n)
+
+    @ti.func
+    def virtual_state_func(self, n):
         """A virtual particle takes its owners' density, pressure and velocity (a virtual
         child 1/2^d of its transient parent, a virtual parent the sum of its transient
         children, mass-weighted), not those of its own neighbourhood, where virtual
@@ -320,8 +337,8 @@ class Symmetric(Adaptive):
     mode = "symmetric"
     symmetric = True
 
-    def after_forces(self, n: int, phase) -> None:
-        phase("virtual_coupling", self.virtual_coupling, n)
+    def after_forces(self) -> tuple:
+        return (Pass("virtual_coupling", self.virtual_coupling, self.virtual_coupling_func),)
 
     @ti.func
     def _coupling_visit(self, j, i, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(),
@@ -346,6 +363,10 @@ class Symmetric(Adaptive):
 
     @ti.kernel
     def virtual_coupling(self, n: ti.i32):
+        self.virtual_coupling_func(n)
+
+    @ti.func
+    def virtual_coupling_func(self, n):
         """Hand the reaction of each real–virtual force to the real particles the virtual
         one stands for, split evenly (METHOD.md §4, thesis Fig. 7), and interpolate the
         virtual particle's velocity from the real particles of its level."""

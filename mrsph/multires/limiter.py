@@ -84,6 +84,10 @@ class VirtualMassLimiter:
 
     @ti.kernel
     def limit(self, n: ti.i32):
+        self.limit_func(n)
+
+    @ti.func
+    def limit_func(self, n):
         """Set this step's virtual-child masses (see the module's docstring), reading the
         neighbour lists of ``Density.list_fine`` (the grid where a list overflowed, and
         for obstacle images)."""

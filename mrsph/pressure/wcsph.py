@@ -16,6 +16,7 @@ from .eos import pressure, sound_speed
 class WCSPH:
     live_keys = ("fluid.stiffness",)
     implicit = False        # no solve: the pressure is explicit, from the density
+    one_launch = True       # no host work in its hooks: a step can be one launch (fused.py)
 
     def __init__(self, parts):
         fl = parts.scene["fluid"]
