@@ -144,6 +144,23 @@ class LevelGrids:
         first = self.cell_id(c, l)
         return self.start[first], self.start[first + span]
 
+    @ti.func
+    def nearest(self, x, l, r2, pos: ti.template(), accept: ti.template(), ctx: ti.template()):
+        """The slot j nearest to x among level l's grid block around x with |x − pos[j]|² <
+        r2 that ``accept(j, ctx)`` takes (asked only of a candidate nearer than the best so
+        far), -1 if none. The block's slots come in increasing order, so a tie goes to the
+        lower slot."""
+        best, best_d2 = -1, r2
+        base = self.around(x, l)
+        for o in ti.grouped(ti.ndrange(*self.row_axes)):
+            lo, hi = self.row(base, o, l)
+            for j in range(lo, hi):
+                d2 = (x - pos[j]).norm_sqr()
+                if d2 < best_d2:
+                    if accept(j, ctx):
+                        best, best_d2 = j, d2
+        return best
+
     # --- counting sort ---------------------------------------------------------------
     @ti.func
     def _cell_starts(self, b, total):

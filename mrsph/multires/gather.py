@@ -91,19 +91,16 @@ class Gathering:
             self.partner[i] = -1
             if p[i].kind == VIRTUAL_PARENT and p[i].level == c and p[i].nchild < self.nmax \
                     and self._may_gather(i, c):
-                xi = p[i].x
-                best, best_d2 = -1, reach * reach
-                base = self.g.around(xi, c)
-                for o in ti.grouped(ti.ndrange(*self.g.row_axes)):
-                    lo, hi = self.g.row(base, o, c)
-                    for j in range(lo, hi):
-                        if j != i and p[j].kind == VIRTUAL_PARENT and \
-                                p[i].nchild + p[j].nchild <= self.nmax and self._may_gather(j, c):
-                            d2 = (xi - p[j].x).norm_sqr()
-                            if d2 < best_d2 or (d2 == best_d2 and j < best):
-                                if self._union_spread(i, j) <= keep:
-                                    best, best_d2 = j, d2
-                self.partner[i] = best
+                ctx = ti.Vector([ti.cast(i, float), ti.cast(c, float), keep])
+                self.partner[i] = self.g.nearest(p[i].x, c, reach * reach, p.x, self._may_pair, ctx)
+
+    @ti.func
+    def _may_pair(self, j, ctx):
+        """Whether virtual parent i (ctx: i, c, the spread to keep) may propose j."""
+        p = ti.static(self.pool.p)
+        i, c = ti.cast(ctx[0], ti.i32), ti.cast(ctx[1], ti.i32)
+        return j != i and p[j].kind == VIRTUAL_PARENT and p[i].nchild + p[j].nchild <= self.nmax \
+            and self._may_gather(j, c) and self._union_spread(i, j) <= ctx[2]
 
     @ti.func
     def _accept(self, n, c):

@@ -486,6 +486,13 @@ class Multires:
         p[i].nchild = 0
 
     @ti.func
+    def _may_receive(self, j, ctx):
+        """Whether j may take a light group (ctx: level c, the group's mass, the cap)."""
+        p = ti.static(self.pool.p)
+        return p[j].kind == REGULAR and p[j].level == ti.cast(ctx[0], ti.i32) and \
+            ti.cast(p[j].m, ti.f64) + ctx[1] <= ctx[2]
+
+    @ti.func
     def _absorb(self, c):
         """The groups ``_merge`` found too light (under ``absorb_below`` of level c's
         nominal mass) go to the nearest real regular level-c particle within h_c whose
@@ -502,16 +509,8 @@ class Multires:
         for q in range(self.n_absorbing[None]):
             i = self.absorbing[q]
             group = self._group_mass(i)
-            xi = p[i].x
-            best, best_d2 = -1, h * h
-            base = self.g.around(xi, c)
-            for o in ti.grouped(ti.ndrange(*self.g.row_axes)):
-                lo, hi = self.g.row(base, o, c)
-                for j in range(lo, hi):
-                    d2 = (xi - p[j].x).norm_sqr()
-                    if p[j].kind == REGULAR and p[j].level == c and d2 < best_d2 and \
-                            ti.cast(p[j].m, ti.f64) + group <= cap:
-                        best, best_d2 = j, d2
+            ctx = ti.Vector([ti.cast(c, ti.f64), group, cap], ti.f64)
+            best = self.g.nearest(p[i].x, c, h * h, p.x, self._may_receive, ctx)
             if best >= 0:
                 total64 = ti.cast(p[best].m, ti.f64) + group
                 total = ti.cast(total64, float)
