@@ -119,6 +119,7 @@ class SolveCounts:
 class DFSPH:
     live_keys = ()
     implicit = True
+    one_launch = False      # its solves decide on the host when to stop
 
     def __init__(self, parts):
         cfg = parts.scene["dfsph"]
@@ -151,8 +152,7 @@ class DFSPH:
         self._factor_images = ImageNeighbours(self.nb, self._factor_pair)
         self._rate_images = ImageNeighbours(self.nb, self._rate_pair)
         self._push_images = ImageNeighbours(self.nb, self._push_image)
-        # how a warning reaches the user: the Simulation sets its own (kept in its
-        # ``warnings`` for the app, and given to Python's warnings)
+        # how a warning reaches the user (the Simulation sets its own: app and warnings)
         self.warn = lambda msg: warnings.warn(msg, RuntimeWarning, stacklevel=4)
         self.counts = SolveCounts(self.tolerance, self.max_iterations, lambda msg: self.warn(msg))
 
@@ -162,11 +162,9 @@ class DFSPH:
         return 0.0
 
     def damping_speed(self) -> float:
-        """The artificial viscosity's c: the sound speed that ``fluid.stiffness`` gives a
-        weakly compressible run of the same scene (not a CFL bound here). Without it the
-        term vanished, the pressure solves do not damp, and the 2D tank still sloshed
-        at 0.0125 sqrt(gH) after 1.5 s; with it the dissipation is the scene's whatever
-        its solver."""
+        """The artificial viscosity's c: the sound speed ``fluid.stiffness`` gives a weakly
+        compressible run of the scene (not a CFL bound here). Without it the solves do not
+        damp: the 2D tank still sloshed at 0.0125 sqrt(gH) after 1.5 s."""
         return self._damping_c
 
     def stiffness(self) -> float:
@@ -189,7 +187,7 @@ class DFSPH:
         pass
 
     @ti.func
-    def pair_factor(self, i, inv):
+    def pair_factor(self, i, inv):      # no pressure in the pair forces: the solves push
         pass
 
     @ti.func
