@@ -124,9 +124,9 @@ class Simulation:
         self.seeder = Seeder(parts, self.integrator.gravity, self.pressure.stiffness)
         self.emitters = Emitters(parts, self.seeder)
         self.pressure.warn = self._warn
-        # a step in one launch where the solver allows it (see step)
+        # a step in one launch where the solver allows it, when not profiled (see step)
         self.fused = None
-        if self.pressure.one_launch and not self.profile:
+        if self.pressure.one_launch:
             self.fused = FusedStep(self.grids, self.pool, self.coupling, self.density, self.forces,
                                    self.integrator, self.disturbances, self.paths, len(s["stirrers"]))
 
@@ -195,7 +195,7 @@ class Simulation:
         if self.adaptive and self.steps % int(self.scene.data["adaptivity"]["interval"]) == 0:
             self._phase("adapt", self._adapt)
         stirred = int(self.disturbances.any_active())
-        if self.fused is not None:
+        if self.fused is not None and not self.profile:
             dt = self.fused.run(max_dt, stirred, self.time)
             if dt < 0.0:
                 self.integrator.refuse(self._where())

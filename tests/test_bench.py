@@ -176,6 +176,10 @@ def test_bench_smoke_writes_json_with_every_key(tmp_path):
         if not r["adaptive"]:
             assert r["per_level"] == [r["n_real"]]
         assert math.isclose(sum(r["phase_share"].values()), 1.0, rel_tol=1e-9)
+        # the profiled interval times the step phase by phase, not as the one launch of
+        # an unprofiled step (fused.py), which would leave these at 0
+        for phase in ("grid", "density", "forces", "timestep", "integrate"):
+            assert r["phase_share"].get(phase, 0.0) > 0.0, (r["case"], phase, r["phase_share"])
     assert rows["dam_break_2d uniform ~10k"]["n_real"] == 10082
     adaptive, uniform = rows["dam_break_obstacle_2d s=3.5mm adaptive"], rows["dam_break_obstacle_2d s=3.5mm uniform"]
     assert adaptive["adaptive"] and not uniform["adaptive"] and uniform["levels"] == 1
