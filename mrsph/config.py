@@ -193,8 +193,8 @@ SCHEMA = Table(required=True, keys={
         "dt_min": Key("float", 1e-7, "> 0", "s", "a step needing less is reported as "
                       "unstable; < dt_max"),
         "max_speed": Key("float", 250.0, "> 0", "m/s", "a faster particle is reported as a "
-                         "blow-up (the app's strongest stirring, tools/soak.py, throws single "
-                         "particles to 27 m/s with wcsph, 107 with dfsph)")}),
+                         "blow-up (the app's strongest stirring, tools/soak.py, asks for up to 80 "
+                         "m/s; its fastest particle reached 31 m/s with wcsph, 107 with dfsph)")}),
     "obstacles": Array(Table({"shape": SHAPE}, switch="shape", variants=SHAPES),
                        doc=f"Static solid shapes, at most {MAX_OBSTACLES} of each shape. The keys "
                        "of the other shape are unknown."),
