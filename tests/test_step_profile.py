@@ -22,6 +22,18 @@ def test_step_profile_lists_tasks_and_calls():
     assert "calls from Python into Taichi: " in out
 
 
+def test_step_profile_by_phase_names_the_phases_kernels():
+    proc = subprocess.run([sys.executable, "tools/step_profile.py", "dam_break_2d", "--set",
+                           "particles.spacing=0.02", "--warm", "2", "--steps", "3", "--by-phase"],
+                          cwd=REPO, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    out = proc.stdout
+    assert ", phase by phase" in out, out
+    # the sort, the density, the forces and the end of the step, each launched alone
+    for kernel in ("LevelGrids._sort", "Density.run", "Forces.run", "Integrator.end_step"):
+        assert f"  {kernel}\n" in out, out
+
+
 def test_step_profile_refuses_a_bad_override():
     proc = subprocess.run([sys.executable, "tools/step_profile.py", "dam_break_2d", "--set", "fluid.nope=1"],
                           cwd=REPO, capture_output=True, text=True, timeout=120)

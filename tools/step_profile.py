@@ -3,6 +3,7 @@
     python3 tools/step_profile.py demo_2d
     python3 tools/step_profile.py dam_break_3d --set particles.spacing=0.0063 --set 'fluid.solver="dfsph"' --arch gpu
     python3 tools/step_profile.py demo_2d --warm 200 --steps 100 --top 20
+    python3 tools/step_profile.py demo_2d --by-phase
 
 ``bench`` times phases; this looks one level down, at what a GPU or a profiler sees.
 After ``--warm`` steps it runs ``--steps`` more and prints:
@@ -18,6 +19,11 @@ After ``--warm`` steps it runs ``--steps`` more and prints:
 
 The counts come from a second pass over the same number of steps, run without the
 profiler (the profiler syncs after every task).
+
+A weakly compressible step is one launch (``mrsph/fused.py``), so its tasks are named
+``_step_..._kernel_K``; ``--by-phase`` steps phase by phase instead, as ``bench``'s
+profiled interval does, so that each task carries its phase's kernel name (``run``,
+``end_step``, ...), at the cost of the launches the fused step saves.
 """
 from __future__ import annotations
 
@@ -73,6 +79,8 @@ def main(argv=None) -> int:
     ap.add_argument("--warm", type=int, default=50, help="steps before the profiled ones")
     ap.add_argument("--steps", type=int, default=50, help="profiled steps (and counted ones)")
     ap.add_argument("--top", type=int, default=25, help="tasks listed")
+    ap.add_argument("--by-phase", action="store_true",
+                    help="step phase by phase (each phase's own kernels), not as one launch")
     args = ap.parse_args(argv)
     if min(args.warm, args.steps - 1, args.top - 1, args.threads - 1) < 0:
         ap.error("--warm must be >= 0, and --steps, --top and --threads >= 1")
@@ -88,9 +96,10 @@ def main(argv=None) -> int:
         for line in e.problems:
             print(f"step_profile: {line}", file=sys.stderr)
         return 2
-    sim = Simulation(scene, arch=args.arch, threads=args.threads)
+    sim = Simulation(scene, arch=args.arch, threads=args.threads, profile=args.by_phase)
     print(f"{' '.join([scene.name] + args.overrides)}: {sim.stats()['n_real']} real particles, "
-          f"arch {sim.arch_name}, solver {scene.data['fluid']['solver']}", flush=True)
+          f"arch {sim.arch_name}, solver {scene.data['fluid']['solver']}"
+          f"{', phase by phase' if args.by_phase else ''}", flush=True)
     for _ in range(args.warm):
         sim.step()
     ti.sync()
