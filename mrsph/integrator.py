@@ -262,12 +262,12 @@ class Integrator:
                 cap, float(ph["dt_min"]), math.inf if max_dt is None else float(max_dt))
 
     def finish(self, n: int, max_dt: float | None, stirred: int, phase, profile: bool,
-               where: str) -> float:
+               where) -> float:
         """Accelerations, the time step, integration, boundaries and (adaptive runs) the
         virtual particles' advection: one kernel launch, integration and boundaries in one
         loop, or when profiling one call a phase (``phase(name, fn, *args)``), each timed
-        as its own. Returns dt; raises ``SimulationError`` (``where``: the step and time,
-        for the message) when the step cannot go."""
+        as its own. Returns dt; raises ``SimulationError`` (``where()``: the step and time,
+        for the message, built only then) when the step cannot go."""
         args = (n,) + self.step_args(max_dt, stirred)
         dt = 0.0
         for k, launch in enumerate(self.launches):
@@ -293,7 +293,7 @@ class Integrator:
                     dt = out
         if dt >= 0.0:
             return dt
-        self.refuse(where)
+        self.refuse(where())
 
     def refuse(self, where: str):
         """Raise the ``SimulationError`` that says why the step just tried did not go

@@ -205,7 +205,7 @@ class Simulation:
             self._force_phase(n, stirred)
             # accelerations, the time step, integration, boundaries, and (after the owners
             # moved, so that the anchors are current) the virtual particles' advection
-            dt = self.integrator.finish(n, max_dt, stirred, self._phase, self.profile, self._where())
+            dt = self.integrator.finish(n, max_dt, stirred, self._phase, self.profile, self._where)
             self._follow_paths(self.time + dt)
         if self.emitters.any_on():
             self._phase("emit", self.emitters.hold, len(self.emitters.on))
@@ -215,6 +215,7 @@ class Simulation:
         return dt
 
     def _where(self) -> str:
+        """The step and time, for a refused step's message (built only then)."""
         return f"step {self.steps} (t = {self.time:.6g} s)"
 
     def _density_phase(self, n: int) -> None:
