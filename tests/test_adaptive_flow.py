@@ -47,6 +47,17 @@ KNOWN_FAILURES: dict[tuple[str, str], str] = {
 }
 
 
+# The largest density next to the level interface, adaptive against uniform
+# (test_density_next_to_the_interface_matches_uniform). The issue asks for 3 %. Held to
+# 0.5 %: measured within 0.1 % over four runs each with wcsph, and the weaker coupling
+# (`symmetric`, limiter off) reads +0.9 % / +1.6 % (README), which 3 % would let through.
+# The 3D DFSPH pool is held to 1.5 %: its rest noise (KNOWN_FAILURES) moves the average
+# from run to run, -0.05, +0.30, -0.05 % here and +0.52 % in CI (2026-11-27; the uniform
+# run 1.0062 rho0 each time), and with the limiter off it read +0.43 and +0.03 %, so no
+# tighter bound would tell the two apart.
+PEAK_BOUND = {"3d-dfsph": 0.015}
+
+
 def make_sim(scene: dict):
     from mrsph.solver import Simulation
     return Simulation(load_scene(scene), arch="cpu")
@@ -158,13 +169,12 @@ def test_density_next_to_the_interface_matches_uniform(pool_runs, request):
     dim, a, u = pool_runs["dim"], pool_runs["adaptive"], pool_runs["uniform"]
     err = a["peak"] / u["peak"] - 1.0
     known_xfail(request, KNOWN_FAILURES, pool_runs["case"], "rest_peak", err)
-    # The issue asks for 3 %. Held to 0.5 %: measured within 0.1 % over four runs each,
-    # and the weaker coupling (`symmetric`, limiter off) reads +0.9 % / +1.6 % (README),
-    # which 3 % would let through.
-    assert abs(err) <= 0.005, (f"{dim}D: largest density next to the level interface {a['peak']:.4f} rho0 "
-                               f"(time average of each snapshot's largest), uniform run {u['peak']:.4f} "
-                               f"rho0 ({100 * err:+.2f} %, expected within 0.5 %, the issue's bound "
-                               f"3 %; worst snapshot {a['worst']:.4f} against {u['worst']:.4f})")
+    bound = PEAK_BOUND.get(pool_runs["case"], 0.005)
+    assert abs(err) <= bound, (f"{pool_runs['case']}: largest density next to the level interface "
+                               f"{a['peak']:.4f} rho0 (time average of each snapshot's largest), uniform "
+                               f"run {u['peak']:.4f} rho0 ({100 * err:+.2f} %, expected within "
+                               f"{100 * bound:.1f} %, the issue's bound 3 %; worst snapshot "
+                               f"{a['worst']:.4f} against {u['worst']:.4f})")
 
 
 # ================================================================== dam break
