@@ -296,6 +296,12 @@ SCHEMA = Table(required=True, keys={
                                   "the distance, in spacings of the children's level, that "
                                   "the iterations open between a new child and its real "
                                   "neighbours"),
+        "split_fade": Key("float", 0.02, ">= 0", "s", "the density a split's child reads above "
+                          "its parent's at its first density pass is left out of its "
+                          "pressure, and let in over this time (exp(-t/tau)), so that the "
+                          "sampling error of a split is taken out by the fluid gently; 0 = at "
+                          "once (a cursor entering resting water threw it about; "
+                          "multires/fade.py)"),
         "split_near_regular": Key("bool", False, doc="also split a transient parent that "
                                   "has a regular particle of the finer level within its "
                                   "support, where the criteria do not want it merged "

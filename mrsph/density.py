@@ -33,7 +33,7 @@ class Density:
     def __init__(self, parts):
         self.dim, self.levels = parts.dim, parts.levels
         self.pool, self.grids, self.lev = parts.pool, parts.grids, parts.lev
-        self.nb, self.coupling = parts.neighbours, parts.coupling
+        self.nb, self.coupling, self.fade = parts.neighbours, parts.coupling, parts.fade
         self.forces = None          # set by the Simulation once built (pair factors)
         self.pressure = None        # likewise (density_done)
         self.limit_virtual = parts.coupling.limit_virtual
@@ -283,5 +283,6 @@ class Density:
         ctx = ti.Vector([h2, ti.cast(self.nb.is_listed(i), float), c6, ti.cast(l, float)])
         self.nb.images(i, h, self._image_density, ctx, rho)
         p[i].rho = rho
+        self.fade.measured(i, rho)
         self.pressure.density_done(i)
         self.forces.factors(i)

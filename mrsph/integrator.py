@@ -46,6 +46,7 @@ class Integrator:
         self.viscosity = viscosity      # () -> μ on the host, as last set (``Forces``)
         self.dim, self.adaptive = parts.dim, parts.adaptive
         self.pool, self.lev, self.boundary = parts.pool, parts.lev, parts.boundary
+        self.fade = parts.fade      # a split child's density offset decays with the steps
         self.coupling, self.disturbances, self.pressure = parts.coupling, parts.disturbances, pressure
         self.rest_density = float(parts.scene["fluid"]["rest_density"])
         self.fused_accelerations = not self.adaptive     # see forces.Forces.run
@@ -165,6 +166,8 @@ class Integrator:
             x, v = self.boundary.collide(x, v)
         p[i].x = x
         p[i].v = v
+        if ti.static(parts & END_KICK):
+            self.fade.decay(i, ti.cast(self.step_dt[None], float))
 
     @ti.kernel
     def end_step(self, n: ti.i32, c_sound: float, stirred: ti.i32, cfl: ti.f64, force_factor: ti.f64,

@@ -50,6 +50,9 @@ ATTRIBUTES = (
     Attribute("m", "float", "kg", "mass", on_split="divide", on_merge="sum"),
     Attribute("rho", "float", "kg/m³", "density (Eq. 7, own level only)"),
     Attribute("p", "float", "Pa", "pressure from the equation of state"),
+    Attribute("drho", "float", "kg/m³", "density a split's child read above its parent's, "
+              "faded over adaptivity.split_fade; the pressure reads rho - drho "
+              "(multires/fade.py)", "own", "own"),
     Attribute("lam", "float", "level", "wanted level from the refinement criteria"),
     Attribute("level", "int", "", "resolution level, 0 = finest", "own", "own"),
     Attribute("kind", "int", "", "kind code (REGULAR … VIRTUAL_PARENT, DEAD)", "own", "own"),

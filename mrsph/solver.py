@@ -45,7 +45,7 @@ from .grid import CELLS_PER_SUPPORT, LevelGrids
 from .integrator import Integrator, SimulationError
 from .interaction import MOUSE_SLOT, Disturbance, Disturbances, Paths, path_sample
 from .levels import Levels
-from .multires import COUNTERS, Multires, make_coupling
+from .multires import COUNTERS, Multires, SplitFade, make_coupling
 from .neighbours import Neighbours
 from .particles import ATTRIBUTES, DEAD, REGULAR, VIRTUAL_CHILD, ParticlePool
 from .seeding import Seeder
@@ -111,6 +111,7 @@ class Simulation:
                                 lev=self.lev, grids=self.grids, boundary=self.boundary,
                                 disturbances=self.disturbances, criteria=self.criteria)
         parts.neighbours = self.neighbours = Neighbours(d, self.pool, self.grids, self.boundary)
+        parts.fade = SplitFade(parts)
         self.multires = Multires(parts) if self.adaptive else None
         parts.coupling = self.coupling = make_coupling(parts, self.multires.offsets if self.adaptive else None)
         self.pressure = pressure_solvers.make(s["fluid"]["solver"], parts)

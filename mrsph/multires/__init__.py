@@ -6,11 +6,13 @@
   pooling their groups before a merge);
 - ``coupling.py``: one object per ``adaptivity.coupling`` mode (``Uniform`` without
   adaptivity), whose hooks the density, force and integration passes call;
-- ``limiter.py``: the virtual-mass limiter the coupling runs before the density pass.
+- ``limiter.py``: the virtual-mass limiter the coupling runs before the density pass;
+- ``fade.py``: the compression a split puts on its children, faded out of the pressure.
 """
 
 from .coupling import Symmetric, Uniform, Variational, make as make_coupling
+from .fade import SplitFade
 from .topology import COUNTERS, Multires, sampling_offsets
 
-__all__ = ["COUNTERS", "Multires", "Symmetric", "Uniform", "Variational", "make_coupling",
+__all__ = ["COUNTERS", "Multires", "SplitFade", "Symmetric", "Uniform", "Variational", "make_coupling",
            "sampling_offsets"]

@@ -144,6 +144,7 @@ class Multires:
         self.levels = parts.levels
         self.lev, self.nb = parts.lev, parts.neighbours
         self.criteria, self.boundary, self.disturbances = parts.criteria, parts.boundary, parts.disturbances
+        self.fade = parts.fade      # the compression of split children, faded out (fade.py)
         self.rest_density = float(parts.scene["fluid"]["rest_density"])
         self.nmax = 2 ** self.dim
         self.reserve = int(MERGE_RESERVE * self.pool.capacity)    # slots splits leave free
@@ -356,8 +357,10 @@ class Multires:
                             # down (``limiter.VirtualMassLimiter``)
                             p[ch].m = p[i].m / self.nmax
                             p[ch].flags = FRESH
+                            self.fade.born(ch, p[i].rho)
                             self.place.fresh[ti.atomic_add(self.place.n_fresh[None], 1)] = ch
                         self.place.fit(i, s_f)
+                        self.fade.clear(i)
                         p[i].kind = VIRTUAL_PARENT
                         ti.atomic_add(self.counters[EV_SPLITS], 1)
 
@@ -375,6 +378,7 @@ class Multires:
         p[ch].nchild = 0
         p[ch].flags = 0
         p[ch].parent = i
+        self.fade.clear(ch)
         p[ch].kind = VIRTUAL_CHILD
 
     @ti.func
@@ -418,6 +422,7 @@ class Multires:
                     p[vp].slot = 0
                     p[vp].parent = -1
                     p[vp].nchild = 1
+                    self.fade.clear(vp)
                     self.pool.children[vp, 0] = i
                     p[vp].kind = VIRTUAL_PARENT
                     p[i].parent = vp
@@ -460,6 +465,7 @@ class Multires:
                     p[i].m = mass
                     p[i].parent = -1
                     p[i].kind = REGULAR
+                    self.fade.clear(i)
                     ti.atomic_add(self.counters[EV_MERGES], 1)
 
     @ti.func

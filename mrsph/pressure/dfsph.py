@@ -125,6 +125,7 @@ class DFSPH:
         cfg = parts.scene["dfsph"]
         self.dim, self.adaptive = parts.dim, parts.adaptive
         self.pool, self.lev, self.nb, self.coupling = parts.pool, parts.lev, parts.neighbours, parts.coupling
+        self.fade = parts.fade    # a split child's target is rho0 + drho (multires/fade.py)
         self.rest_density = float(parts.scene["fluid"]["rest_density"])
         self.cfl = float(cfg["cfl"])
         self.tolerance = (float(cfg["density_tolerance"]), float(cfg["divergence_tolerance"]))
@@ -458,7 +459,7 @@ class DFSPH:
                 if self.state[RUNS] and is_real(p[i].kind):
                     rate = self._rate(i)
                     if mode == DENSITY:
-                        e = ti.max(p[i].rho + h_dt * rate - rho0, 0.0)    # ρ* − ρ0, compression only
+                        e = ti.max(p[i].rho + h_dt * rate - rho0 - self.fade.excess(i), 0.0)   # ρ* − ρ0, compression only
                         self.kappa[i] = e * self.alpha[i] / (h_dt * h_dt)
                         self.err[None] += ti.cast(e, ti.f64)
                         if e > self.peak[None]:     # a float max is a compare-and-swap loop
@@ -469,7 +470,7 @@ class DFSPH:
                         self.err[None] += ti.cast(e * h_dt, ti.f64)
                     else:
                         k = 0.0
-                        if p[i].rho + h_dt * rate > rho0:
+                        if p[i].rho + h_dt * rate > rho0 + self.fade.excess(i):
                             k = ti.static(WARM_START) * p[i].p / p[i].rho
                         self.kappa[i] = k
                         self.ksum[i] = k

@@ -21,6 +21,7 @@ class WCSPH:
     def __init__(self, parts):
         fl = parts.scene["fluid"]
         self.pool, self.coupling, self.lev = parts.pool, parts.coupling, parts.lev
+        self.fade = parts.fade    # a split child's pressure reads rho - drho (multires/fade.py)
         self.rest_density = float(fl["rest_density"])
         self.eos = fl["eos"]
         self.tait = self.eos == "tait"
@@ -74,7 +75,7 @@ class WCSPH:
     @ti.func
     def density_done(self, i):
         p = ti.static(self.pool.p)
-        p[i].p = pressure(p[i].rho, self.rest_density, self.k[None], self.gamma, self.tait, self.clamp)
+        p[i].p = pressure(p[i].rho - self.fade.excess(i), self.rest_density, self.k[None], self.gamma, self.tait, self.clamp)
 
     @ti.func
     def pair_factor(self, i, inv):
