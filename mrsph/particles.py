@@ -50,9 +50,11 @@ ATTRIBUTES = (
     Attribute("m", "float", "kg", "mass", on_split="divide", on_merge="sum"),
     Attribute("rho", "float", "kg/m³", "density (Eq. 7, own level only)"),
     Attribute("p", "float", "Pa", "pressure from the equation of state"),
-    Attribute("drho", "float", "kg/m³", "density a split's child read above its parent's, "
-              "faded over adaptivity.split_fade; the pressure reads rho - drho "
-              "(multires/fade.py)", "own", "own"),
+    Attribute("drho", "float", "kg/m³", "what a split's child reads above rho_ref that its "
+              "pressure leaves out (rho - drho); 0 for any other particle (multires/fade.py)",
+              "own", "own"),
+    Attribute("rho_ref", "float", "kg/m³", "a split child's reference density: its parent's, "
+              "rho0 at least (read only where drho is not 0)", "own", "own"),
     Attribute("lam", "float", "level", "wanted level from the refinement criteria"),
     Attribute("level", "int", "", "resolution level, 0 = finest", "own", "own"),
     Attribute("kind", "int", "", "kind code (REGULAR … VIRTUAL_PARENT, DEAD)", "own", "own"),

@@ -132,6 +132,7 @@ class Seeder:
             p[i].p = ti.cast(ps[r], float)
             p[i].lam = 0.0
             p[i].drho = 0.0
+            p[i].rho_ref = 0.0
             p[i].level = level
             p[i].parent = -1
             p[i].slot = 0

@@ -1,5 +1,6 @@
 """A still cursor entering water at rest refines it without throwing it about
-(``adaptivity.split_fade``, mrsph/multires/fade.py), measured by tools/cursor_burst.py on
+(``adaptivity.split_fade``, set in demo_2d; mrsph/multires/fade.py), measured by
+tools/cursor_burst.py on
 the default demo as the window shows it: the pool at rest after its opening stir, the
 mouse's refinement splitting level 2 down to 0 under the cursor in one adaptivity pass.
 """
@@ -15,7 +16,7 @@ def test_a_still_cursor_in_resting_water_throws_nothing():
     rows = tool.burst("demo_2d", [], tool.AT, tool.RADIUS, 2.5, (2.5, 20.0), threads=1)
     (_, rest), (_, soon), (_, later) = rows
     # Measured 2026-11-27 (one thread): at rest 0.11 m/s at most; 2.5 ms after the cursor
-    # came 1.65 m/s and 17 particles above 1 m/s, 20 ms after 0.89 and none. Without the
+    # came 2.04 m/s and 25 particles above 1 m/s, 20 ms after 0.51 and none. Without the
     # fade (split_fade = 0): 11.0 m/s and 1,638 above 1 m/s, then 9.9 and 261.
     fast = int((soon > 1.0).sum())
     assert soon.max() <= 3.0 and fast <= 100, (

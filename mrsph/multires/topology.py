@@ -357,7 +357,7 @@ class Multires:
                             # down (``limiter.VirtualMassLimiter``)
                             p[ch].m = p[i].m / self.nmax
                             p[ch].flags = FRESH
-                            self.fade.born(ch, p[i].rho)
+                            self.fade.born(ch, p[i].rho)   # (ρ0 at least: see fade.py)
                             self.place.fresh[ti.atomic_add(self.place.n_fresh[None], 1)] = ch
                         self.place.fit(i, s_f)
                         self.fade.clear(i)
