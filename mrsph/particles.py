@@ -107,7 +107,9 @@ def is_virtual(kind):
 class ParticlePool:
     """Fixed-capacity particle storage with an active count and overflow accounting."""
 
-    def __init__(self, dim: int, capacity: int):
+    def __init__(self, dim: int, capacity: int, unused: tuple = ()):
+        """``unused``: attributes no pass of this run reads (the split fade's when it is
+        off), which the sort then does not move."""
         self.dim = dim
         self.capacity = storage_slots(capacity)   # at least what was asked (see there)
         self.max_children = 2 ** dim
@@ -121,7 +123,7 @@ class ParticlePool:
         # (live, spare) member fields of what a sort moves: all but the per-step scratch
         # that is rewritten before it is read
         self.carried = tuple((getattr(self.p, a.name), getattr(self.tmp, a.name))
-                             for a in ATTRIBUTES if a.carried)
+                             for a in ATTRIBUTES if a.carried and a.name not in unused)
         # children[i, :nchild[i]] are i's children; entries past nchild are never read
         self.children = ti.field(ti.i32, shape=(self.capacity, self.max_children))
         self.tmp_children = ti.field(ti.i32, shape=(self.capacity, self.max_children))

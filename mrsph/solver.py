@@ -86,7 +86,10 @@ class Simulation:
         d, L = self.dim, self.levels
         part, a = s["particles"], s["adaptivity"]
         self.rest_density = float(s["fluid"]["rest_density"])
-        self.pool = ParticlePool(d, int(part["capacity"]))
+        # the split fade's attributes stay where they are in a sort when it is off: two
+        # floats of 17 a particle, ~4 % of a uniform 10k step (docs/performance.md)
+        self.pool = ParticlePool(d, int(part["capacity"]),
+                                 unused=() if SplitFade.wanted(s, self.adaptive) else SplitFade.ATTRIBUTES)
         # a few slots more than asked, so that the per-particle arrays do not alias
         # (particles.storage_slots); every per-particle field has this length
         self.capacity = self.pool.capacity

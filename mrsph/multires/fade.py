@@ -65,12 +65,20 @@ class SplitFade:
     (every function a no-op, every ``drho`` 0) without adaptivity or with ``split_fade``
     = 0."""
 
+    ATTRIBUTES = ("drho", "rho_ref")     # the pool's attributes it alone reads
+
     def __init__(self, parts):
         a = parts.scene["adaptivity"]
         self.pool = parts.pool
         self.rest_density = float(parts.scene["fluid"]["rest_density"])
         self.tau = float(a["split_fade"]) if parts.adaptive else 0.0
-        self.on = self.tau > 0.0
+        self.on = self.wanted(parts.scene, parts.adaptive)
+
+    @staticmethod
+    def wanted(scene, adaptive: bool) -> bool:
+        """Whether a run of ``scene`` fades its splits' compression (else its attributes
+        are never read, and the sort need not move them)."""
+        return adaptive and float(scene["adaptivity"]["split_fade"]) > 0.0
 
     @ti.func
     def born(self, ch, parent_rho):
