@@ -42,8 +42,10 @@ def line(label: str, sp: np.ndarray) -> str:
 
 
 def burst(scene: str, overrides: list[str], at, radius: float, settle: float, after_ms,
-          threads: int | None, arch: str = "cpu") -> list[tuple[float, np.ndarray]]:
-    """[(ms after the cursor came, the real particles' speeds)], the first at 0 (before)."""
+          threads: int | None, arch: str = "cpu", leave: bool = False) -> list[tuple[float, np.ndarray]]:
+    """[(ms after the cursor came, the real particles' speeds)], the first at 0 (before);
+    with ``leave``, then the cursor goes and the same times after it left follow, as
+    negative ms."""
     from mrsph.config import load_scene
     from mrsph.interaction import Disturbance
     from mrsph.solver import Simulation
@@ -58,6 +60,12 @@ def burst(scene: str, overrides: list[str], at, radius: float, settle: float, af
     for ms in after_ms:
         sim.advance(t0 + 1e-3 * ms - sim.time)
         out.append((ms, speeds(sim)))
+    if leave:
+        sim.set_disturbance(None)
+        t0 = sim.time
+        for ms in after_ms:
+            sim.advance(t0 + 1e-3 * ms - sim.time)
+            out.append((-ms, speeds(sim)))
     return out
 
 
@@ -73,6 +81,9 @@ def main(argv=None) -> int:
     ap.add_argument("--after", default=",".join(f"{t:g}" for t in AFTER_MS),
                     help="times after it came to report, ms")
     ap.add_argument("--threads", type=int, default=1, help="CPU threads")
+    ap.add_argument("--leave", action="store_true",
+                    help="then take the cursor away and report the same times after it left "
+                         "(the refined fluid merges back)")
     args = ap.parse_args(argv)
     from mrsph.config import SceneError
     try:
@@ -81,7 +92,8 @@ def main(argv=None) -> int:
     except ValueError:
         ap.error("--at and --after take comma-separated numbers")
     try:
-        rows = burst(args.scene, args.overrides, at, args.radius, args.settle, after, args.threads)
+        rows = burst(args.scene, args.overrides, at, args.radius, args.settle, after, args.threads,
+                     leave=args.leave)
     except SceneError as e:
         for msg in e.problems:
             print(msg, file=sys.stderr)
@@ -89,7 +101,8 @@ def main(argv=None) -> int:
     print(f"{args.scene} {' '.join(args.overrides)}".rstrip() + f": a still cursor at {tuple(at)}, "
           f"radius {args.radius} m, after {args.settle} s")
     for ms, sp in rows:
-        print(line("before" if ms == 0 else f"{ms:g} ms", sp))
+        label = "before" if ms == 0 else (f"{ms:g} ms" if ms > 0 else f"gone {-ms:g} ms")
+        print(line(label, sp))
     return 0
 
 

@@ -465,7 +465,7 @@ class Multires:
                     p[i].m = mass
                     p[i].parent = -1
                     p[i].kind = REGULAR
-                    self.fade.clear(i)
+                    self.fade.born(i, p[i].rho)     # its group's mean density (fade.py)
                     ti.atomic_add(self.counters[EV_MERGES], 1)
 
     @ti.func
