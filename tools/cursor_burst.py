@@ -3,13 +3,15 @@
     python3 tools/cursor_burst.py                                   # demo_2d, as measured
     python3 tools/cursor_burst.py --set adaptivity.split_fade=0     # without the fade
     python3 tools/cursor_burst.py --scene demo_3d --at 0.5,0.15,0.25 --radius 0.07
+    python3 tools/cursor_burst.py --strength 20 --leave     # held as the window holds it, let go
 
 The scene runs ``--settle`` simulated seconds (demo_2d's opening stir is over by then
 and the pool is at rest), then the mouse's disturbance is put at ``--at`` with a
-strength of 1e-6 1/s: it pulls on nothing, but the scene's ``disturbance`` criterion
-refines under it, so one adaptivity pass splits the fluid there down to the finest
-level. One line per time after that (``--after``, ms): the fastest real particle, how
-many move faster than 1 m/s and than 0.3 m/s, and the mean speed. At rest the pool
+strength of 1e-6 1/s (``--strength``; the window's mouse: 20): it pulls on nothing, but
+the scene's ``disturbance`` criterion refines under it, so one adaptivity pass splits
+the fluid there down to the finest level. One line per time after that (``--after``,
+ms): the fastest real particle, how many move faster than 1 m/s and than 0.3 m/s, the
+mean speed and the kinetic energy (J per metre of depth in 2D). At rest the pool
 reads a few cm/s; before ``adaptivity.split_fade`` (mrsph/multires/fade.py) demo_2d
 read 11 m/s and 1,638 particles above 1 m/s 2.5 ms after the cursor came.
 """
@@ -32,20 +34,24 @@ RADIUS = 0.128
 AFTER_MS = (2.5, 10.0, 20.0, 50.0, 100.0)
 
 
-def speeds(sim) -> np.ndarray:
-    return np.linalg.norm(sim.particles(virtual=False)["v"].astype(np.float64), axis=1)
+def speeds(sim) -> tuple[np.ndarray, float]:
+    """The real particles' speeds, and their kinetic energy."""
+    P = sim.particles(virtual=False)
+    sp = np.linalg.norm(P["v"].astype(np.float64), axis=1)
+    return sp, 0.5 * float((P["m"].astype(np.float64) * sp * sp).sum())
 
 
-def line(label: str, sp: np.ndarray) -> str:
-    return (f"{label:>9}: fastest {sp.max():6.2f} m/s, {int((sp > 1.0).sum()):5d} above 1 m/s, "
-            f"{int((sp > 0.3).sum()):5d} above 0.3 m/s, mean {sp.mean():.3f} m/s")
+def line(label: str, sp: np.ndarray, ke: float) -> str:
+    return (f"{label:>11}: fastest {sp.max():6.2f} m/s, {int((sp > 1.0).sum()):5d} above 1 m/s, "
+            f"{int((sp > 0.3).sum()):5d} above 0.3 m/s, mean {sp.mean():.3f} m/s, KE {ke:7.2f} J")
 
 
 def burst(scene: str, overrides: list[str], at, radius: float, settle: float, after_ms,
-          threads: int | None, arch: str = "cpu", leave: bool = False) -> list[tuple[float, np.ndarray]]:
-    """[(ms after the cursor came, the real particles' speeds)], the first at 0 (before);
-    with ``leave``, then the cursor goes and the same times after it left follow, as
-    negative ms."""
+          threads: int | None, arch: str = "cpu", leave: bool = False,
+          strength: float = 1e-6) -> list[tuple[float, np.ndarray, float]]:
+    """[(ms after the cursor came, the real particles' speeds, their kinetic energy)], the
+    first at 0 (before); with ``leave``, then the cursor goes and the same times after it
+    left follow, as negative ms."""
     from mrsph.config import load_scene
     from mrsph.interaction import Disturbance
     from mrsph.solver import Simulation
@@ -54,18 +60,18 @@ def burst(scene: str, overrides: list[str], at, radius: float, settle: float, af
         raise SystemExit(f"--at: {len(at)} coordinates for a {sc['dim']}D scene")
     sim = Simulation(sc, arch=arch, threads=threads)
     sim.advance(settle)
-    out = [(0.0, speeds(sim))]
-    sim.set_disturbance(Disturbance(tuple(at), radius, 1e-6, "push", (0.0,) * len(at)))
+    out = [(0.0, *speeds(sim))]
+    sim.set_disturbance(Disturbance(tuple(at), radius, strength, "push", (0.0,) * len(at)))
     t0 = sim.time
     for ms in after_ms:
         sim.advance(t0 + 1e-3 * ms - sim.time)
-        out.append((ms, speeds(sim)))
+        out.append((ms, *speeds(sim)))
     if leave:
         sim.set_disturbance(None)
         t0 = sim.time
         for ms in after_ms:
             sim.advance(t0 + 1e-3 * ms - sim.time)
-            out.append((-ms, speeds(sim)))
+            out.append((-ms, *speeds(sim)))
     return out
 
 
@@ -80,6 +86,9 @@ def main(argv=None) -> int:
     ap.add_argument("--settle", type=float, default=2.5, help="simulated seconds before the cursor comes")
     ap.add_argument("--after", default=",".join(f"{t:g}" for t in AFTER_MS),
                     help="times after it came to report, ms")
+    ap.add_argument("--strength", type=float, default=1e-6,
+                    help="the cursor's pull towards rest, 1/s (the window's mouse: 20; the default "
+                         "only refines)")
     ap.add_argument("--threads", type=int, default=1, help="CPU threads")
     ap.add_argument("--leave", action="store_true",
                     help="then take the cursor away and report the same times after it left "
@@ -93,16 +102,16 @@ def main(argv=None) -> int:
         ap.error("--at and --after take comma-separated numbers")
     try:
         rows = burst(args.scene, args.overrides, at, args.radius, args.settle, after, args.threads,
-                     leave=args.leave)
+                     leave=args.leave, strength=args.strength)
     except SceneError as e:
         for msg in e.problems:
             print(msg, file=sys.stderr)
         return 2
     print(f"{args.scene} {' '.join(args.overrides)}".rstrip() + f": a still cursor at {tuple(at)}, "
-          f"radius {args.radius} m, after {args.settle} s")
-    for ms, sp in rows:
+          f"radius {args.radius} m, strength {args.strength:g} 1/s, after {args.settle} s")
+    for ms, sp, ke in rows:
         label = "before" if ms == 0 else (f"{ms:g} ms" if ms > 0 else f"gone {-ms:g} ms")
-        print(line(label, sp))
+        print(line(label, sp, ke))
     return 0
 
 

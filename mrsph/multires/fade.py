@@ -50,10 +50,17 @@ front at 1 s against the uniform run's 1.578 m, +1.6 % without any of this):
   weight above it: against ρ0 it would carry none until the offset decayed.
 
 A merge is the same in reverse: the merged particle sits at its group's centre of mass,
-which need not be where the coarse fluid has room for it. Its reference is its group's
-mean density (ρ0 at least). demo_2d, the cursor above taken away after 100 ms
-(``cursor_burst.py --leave``), 2.5 ms later: 336 particles above 1 m/s, the fastest at
-6.5 m/s, with the splits' offset only; 23, and 4.0 m/s, with the merges' too.
+which need not be where the coarse fluid has room for it. Its reference is what its
+group's pressure read: the children's mass-weighted ρ − drho (ρ0 at least), and a
+split's children's is what their parent's read, ρ − drho, so that an offset is handed on
+rather than dropped when a particle changes level. demo_2d, the cursor above taken away
+after 100 ms (``cursor_burst.py --leave``), 2.5 ms later: 336 particles above 1 m/s, the
+fastest at 6.5 m/s, with the splits' offset only; 23, and 4.0 m/s, with the merges' too
+(their reference then the group's raw mean density). Held at the window's strength and
+let go (``--strength 20``), the children still carried their splits' offsets, and
+against their raw density the merged particles took that in full: the kinetic energy
+peaked at 44-52 J within 20 ms, at four places and times; against ρ − drho at 19-44 J,
+21 J on the median (docs/performance.md, "The release of the cursor").
 
 The offset is measured, not computed at the split, because the children's neighbours are
 only all known at the next density pass: a split marks each child with ``born``

@@ -347,6 +347,9 @@ class Multires:
                                 self.pool.children[i, q] = ch
                             p[i].nchild = self.nmax
                     if ok:
+                        # what the parent's pressure read: its density less its own
+                        # offset (a merged particle's, fade.py)
+                        rho_seen = p[i].rho - self.fade.excess(i)
                         # (transient parent: its virtual children become real)
                         for q in range(self.nmax):
                             ch = self.pool.children[i, q]
@@ -357,7 +360,7 @@ class Multires:
                             # down (``limiter.VirtualMassLimiter``)
                             p[ch].m = p[i].m / self.nmax
                             p[ch].flags = FRESH
-                            self.fade.born(ch, p[i].rho)   # (ρ0 at least: see fade.py)
+                            self.fade.born(ch, rho_seen)   # (ρ0 at least: see fade.py)
                             self.place.fresh[ti.atomic_add(self.place.n_fresh[None], 1)] = ch
                         self.place.fit(i, s_f)
                         self.fade.clear(i)
@@ -455,6 +458,7 @@ class Multires:
                         self.absorbing[ti.atomic_add(self.n_absorbing[None], 1)] = i
                 if ok:
                     mass = ti.cast(self._group_mass(i), float)
+                    rho_seen = self._seen_density(i) / mass
                     for fld in ti.static(self._fields(merge_mass_mean())):
                         acc = fld[i] * 0.0
                         for q in range(p[i].nchild):
@@ -465,8 +469,19 @@ class Multires:
                     p[i].m = mass
                     p[i].parent = -1
                     p[i].kind = REGULAR
-                    self.fade.born(i, p[i].rho)     # its group's mean density (fade.py)
+                    self.fade.born(i, rho_seen)     # what its group's pressure read (fade.py)
                     ti.atomic_add(self.counters[EV_MERGES], 1)
+
+    @ti.func
+    def _seen_density(self, i):
+        """Σ m ρ over virtual parent i's children, each ρ less its offset (fade.py): the
+        density their pressure read, mass-weighted (the caller divides by the mass)."""
+        p = ti.static(self.pool.p)
+        acc = 0.0
+        for q in range(p[i].nchild):
+            ch = self.pool.children[i, q]
+            acc += p[ch].m * (p[ch].rho - self.fade.excess(ch))
+        return acc
 
     @ti.func
     def _group_mass(self, i):
