@@ -86,10 +86,7 @@ class Simulation:
         d, L = self.dim, self.levels
         part, a = s["particles"], s["adaptivity"]
         self.rest_density = float(s["fluid"]["rest_density"])
-        # the split fade's attributes stay where they are in a sort when it is off: two
-        # floats of 17 a particle, ~4 % of a uniform 10k step (docs/performance.md)
-        self.pool = ParticlePool(d, int(part["capacity"]),
-                                 unused=() if SplitFade.wanted(s, self.adaptive) else SplitFade.ATTRIBUTES)
+        self.pool = ParticlePool(d, int(part["capacity"]), unused=SplitFade.unused(s, self.adaptive))
         # a few slots more than asked, so that the per-particle arrays do not alias
         # (particles.storage_slots); every per-particle field has this length
         self.capacity = self.pool.capacity
@@ -129,10 +126,8 @@ class Simulation:
         self.emitters = Emitters(parts, self.seeder)
         self.pressure.warn = self._warn
         # a step in one launch where the solver allows it, when not profiled (see step)
-        self.fused = None
-        if self.pressure.one_launch:
-            self.fused = FusedStep(self.grids, self.pool, self.coupling, self.density, self.forces,
-                                   self.integrator, self.disturbances, self.paths, len(s["stirrers"]))
+        self.fused = FusedStep(self.grids, self.pool, self.coupling, self.density, self.forces, self.integrator,
+                               self.disturbances, self.paths, len(s["stirrers"])) if self.pressure.one_launch else None
 
     # ================================================================== state
     def reset(self) -> None:
