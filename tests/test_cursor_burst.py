@@ -36,3 +36,23 @@ def test_a_still_cursor_in_resting_water_throws_nothing():
     thrown = int((gone > 1.0).sum())
     assert thrown <= 100, (f"demo_2d: 2.5 ms after the cursor left, {thrown} of {len(gone)} particles move "
                            f"faster than 1 m/s, the fastest at {gone.max():.2f} m/s (expected <= 100)")
+
+
+def test_letting_go_of_a_held_cursor_splashes_nothing():
+    """The window's mouse (strength 20 1/s) held still in resting water for 0.1 s, then
+    let go: the fluid it refined merges back. Each merge (and absorption, gathering,
+    new coupling) changes what the particles around it read, and those re-measure their
+    split-fade offset (``topology.Multires._remeasure_changed``). The kinetic energy
+    (J per metre of depth) over the 20 ms after, measured at four places and times
+    (docs/performance.md, "The release of the cursor"): 44-52 J at its peak before
+    session 34, 19-44 J with the merged particle's own offset handed on, 3.7-5.8 J with
+    its neighbours re-measured too; at rest before 0.2-0.3 J. The bound sits between."""
+    tool = load_tool("cursor_burst")
+    rows = tool.burst("demo_2d", [], tool.AT, tool.RADIUS, 2.5, (2.5, 6.0, 10.0, 20.0, 100.0), threads=1,
+                      leave=True, strength=20.0)
+    held = rows[5][2]
+    after = [(-ms, ke, sp.max()) for ms, sp, ke in rows if ms < 0]
+    peak = max(after, key=lambda r: r[1])
+    assert peak[1] <= 12.0, (f"demo_2d: {peak[0]:g} ms after a cursor held 0.1 s at strength 20 was let go, "
+                             f"the kinetic energy is {peak[1]:.2f} J (held: {held:.2f} J; expected <= 12), "
+                             f"the fastest particle at {peak[2]:.2f} m/s")

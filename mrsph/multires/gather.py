@@ -27,6 +27,7 @@ class Gathering:
         a = parts.scene["adaptivity"]
         self.dim, self.nmax = parts.dim, 2 ** parts.dim
         self.pool, self.g, self.lev = parts.pool, parts.grids, parts.lev
+        self.fade = parts.fade
         self.release_factor = float(a["release_factor"])
         self.gather_factor = float(a["gather_factor"])
         self.gather_span = float(a["gather_span"])
@@ -122,4 +123,5 @@ class Gathering:
                 p[i].nchild = ni + nj
                 p[j].nchild = 0
                 p[j].kind = DEAD
+                self.fade.touch(p[i].x, c)     # the coarse level sees one heavier there
                 ti.atomic_add(self.counters[self.event], 1)
