@@ -334,14 +334,11 @@ class Simulation:
 
     # ================================================================== reading out
     def particles(self, virtual: bool = True) -> dict:
-        """Alive particles as numpy arrays: x, v, m, rho, p, level, kind (and parent)."""
+        """Alive particles as numpy arrays: x, v, m, rho, p, level, kind, parent, drho, ..."""
         n = self.pool.count()
         p = ti.static(self.pool.p)
-        out = {"x": p.x.to_numpy()[:n], "v": p.v.to_numpy()[:n], "m": p.m.to_numpy()[:n],
-               "rho": p.rho.to_numpy()[:n], "p": p.p.to_numpy()[:n],
-               "level": p.level.to_numpy()[:n], "kind": p.kind.to_numpy()[:n],
-               "parent": p.parent.to_numpy()[:n], "nchild": p.nchild.to_numpy()[:n],
-               "lam": p.lam.to_numpy()[:n]}
+        out = {k: getattr(p, k).to_numpy()[:n]
+               for k in ("x", "v", "m", "rho", "p", "level", "kind", "parent", "nchild", "lam", "drho")}
         keep = out["kind"] != DEAD
         if not virtual:
             keep &= out["kind"] < VIRTUAL_CHILD
@@ -365,7 +362,8 @@ class Simulation:
         for k, ax in enumerate("xyz"[: self.dim]):
             row[f"momentum_{ax}"] = float(mom[k])
         row["kinetic_energy"] = float(0.5 * (m * (v * v).sum(axis=1)).sum())
-        rho = parts["rho"][real]
+        # the density the pressure reads: less the split fade's offset drho (a sampling error)
+        rho = parts["rho"][real] - np.maximum(parts["drho"][real], 0.0) if "drho" in parts else parts["rho"][real]
         row["max_density_ratio"] = float(rho.max() / self.rest_density) if len(rho) else 0.0
         lv = parts["level"]
         for l in range(self.levels):

@@ -991,6 +991,12 @@ def test_a_merge_starts_at_the_pressure_its_group_had(dim):
         raw.append(float((m * rho[ch]).sum() / m.sum()))
     seen, raw = np.array(seen), np.array(raw)
     carried = int((raw - seen > 1.0).sum())
+    # the stats read the density the pressure reads (docs/output.md)
+    real = np.isin(pool["kind"], REAL_KINDS)
+    want = float((rho - np.maximum(drho, 0.0))[real].max()) / 1000.0
+    got = sim.stats()["max_density_ratio"]
+    assert abs(got - want) <= 1e-6, (f"{dim}D: stats max_density_ratio {got:.6f}, the largest rho - drho "
+                                      f"{want:.6f} rho0 (raw {rho[real].max() / 1000.0:.6f})")
     sim.set_disturbance(None)
     sim.multires.adapt(sim.time)
     after = raw_pool(sim)
