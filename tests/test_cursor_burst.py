@@ -45,7 +45,7 @@ def test_letting_go_of_a_held_cursor_splashes_nothing():
     """The window's mouse (strength 20 1/s) held still in resting water for 0.1 s, then
     let go: the fluid it refined merges back. Each merge (and absorption, gathering,
     new coupling) changes what the particles around it read, and those re-measure their
-    split-fade offset (``topology.Multires._remeasure_changed``). The kinetic energy
+    split-fade offset (``SplitFade.remeasure_touched``). The kinetic energy
     (J per metre of depth) over the 20 ms after, measured at four places and times
     (docs/performance.md, "The release of the cursor"): 44-52 J at its peak before
     session 34, 19-44 J with the merged particle's own offset handed on, 3.7-5.8 J with

@@ -66,8 +66,8 @@ The particles around a change of level see it too: a merge puts the group's mass
 its centre where the coarse neighbours saw a virtual parent (whose mass the limiter may
 have scaled down), an absorption makes a coarse particle heavier, a new or gathered
 virtual parent adds mass to the coarse level, a split or new virtual children to the
-fine one. So every real particle within h_c of such an event (``touch``, and the
-``CHANGED`` flag of ``topology.py``) re-measures its offset at the next density pass
+fine one. So every real particle within h_c of such an event (``touch``, ``changed``,
+``remeasure_touched``) re-measures its offset at the next density pass
 against what its pressure read until then (``remeasure``): its pressure does not rise
 from the pass alone. Without it the offset of a particle was measured once, at its
 birth, and only followed down, so a rise after that (its neighbours merging a pass
@@ -86,6 +86,11 @@ turns it into the excess.
 import taichi as ti
 
 from ..particles import is_real
+
+# ``touched`` bits during an adaptivity pass's level pair (c − 1, c)
+REMEASURE = 1      # a real particle whose neighbourhood changed
+FINER_CHANGED = 2  # a level-c particle that split or took virtual children: the level-f
+                   # particles within h_c see more mass
 
 
 @ti.data_oriented
@@ -135,7 +140,7 @@ class SplitFade:
     def touch(self, x, c):
         """A level-c particle appeared, went or grew at x (a merge, an absorption, a new
         or gathered virtual parent): the real level-c particles within h_c are
-        re-measured at the end of the pass (``topology.Multires._remeasure_changed``)."""
+        re-measured at the end of the pass (``remeasure_touched``)."""
         if ti.static(self.on):
             p = ti.static(self.pool.p)
             hc = self.lev.h[c]
@@ -144,7 +149,49 @@ class SplitFade:
                 lo, hi = self.g.row(base, o, c)
                 for j in range(lo, hi):
                     if p[j].level == c and is_real(p[j].kind) and (x - p[j].x).norm_sqr() < hc * hc:
-                        self.touched[j] = 1
+                        ti.atomic_or(self.touched[j], REMEASURE)
+
+    @ti.func
+    def changed(self, i):
+        """Level-c particle i split or took virtual children: the real level-(c − 1)
+        particles within h_c are re-measured at the end of the pass."""
+        if ti.static(self.on):
+            ti.atomic_or(self.touched[i], FINER_CHANGED)
+
+    @ti.func
+    def remeasure_touched(self, n, c):
+        """End of the level pair (c − 1, c): every real particle touched, and every real
+        level-(c − 1) one within h_c of a level-c one that ``changed``, re-measures its
+        offset (``remeasure``); the marks are cleared."""
+        if ti.static(self.on):
+            p = ti.static(self.pool.p)
+            hc = self.lev.h[c]
+            for i in range(n):
+                if is_real(p[i].kind) and p[i].level == c - 1 and self.touched[i] == 0:
+                    xi = p[i].x
+                    base = self.g.around(xi, c)
+                    for o in ti.grouped(ti.ndrange(*self.g.row_axes)):
+                        lo, hi = self.g.row(base, o, c)
+                        for j in range(lo, hi):
+                            if (self.touched[j] & FINER_CHANGED) != 0 and (xi - p[j].x).norm_sqr() < hc * hc:
+                                self.touched[i] = REMEASURE
+            for i in range(n):
+                t = self.touched[i]
+                if t != 0:
+                    self.touched[i] = 0
+                    if (t & REMEASURE) != 0 and is_real(p[i].kind):
+                        self.remeasure(i)
+
+    @ti.func
+    def group_seen(self, i):
+        """Σ m (ρ − drho) over virtual parent i's children: the density their pressure
+        read, mass-weighted (the caller divides by the group's mass)."""
+        p = ti.static(self.pool.p)
+        acc = 0.0
+        for q in range(p[i].nchild):
+            ch = self.pool.children[i, q]
+            acc += p[ch].m * (p[ch].rho - self.excess(ch))
+        return acc
 
     @ti.func
     def remeasure(self, i):

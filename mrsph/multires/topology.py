@@ -80,11 +80,11 @@ coarsest down (§5.4), rebuilding the grids between pairs, and for the coarse le
    particle fell to 0.21-0.50 of its level's mass and the pool filled (docs/performance.md,
    the mass cascade). With it every real particle stays within [1/2, 2] of its level's
    nominal mass.
-9. ``_remeasure_changed`` (``adaptivity.split_fade`` only): every real particle whose
-   neighbourhood this pair changed re-measures its fade offset (``fade.py``): level-c
-   ones within h_c of a merge, an absorption, a new or gathered virtual parent
-   (``SplitFade.touch``), level-f ones within h_c of a split or of new virtual children
-   (``CHANGED``).
+9. ``SplitFade.remeasure_touched`` (``adaptivity.split_fade`` only): every real particle
+   whose neighbourhood this pair changed re-measures its fade offset (``fade.py``):
+   level-c ones within h_c of a merge, an absorption, a new or gathered virtual parent
+   (``touch``), level-f ones within h_c of a split or of new virtual children
+   (``changed``).
 
 Choices left open by the thesis (scene keys, defaults in docs/scenes.md): spring rate of
 the virtual particles' Hooke springs, the sampling pattern above, the hysteresis η, the
@@ -111,9 +111,7 @@ MUST_SPLIT = 4     # level-c particle with a real particle ≥ 2 levels finer wi
 VP_ANCHORED = 8    # virtual parent with a real particle of its own level within its support
 RELEASED = 16      # virtual parent whose group is being released (claimed atomically)
 NEAR_REGULAR = 64  # real level-c particle with a regular (uncoupled) level-f particle within h_c
-CHANGED = 128      # level-c particle whose split or new virtual children change what the
-                   # level-f particles within h_c see (the split fade re-measures those)
-_FLAGS = (NEAR_FINE, NEAR_COARSE, MUST_SPLIT, VP_ANCHORED, RELEASED, FRESH, NEAR_REGULAR, CHANGED)   # distinct bits (a test holds it)
+_FLAGS = (NEAR_FINE, NEAR_COARSE, MUST_SPLIT, VP_ANCHORED, RELEASED, FRESH, NEAR_REGULAR)   # distinct bits (a test holds it)
 
 # The share of the pool that splits and new parent roles leave free, for the virtual
 # parents a merge starts from (``_couple_fine``). Without it, a pool filled by splits
@@ -210,8 +208,7 @@ class Multires:
         self._merge(n, c)
         if ti.static(self.absorb_below > 0.0):
             self._absorb(c)
-        if ti.static(self.fade.on):
-            self._remeasure_changed(n, c)
+        self.fade.remeasure_touched(n, c)
         self.pool.clamp_n()
 
     def take_counters(self) -> dict:
@@ -373,7 +370,7 @@ class Multires:
                             self.place.fresh[ti.atomic_add(self.place.n_fresh[None], 1)] = ch
                         self.place.fit(i, s_f)
                         self.fade.clear(i)
-                        self._changed(i)
+                        self.fade.changed(i)
                         p[i].kind = VIRTUAL_PARENT
                         ti.atomic_add(self.counters[EV_SPLITS], 1)
 
@@ -411,7 +408,7 @@ class Multires:
                             self.pool.children[i, q] = base + q
                         p[i].nchild = self.nmax
                         p[i].kind = k | ROLE_PARENT
-                        self._changed(i)
+                        self.fade.changed(i)
                 elif not near and (k & ROLE_PARENT) != 0:
                     self._kill_virtual_children(i)
 
@@ -470,7 +467,7 @@ class Multires:
                         self.absorbing[ti.atomic_add(self.n_absorbing[None], 1)] = i
                 if ok:
                     mass = ti.cast(self._group_mass(i), float)
-                    rho_seen = self._seen_density(i) / mass
+                    rho_seen = self.fade.group_seen(i) / mass
                     for fld in ti.static(self._fields(merge_mass_mean())):
                         acc = fld[i] * 0.0
                         for q in range(p[i].nchild):
@@ -484,45 +481,6 @@ class Multires:
                     self.fade.born(i, rho_seen)     # what its group's pressure read (fade.py)
                     self.fade.touch(p[i].x, c)
                     ti.atomic_add(self.counters[EV_MERGES], 1)
-
-    @ti.func
-    def _changed(self, i):
-        """Level-c particle i split or took virtual children (the split fade only)."""
-        if ti.static(self.fade.on):
-            ti.atomic_or(self.pool.p[i].flags, CHANGED)
-
-    @ti.func
-    def _remeasure_changed(self, n, c):
-        """Every real particle whose neighbourhood this level pair changed (touched, or a
-        level-f one within h_c of a CHANGED level-c particle) starts its split-fade
-        offset again from what its pressure read (fade.py)."""
-        p = ti.static(self.pool.p)
-        hc = self._h(c)
-        for i in range(n):
-            if is_real(p[i].kind) and p[i].level == c - 1 and self.fade.touched[i] == 0:
-                xi = p[i].x
-                base = self.g.around(xi, c)
-                for o in ti.grouped(ti.ndrange(*self.g.row_axes)):
-                    lo, hi = self.g.row(base, o, c)
-                    for j in range(lo, hi):
-                        if (p[j].flags & CHANGED) != 0 and (xi - p[j].x).norm_sqr() < hc * hc:
-                            self.fade.touched[i] = 1
-        for i in range(n):
-            if self.fade.touched[i] != 0:
-                self.fade.touched[i] = 0
-                if is_real(p[i].kind):
-                    self.fade.remeasure(i)
-
-    @ti.func
-    def _seen_density(self, i):
-        """Σ m ρ over virtual parent i's children, each ρ less its offset (fade.py): the
-        density their pressure read, mass-weighted (the caller divides by the mass)."""
-        p = ti.static(self.pool.p)
-        acc = 0.0
-        for q in range(p[i].nchild):
-            ch = self.pool.children[i, q]
-            acc += p[ch].m * (p[ch].rho - self.fade.excess(ch))
-        return acc
 
     @ti.func
     def _group_mass(self, i):
