@@ -74,8 +74,8 @@ birth, and only followed down, so a rise after that (its neighbours merging a pa
 later, the coupling arriving) went into its pressure in full: level-1 particles of
 0.6-0.9 nominal mass read 1.15-1.24 ρ0 with no offset left, and the release of the held
 cursor above still peaked at 19-44 J. With it: 3.7-5.8 J, the fastest particle 1.7 m/s.
-In demo_2d's opening stir the offsets kept out of the pressure average 0.03-0.14 % of
-ρ0 (0.01-0.08 % before), the mean density is unchanged (0.993-1.002 ρ0).
+In demo_2d's opening stir (0.4-4 s) the offsets kept out of the pressure average
+0.01-0.14 % of ρ0 (0-0.08 % before); the mean density is unchanged (0.99-1.00 ρ0).
 
 The offset is measured, not computed at the split, because the children's neighbours are
 only all known at the next density pass: a split marks each child with ``born``

@@ -353,9 +353,7 @@ class Multires:
                                 self.pool.children[i, q] = ch
                             p[i].nchild = self.nmax
                     if ok:
-                        # what the parent's pressure read: its density less its own
-                        # offset (a merged particle's, fade.py)
-                        rho_seen = p[i].rho - self.fade.excess(i)
+                        rho_seen = p[i].rho - self.fade.excess(i)   # what its pressure read
                         # (transient parent: its virtual children become real)
                         for q in range(self.nmax):
                             ch = self.pool.children[i, q]
@@ -514,14 +512,10 @@ class Multires:
 
     @ti.func
     def _absorb(self, c):
-        """The groups ``_merge`` found too light (under ``absorb_below`` of level c's
-        nominal mass) go to the nearest real regular level-c particle within h_c whose
-        mass stays within ``ABSORB_CAP`` of nominal: it takes their mass and the
-        mass-weighted means (position and velocity, so momentum holds), and the group and
-        its virtual parent go. A group with no such neighbour stays fine. A merge of
-        such a group would make a light coarse particle, its split light children, and
-        so on down (the mass cascade of docs/performance.md). One thread, in the order
-        the groups were found, so that two groups never fill one receiver past the cap."""
+        """Step 8 of the module's docstring: each group ``_merge`` found too light goes to
+        its nearest regular level-c particle within h_c (mass and the mass-weighted means;
+        it keeps its place). One thread, in the order the groups were found, so that two
+        groups never fill one receiver past ``ABSORB_CAP``."""
         p = ti.static(self.pool.p)
         h = self._h(c)
         cap = ti.static(ABSORB_CAP) * self.lev.m[c]
