@@ -396,13 +396,14 @@ class _App:
         self.paused, self.step_once = True, True
 
     def _held_keys(self, dt: float) -> None:
-        """Camera keys act while held (3D only); a tap released before this frame could
-        see it held acts for TAP_S."""
+        """Camera keys act while held (3D only); a key pressed since the last frame acts
+        for at least TAP_S, so a tap zooms the same whether or not this frame still sees
+        it down."""
         taps, self.taps = self.taps, set()
         if self.snap is None or self.snap.dim != 3:
             return
         w, ui = self.window, self.ti.ui
-        held = [dt if w.is_pressed(k) else (TAP_S if k in taps else 0.0)
+        held = [max(dt if w.is_pressed(k) else 0.0, TAP_S if k in taps else 0.0)
                 for k in (ui.LEFT, ui.RIGHT, ui.UP, ui.DOWN, "z", "x")]
         self.renderer.ensure_camera(self.snap).keys(*held)
 
