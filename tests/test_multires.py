@@ -798,6 +798,47 @@ def test_a_restored_state_steps_exactly_as_the_original(dim):
         other.restore_state(state)
 
 
+# the dfsph cases in the default run: its kernels compiled as there (TI_ADVANCED_OPTIMIZATION=0)
+# gave the NaN; optimised, LLVM's fast math hid it
+@pytest.mark.parametrize(("dim", "solver"), dim_solver_params(slow=("3d",)))
+def test_particles_whose_lists_overflowed_move_as_if_listed(dim, solver, monkeypatch):
+    """A particle with more neighbours than its list holds (``MAX_NEIGHBOURS``) is summed
+    over its grid block instead, in every pass. A run whose lists hold one neighbour (all
+    of them overflow) takes the same step as the listed run from the same state: the
+    slab of the moving refinement thrown onto the floor, so that the walls' images and
+    every kind of particle are in the sums. The two sum in another order, so they agree
+    to round-off. Found by the stirred soak (session 35): under dfsph the own block holds
+    i itself at r = 0, which the solver took for i on a wall, and its velocity went NaN."""
+    import mrsph.neighbours
+    from mrsph.solver import Simulation
+
+    scene = for_solver(moving_region_scene(dim), solver)
+    scene["physics"]["gravity"] = [0.0, -9.81] + [0.0] * (dim - 2)
+    block = scene["fluid"]["blocks"][0]
+    scene["domain"]["min"][1] = block["min"][1]       # the floor under the slab
+    block["velocity"] = [0.0, -1.5] + [0.0] * (dim - 2)
+    listed = Simulation(load_scene(scene), arch="cpu", threads=1)
+    for _ in range(12):
+        listed.step()
+    state = listed.save_state()
+    monkeypatch.setattr(mrsph.neighbours, "MAX_NEIGHBOURS", {2: 1, 3: 1})
+    overflowed = Simulation(load_scene(scene), arch="cpu", threads=1)
+    overflowed.restore_state(state)
+    listed.step()
+    overflowed.step()
+    a, b = raw_pool(listed), raw_pool(overflowed)
+    for key in ("n", "level", "kind"):
+        assert np.array_equal(a[key], b[key]), f"{case_label(dim, solver)}: the overflowed step's {key} differs"
+    real = np.isin(a["kind"], REAL_KINDS)
+    dv = np.abs(a["v"][real] - b["v"][real]).max(axis=1)
+    speed = float(np.abs(a["v"][real]).max())
+    worst = int(np.argmax(np.where(np.isfinite(dv), dv, np.inf)))
+    assert np.isfinite(b["v"]).all() and dv[worst] <= 1e-4 * speed, (
+        f"{case_label(dim, solver)}: a step with every list overflowed moves real particle {worst} at "
+        f"{b['v'][real][worst]} m/s, the listed step at {a['v'][real][worst]} (fastest {speed:.3g} m/s; "
+        f"{int((~np.isfinite(b['v'])).any(axis=1).sum())} non-finite velocities)")
+
+
 # ================================================================== capacity
 def test_a_full_pool_refuses_splits_warns_once_and_loses_nothing(dim):
     """Issue 3 §7: a split that does not fit in the pool is refused, counted in the stats
