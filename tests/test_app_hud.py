@@ -48,10 +48,11 @@ def test_switch_cycles_the_schema_choices():
 
 
 def test_switch_refuses_a_scene_that_cannot_take_dfsph_in_one_line():
-    ok = load_scene("demo_2d")
+    ok = load_scene("demo_2d", ['fluid.solver="wcsph"'])
     assert running_solver(ok) == "wcsph"
     assert why_not(ok, "dfsph") is None
-    symmetric = load_scene("demo_2d", ["adaptivity.coupling=symmetric"])
+    assert running_solver(load_scene("demo_2d")) == "dfsph" and why_not(load_scene("demo_2d"), "wcsph") is None
+    symmetric = load_scene("demo_2d", ['fluid.solver="wcsph"', "adaptivity.coupling=symmetric"])
     why = why_not(symmetric, "dfsph")
     assert why is not None and why.startswith("cannot switch to dfsph: "), why
     assert "adaptivity.coupling" in why and "\n" not in why, why
