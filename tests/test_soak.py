@@ -34,6 +34,19 @@ def test_strength_is_the_window_slider_maximum():
     assert float(m.group(2)) == soak_tool.STRENGTH_MAX
 
 
+def test_the_soak_caps_its_cursor_harder_than_the_window_unless_asked():
+    """By default the cursor may ask for 8 domain sizes a second (12.8 m/s in demo_2d);
+    ``--window-cap`` caps it as the window does, at a tenth of sqrt(fluid.stiffness)."""
+    from mrsph.app.mouse import safe_speed
+    from mrsph.config import load_scene
+    data = load_scene("demo_2d").data
+    harsh, window = soak_tool.soak_mouse(data), soak_tool.soak_mouse(data, window_cap=True)
+    assert harsh.max_speed == pytest.approx(8.0 * 1.6), harsh.max_speed
+    assert window.max_speed == pytest.approx(safe_speed(data["fluid"]["stiffness"], data["domain"]["min"],
+                                                        data["domain"]["max"])) == pytest.approx(2.0)
+    assert harsh.strength == window.strength == soak_tool.STRENGTH_MAX and harsh.radius == pytest.approx(0.8)
+
+
 def test_obstacle_sdf_matches_boxes_and_circles():
     obstacles = [{"shape": "box", "min": [1.0, 0.0], "max": [2.0, 1.0]},
                  {"shape": "sphere", "center": [5.0, 5.0], "radius": 1.0}]

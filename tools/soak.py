@@ -8,7 +8,9 @@ The stirrer is the window's own mouse logic (:class:`mrsph.app.mouse.MouseDistur
 fed a scripted cursor, at the strongest settings the window offers: strength at the HUD
 slider's maximum (:data:`STRENGTH_MAX`), radius at the mouse's clamp
 (``RADIUS_MAX_FRACTION`` of the domain's largest side), the cursor sweeping back and forth
-through the water at the mouse's speed clamp. It pushes, pulls, then lets go, in turn
+through the water at the mouse's speed clamp: by default the clamp without a sound speed,
+8 domain sizes a second (12.8 m/s in demo_2d), harsher than any window; with
+``--window-cap`` the window's own, a tenth of sqrt(fluid.stiffness) (2 m/s in demo_2d). It pushes, pulls, then lets go, in turn
 (:data:`GESTURES`, :data:`GESTURE_S` each), so that fluid refines under it and merges back behind it.
 
 Every ``--check-every`` steps, and after the last one, it checks:
@@ -95,7 +97,7 @@ class SoakResult:
                 f"{self.wall_s:.4g} s wall ({self.steps / max(self.wall_s, 1e-9):.0f} steps/s); "
                 f"min dt {self.min_dt:.3g} s; max speed {self.max_speed:.3g} m/s; "
                 f"splits {self.splits}, merges {self.merges}; refused {self.refused}"
-                f"{' (warned)' if self.warnings else ''}; real particles "
+                f"{' (warned)' if self.refused and self.warnings else ''}; real particles "
                 f"{self.n_real_min}..{self.n_real_max} (at the end {self.n_real_end}); "
                 f"{self._mass_text()}{self.checks} checks: {verdict}")
 
@@ -209,12 +211,25 @@ class ScriptedCursor:
 
 
 # ----------------------------------------------------------------------------- the soak
+def soak_mouse(data: dict, strength: float = STRENGTH_MAX, radius_fraction: float | None = None,
+               window_cap: bool = False):
+    """The soak's mouse: ``strength``, the radius at ``radius_fraction`` (default the
+    mouse's clamp) of the domain's largest side, and the speed cap of a mouse that knows
+    no sound speed, or with ``window_cap`` the window's (``safe_speed`` of the scene's
+    ``fluid.stiffness``, as ``mrsph/app/window.py`` builds it)."""
+    from mrsph.app.mouse import RADIUS_MAX_FRACTION, MouseDisturbance
+    lo, hi = np.asarray(data["domain"]["min"], float), np.asarray(data["domain"]["max"], float)
+    size = float(np.max(hi - lo))
+    stiffness = float(data["fluid"]["stiffness"]) if window_cap else None
+    return MouseDisturbance.for_domain(lo, hi, stiffness, strength=strength,
+                                       radius=(radius_fraction or RADIUS_MAX_FRACTION) * size)
+
+
 def soak(steps: int = 100_000, check_every: int = 500, scene="demo_2d", overrides=(),
          arch: str = "cpu", threads: int | None = None, strength: float = STRENGTH_MAX,
          radius_fraction: float | None = None, gesture_s: float = GESTURE_S,
-         progress=None) -> SoakResult:
+         progress=None, window_cap: bool = False) -> SoakResult:
     """Run the soak (see the module docstring); ``progress(result)`` after every check."""
-    from mrsph.app.mouse import RADIUS_MAX_FRACTION, MouseDisturbance
     from mrsph.config import load_scene
     from mrsph.particles import VIRTUAL_CHILD
     from mrsph.solver import Simulation, SimulationError
@@ -225,10 +240,7 @@ def soak(steps: int = 100_000, check_every: int = 500, scene="demo_2d", override
         raise ValueError(f"{sc.name}: the soak wants a 2D adaptive scene (dim = {data['dim']}, "
                          f"adaptivity.enabled = {data['adaptivity']['enabled']})")
     sim = Simulation(sc, arch=arch, threads=threads)
-    lo, hi = np.asarray(data["domain"]["min"], float), np.asarray(data["domain"]["max"], float)
-    size = float(np.max(hi - lo))
-    mouse = MouseDisturbance.for_domain(lo, hi, strength=strength,
-                                        radius=(radius_fraction or RADIUS_MAX_FRACTION) * size)
+    mouse = soak_mouse(data, strength, radius_fraction, window_cap)
     cursor = ScriptedCursor(data, mouse.max_speed, gesture_s)
     tolerance = POSITION_TOLERANCE * sim.s0
     nominal = sim.lev.m.to_numpy().astype(np.float64)
@@ -294,6 +306,9 @@ def main(argv=None) -> int:
     ap.add_argument("--strength", type=float, default=STRENGTH_MAX, help="stirring strength, 1/s")
     ap.add_argument("--gesture-s", type=float, default=GESTURE_S,
                     help="simulated seconds of each gesture (push, pull, let go)")
+    ap.add_argument("--window-cap", action="store_true",
+                    help="cap the cursor's speed as the window does (0.1 sqrt(fluid.stiffness)), "
+                         "not at 8 domain sizes a second")
     ap.add_argument("--quiet", action="store_true", help="only the summary line")
     args = ap.parse_args(argv)
     if args.steps < 1 or args.check_every < 1:
@@ -309,7 +324,8 @@ def main(argv=None) -> int:
 
     try:
         res = soak(args.steps, args.check_every, args.scene, args.overrides, args.arch,
-                   args.threads, args.strength, gesture_s=args.gesture_s, progress=progress)
+                   args.threads, args.strength, gesture_s=args.gesture_s, progress=progress,
+                   window_cap=args.window_cap)
     except SceneError as e:
         for line in e.problems:
             print(line, file=sys.stderr)
