@@ -10,8 +10,9 @@ slider's maximum (:data:`STRENGTH_MAX`), radius at the mouse's clamp
 (``RADIUS_MAX_FRACTION`` of the domain's largest side), the cursor sweeping back and forth
 through the water at the mouse's speed clamp: by default the clamp without a sound speed,
 8 domain sizes a second (12.8 m/s in demo_2d), harsher than any window; with
-``--window-cap`` the window's own, a tenth of sqrt(fluid.stiffness) (2 m/s in demo_2d). It pushes, pulls, then lets go, in turn
-(:data:`GESTURES`, :data:`GESTURE_S` each), so that fluid refines under it and merges back behind it.
+``--window-cap`` the window's own, a tenth of sqrt(fluid.stiffness) (2 m/s in demo_2d).
+It pushes, pulls, then lets go, in turn (:data:`GESTURES`, :data:`GESTURE_S` each), so
+that fluid refines under it and merges back behind it.
 
 Every ``--check-every`` steps, and after the last one, it checks:
 
