@@ -161,10 +161,9 @@ class Multires:
         # groups lighter than this share of their level's nominal mass are absorbed by
         # a coarse neighbour instead of merging (``_absorb``); 0: they merge
         self.absorb_below = float(a["absorb_below"])
-        # the receiver takes the group's mass-weighted means but keeps its place: moved
-        # to the mass-weighted position, receivers at a 3D dam-break front were pulled
-        # onto the remnants ahead of them, and the front ran 11 % ahead of the uniform
-        # run's (1.6 % when they stay); mass and momentum hold either way
+        # the receiver takes the group's mass-weighted means but keeps its place (moved,
+        # receivers at a 3D dam-break front were pulled onto the remnants ahead of them:
+        # the front ran 11 % ahead of the uniform run's, 1.6 % when they stay)
         self._absorbed_means = [a for a in merge_mass_mean() if a != "x"]
         self.absorbing = ti.field(ti.i32, shape=self.pool.capacity)
         self.n_absorbing = ti.field(ti.i32, shape=())
@@ -297,9 +296,8 @@ class Multires:
                 spread = 0.0
                 for a in range(p[i].nchild):
                     ca = self.pool.children[i, a]
-                    # still needed while a child is near a real coarse particle, though
-                    # the barycentre may lie beyond the coarse support (else the group is
-                    # released and gathered again pass after pass)
+                    # still needed while a child is near a real coarse particle, even with the
+                    # barycentre beyond the coarse support (else released and gathered again)
                     if (p[ca].flags & NEAR_COARSE) != 0:
                         anchored = True
                     if p[ca].lam < f - self.hysteresis:
@@ -442,12 +440,9 @@ class Multires:
     def _merge(self, n, c):
         p = ti.static(self.pool.p)
         for i in range(n):
-            # a full group merges; a partial one of at least merge_min children only once
-            # it can gather no more (no group within reach that it could take in; partner
-            # is from the last gathering round). Half a group by default: in a film one
-            # fine particle thick (the 3D dam break past its block) the 2^d nearest
-            # particles span more than the release distance, so full groups never form
-            # and, with full groups only, the film stayed fine for good (0 merges)
+            # a full group merges; a partial one of at least merge_min only once it can
+            # gather no more (partner: the last gathering round). Half a group by default:
+            # in a film one particle thick full groups never form (the 3D dam break: 0 merges)
             k = p[i].nchild
             least = self.merge_min
             if ti.static(self.merge_remnants) and (p[i].flags & VP_ANCHORED) != 0:

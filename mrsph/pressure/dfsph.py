@@ -139,8 +139,7 @@ class DFSPH:
         cap = parts.pool.capacity
         self.alpha = ti.field(float, shape=cap)
         # m_j ∇W_ij of each listed neighbour, taken once a step with the factors: every
-        # iteration then reads them instead of recomputing a square root and a division
-        # per pair (SPlisHSPlasH's precomputed values do the same)
+        # iteration reads them instead of a square root and a division per pair
         self.gw = ti.Vector.field(self.dim, float, shape=(cap, parts.neighbours.max_neighbours))
         self.kappa = ti.field(float, shape=cap)      # this iteration's κ_i
         self.ksum = ti.field(float, shape=cap)       # Σ κ_i over the density solve
@@ -255,14 +254,10 @@ class DFSPH:
             g = (-3.0 * ctx[1] * d * d / rn) * (L @ rq)
         elif j == i and r2 == 0.0 and L.trace() < self.dim - 1.0:
             # i on the wall itself (the collision put it there): its mirror image sits on
-            # it, and the gradient's limit, 3 c h² along the wall's normal, is what lets
-            # the solve push it back into the fluid. Left out, nothing could take its
-            # density excess (the image's W(0)) but its neighbours, and the solve pushed
-            # them without bound (the 2D dam break blew up in a corner at 0.4 s).
-            # Images only (a reflection has an eigenvalue -1: trace <= dim - 2): the own
-            # grid block of a particle whose list overflowed holds i itself, at r = 0 with
-            # L = I, whose wall normal is 0/0 (NaN velocities in the stirred demo_2d;
-            # session 35)
+            # it, and the gradient's limit, 3 c h² along the wall's normal, lets the solve
+            # push it back into the fluid (left out, the solve pushed its neighbours without
+            # bound: the 2D dam break blew up in a corner at 0.4 s). Images only (trace
+            # L <= d - 2): an overflowed list's grid block holds i itself at L = I.
             ok = True
             g = (-3.0 * ctx[1] * h * h) * self.nb.image_normal(p[i].x, L, nrm, check)
         return ok, g
