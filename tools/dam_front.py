@@ -3,6 +3,7 @@
     python3 tools/dam_front.py --dim 3                          # the test's settings
     python3 tools/dam_front.py --dim 3 --viscosity 0.97,1,1.03 --cfl 0.18,0.2,0.22
     python3 tools/dam_front.py --dim 2 --set adaptivity.release_factor=0.8 --uniform
+    python3 tools/dam_front.py --dim 3 --solver dfsph --cfl 0.36,0.4,0.44 --uniform
 
 The scene is the one ``tests/test_adaptive_flow.py`` checks (``refined_dam``: a dam break
 in a long tank, two levels, 1 and 2 cm, refined within 3 cm of a low block; the earlier
@@ -31,8 +32,11 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-# Uniform fronts at 1 s at the test's settings (viscosity x1, CFL 0.2), in m.
-UNIFORM_FRONT = {2: 1.556, 3: 1.578}
+# Uniform fronts at 1 s at the test's settings (viscosity x1, the solver's default CFL
+# number: physics.cfl 0.2, dfsph.cfl 0.4), in m.
+UNIFORM_FRONT = {("wcsph", 2): 1.556, ("wcsph", 3): 1.578, ("dfsph", 2): 1.581, ("dfsph", 3): 1.589}
+# The key the CFL numbers set, and its default, per solver.
+CFL_KEY = {"wcsph": ("physics.cfl", 0.2), "dfsph": ("dfsph.cfl", 0.4)}
 
 
 def _floats(text: str) -> list[float]:
@@ -42,7 +46,7 @@ def _floats(text: str) -> list[float]:
         raise argparse.ArgumentTypeError(f"expected numbers separated by commas, got {text!r}") from None
 
 
-def run_one(dim: int, viscosity: float, cfl: float, sets: list[str], uniform: bool) -> dict:
+def run_one(dim: int, solver: str, viscosity: float, cfl: float, sets: list[str], uniform: bool) -> dict:
     """One run in this process: fronts at the test's early time and at 1 s."""
     sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
     import numpy as np
@@ -52,11 +56,12 @@ def run_one(dim: int, viscosity: float, cfl: float, sets: list[str], uniform: bo
 
     raw = flow.refined_dam(dim)
     raw["fluid"]["viscosity"] *= viscosity
+    raw["fluid"]["solver"] = solver
     if uniform:
         raw = flow.uniform(raw)
-    scene = load_scene(raw, [f"physics.cfl={cfl}", *sets])
+    scene = load_scene(raw, [f"{CFL_KEY[solver][0]}={cfl}", *sets])
     sim = Simulation(scene, arch="cpu", threads=1)
-    out = {"dim": dim, "viscosity": viscosity, "cfl": cfl, "uniform": uniform}
+    out = {"dim": dim, "solver": solver, "viscosity": viscosity, "cfl": cfl, "uniform": uniform}
     counts = []
     start = time.perf_counter()
     while sim.time < flow.DAM_T - 1e-9:
@@ -76,8 +81,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--dim", type=int, choices=(2, 3), required=True)
     ap.add_argument("--viscosity", type=_floats, default=[1.0],
                     help="factors on the test's viscosity, comma-separated (default 1)")
-    ap.add_argument("--cfl", type=_floats, default=[0.2],
-                    help="CFL numbers, comma-separated (default 0.2, the test's)")
+    ap.add_argument("--solver", choices=tuple(CFL_KEY), default="wcsph",
+                    help="fluid.solver (default wcsph)")
+    ap.add_argument("--cfl", type=_floats,
+                    help="CFL numbers, comma-separated: physics.cfl with wcsph, dfsph.cfl with "
+                         "dfsph (default the solver's own, 0.2 or 0.4, as the test runs)")
     ap.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
                     help="a scene override, as on the command line (repeatable)")
     ap.add_argument("--uniform", action="store_true",
@@ -96,7 +104,8 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         return 0
 
-    jobs = [dict(dim=args.dim, viscosity=v, cfl=c, sets=args.sets, uniform=u)
+    args.cfl = args.cfl or [CFL_KEY[args.solver][1]]
+    jobs = [dict(dim=args.dim, solver=args.solver, viscosity=v, cfl=c, sets=args.sets, uniform=u)
             for v, c in itertools.product(args.viscosity, args.cfl)
             for u in ((False, True) if args.uniform else (False,))]
     results, running, core = [], [], 0
@@ -121,13 +130,13 @@ def main(argv: list[str] | None = None) -> int:
     errors = []
     print("viscosity  cfl    front 0.4 s  front 1 s  uniform   error   real particles")
     for r in sorted((r for r in results if not r["uniform"]), key=lambda r: (r["viscosity"], r["cfl"])):
-        u = ref.get((r["viscosity"], r["cfl"]), UNIFORM_FRONT[args.dim])
+        u = ref.get((r["viscosity"], r["cfl"]), UNIFORM_FRONT[args.solver, args.dim])
         err = 100 * (r["front"] / u - 1)
         errors.append(err)
         print(f"x{r['viscosity']:<8g} {r['cfl']:<6g} {r['early']:9.3f} m {r['front']:8.3f} m "
               f"{u:7.3f} m {err:+6.1f} %  {r['mean_real']:8.0f}")
-    source = "its uniform twin" if args.uniform else f"{UNIFORM_FRONT[args.dim]} m (test settings)"
-    print(f"{args.dim}D, {len(errors)} runs against {source}: mean {sum(errors) / len(errors):+.1f} %, "
+    source = "its uniform twin" if args.uniform else f"{UNIFORM_FRONT[args.solver, args.dim]} m (test settings)"
+    print(f"{args.dim}D {args.solver}, {len(errors)} runs against {source}: mean {sum(errors) / len(errors):+.1f} %, "
           f"{min(errors):+.1f} .. {max(errors):+.1f} %, {sum(abs(e) > 5 for e in errors)} beyond 5 %")
     return 0
 
