@@ -206,9 +206,13 @@ def refined_dam(dim: int) -> dict:
     thrown forward by the splits at the block. With two levels the uniform twin is 8x
     the coarse run in 3D, so a 5x saving leaves room for about 800 fine particles on
     average: the shell is 3 cm (at 4 cm, 4.9x). Measured with ``tools/dam_front.py
-    --dim D --cfl 0.17,...,0.23`` (docs/dam-front.md): 3D front -0.5 .. 0.0 % (mean
-    -0.2 %), 5.2x fewer particles; 2D -1.7 .. +1.8 % (mean +0.3 %), 3.2x. In 3D the
-    uniform twin (9600 particles) takes about 90 s of the suite on one core."""
+    --dim D [--solver dfsph] --cfl ...`` (docs/dam-front.md, "The absorption's reach"),
+    seven CFL numbers for wcsph, five to fifteen runs for dfsph: 3D wcsph -0.4 .. +0.8 %
+    (mean +0.2 %), dfsph +0.9 .. +4.0 % (mean +2.3 %), 5.4x fewer particles; 2D wcsph
+    -1.0 .. +1.7 % (mean +0.5 %), dfsph -2.2 .. -0.7 % (mean -1.3 %). One run says
+    little: before session 36 the 3D runs read +8.6 % on average (wcsph, up to +19.9 %)
+    while the test's own settings read +1.6 %. In 3D the uniform twin (9600 particles)
+    takes about 90 s of the suite on one core."""
     s0 = 0.01
     lo, hi = box(dim, (0, 0), (DAM_L, 0.6), (0, 0.12))
     blo, bhi = box(dim, (0, 0), (DAM_A, 2 * DAM_A), (0, 0.12))
