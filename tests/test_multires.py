@@ -803,13 +803,15 @@ def test_a_restored_state_steps_exactly_as_the_original(dim):
 @pytest.mark.parametrize(("dim", "solver"), dim_solver_params(slow=("3d",)))
 def test_particles_whose_lists_overflowed_move_as_if_listed(dim, solver, monkeypatch):
     """A particle with more neighbours than its list holds (``MAX_NEIGHBOURS``) is summed
-    over its grid block instead, in every pass. A run whose lists hold one neighbour (all
-    of them overflow) takes the same step as the listed run from the same state: the
+    over its grid block instead, in every pass, and one with more DFSPH image pairs than
+    it keeps (``dfsph.IMAGE_PAIRS``) sums its images on the fly. A run whose lists and image
+    pairs hold one (all of them overflow) takes the same step as the listed run from the same state: the
     slab of the moving refinement thrown onto the floor, so that the walls' images and
     every kind of particle are in the sums. The two sum in another order, so they agree
     to round-off. Found by the stirred soak (session 35): under dfsph the own block holds
     i itself at r = 0, which the solver took for i on a wall, and its velocity went NaN."""
     import mrsph.neighbours
+    import mrsph.pressure.dfsph
     from mrsph.solver import Simulation
 
     scene = for_solver(moving_region_scene(dim), solver)
@@ -822,6 +824,7 @@ def test_particles_whose_lists_overflowed_move_as_if_listed(dim, solver, monkeyp
         listed.step()       # (after 12 steps a wrong image term in the solve went unseen)
     state = listed.save_state()
     monkeypatch.setattr(mrsph.neighbours, "MAX_NEIGHBOURS", {2: 1, 3: 1})
+    monkeypatch.setattr(mrsph.pressure.dfsph, "IMAGE_PAIRS", {2: 1, 3: 1})   # dfsph's image pairs too
     overflowed = Simulation(load_scene(scene), arch="cpu", threads=1)
     overflowed.restore_state(state)
     listed.step()

@@ -38,13 +38,23 @@ KNOWN_FAILURES: dict[tuple[str, str], str] = {
     # strict xfail; the noise comes in bursts (see test_adaptive_flow's refined pool, which
     # read 0.0072 here and 0.0116 on CI), so a run can land on either side of the bound.
     ("tank_speed", "3d-dfsph"): "3D DFSPH tank settles to 0.0126 sqrt(gH), not 0.01 (issue 31)",
+    # The 2D DFSPH tank has the same noise, and one run lands on either side of the bound.
+    # Measured session 36, main at 9063c79 with one key nudged by about round-off a run:
+    # as is 0.0045 sqrt(gH); fluid.viscosity x0.99 0.0126, x1.01 0.0124;
+    # dfsph.density_tolerance 0.00099 0.0128, 0.00101 0.0122; physics.dt_max 1.99 ms
+    # 0.0127, 2.01 ms 0.0124; fluid.artificial_viscosity 0.0101 0.0077. The DFSPH image
+    # pairs kept with the factors (equal to round-off) read 0.0128 as is and 0.0048 with
+    # the tolerance at 0.00101.
+    ("tank_speed", "2d-dfsph"): "2D DFSPH tank settles to 0.0045-0.0128 sqrt(gH) as its float "
+                                "sequence falls, 0.0125 in most runs, not 0.01 (issue 31)",
 }
 # The resting tank under wcsph was listed until fluid.hydrostatic_start and
 # fluid.artificial_viscosity; it now settles and reads hydrostatic pressure in 2D and 3D.
-# The 2D DFSPH tank was listed until the artificial viscosity took its c from
+# The 2D DFSPH tank was unlisted when the artificial viscosity took its c from
 # fluid.stiffness under dfsph too (it settled at 0.0125 sqrt(gH), a particle on a wall) and
 # the band pressure was sampled every step (every fifth step read +12 %); measured
-# 2026-11-26: 0.0073 sqrt(gH), -0.4 %, closest particle 0.43 spacings from a wall.
+# 2026-11-26: 0.0073 sqrt(gH), -0.4 %, closest particle 0.43 spacings from a wall. Its
+# speed is listed again (above): that was one run's reading.
 
 
 def stiffness_for(height: float) -> float:
