@@ -581,7 +581,14 @@ def test_fine_fluid_a_stirrer_left_merges_back(dim, remnants):
     0.2 s): 462 of 2000 real particles when a gathered group could span only 0.8 of the
     release distance (a lattice cell of eight spans 0.87), 190 of 1791 with
     ``gather_span`` = 0.9; the rest are groups of 1–3 that no group can join, which
-    ``merge_remnants`` merges where they sit among coarse particles (0 left). 2D: 2 left."""
+    ``merge_remnants`` merges where they sit among coarse particles. 2D: 2 left.
+
+    With ``merge_remnants`` none were left until session 36, when a group too light to
+    stand alone could go to a receiver a whole coarse support away. Within one coarse
+    spacing (``ABSORB_REACH``, which put the 3D dam-break front right: docs/dam-front.md,
+    "The absorption's reach") 12 of 1555 stay fine in 3D, from 0.2 s to 0.5 s at least:
+    groups with no receiver that near. The bound is 1 % of the real particles, against
+    the 15 % of the default case."""
     sim = make_sim(stirred_slab_scene(dim, merge_remnants=remnants))
     sim.advance(0.2)
     p = sim.particles(virtual=False)
@@ -593,8 +600,9 @@ def test_fine_fluid_a_stirrer_left_merges_back(dim, remnants):
           f"wanting level 1; {(rel < 0.999).sum()} lighter than nominal (lightest {rel.min():.3f})")
     assert fine.sum() < n, f"{dim}D: nothing merged ({fine.sum()} fine of {n}); the test proves nothing"
     if remnants:
-        assert stuck == 0, (f"{dim}D: {stuck} fine particles want level 1 and have not merged 0.08 s after "
-                            f"the stirrer left, with merge_remnants on; expected none")
+        assert stuck <= 0.01 * n, (f"{dim}D: {stuck} of {n} real particles are fine, want level 1 and have "
+                                   f"not merged 0.08 s after the stirrer left, with merge_remnants on; "
+                                   f"expected at most 1 %")
     else:
         # 3D leaves groups of 1-3 (190 of 1791, 11 %); 2D all but a few (2 of 695)
         share = 0.15 if dim == 3 else 0.02
