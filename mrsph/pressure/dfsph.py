@@ -422,22 +422,20 @@ class DFSPH:
         p = ti.static(self.pool.p)
         l, h, ctx = self._ctx(i)
         acc = ti.Vector.zero(float, self.dim)
+        ki = self.kappa[i] / p[i].rho
         if self.nb.is_listed(i):
-            ki = self.kappa[i] / p[i].rho
             mi = p[i].m
             for q in range(self.nb.count[i]):
                 j = self.nb.lists[i, q]
-                f = (ki + self.coupling.partner_pressure(p[j].kind, self.kappa[j]) / p[j].rho) * self.kept.gw[i, q]
+                f = (ki + self._shown(j)) * self.kept.gw[i, q]
                 acc += f
                 self.coupling.hand_reaction(j, -mi * f)
         else:
             self.nb.grid_candidates(i, p[i].x, ti.Matrix.identity(float, self.dim), p[i].x, p[i].x,
                                     False, l, self._push_own, ctx, acc)
         if self.kept.images_kept(i):
-            ki = self.kappa[i] / p[i].rho
             for k in range(self.kept.img_n[i]):       # the walls are external: nothing handed on
-                j = self.kept.img_j[i, k]
-                acc += (ki + self.coupling.partner_pressure(p[j].kind, self.kappa[j]) / p[j].rho) * self.kept.img_g[i, k]
+                acc += (ki + self._shown(self.kept.img_j[i, k])) * self.kept.img_g[i, k]
         else:
             self.nb.images(i, h, self._push_images.visit, ctx, acc)
         return acc
@@ -452,11 +450,15 @@ class DFSPH:
             acc += p[j].m * (p[i].v - L @ p[j].v).dot(g)
 
     @ti.func
+    def _shown(self, j):
+        """κ'_j/ρ_j, κ'_j the pressure j shows its neighbours (the coupling's)."""
+        return self.coupling.partner_pressure(self.pool.p[j].kind, self.kappa[j]) / self.pool.p[j].rho
+
+    @ti.func
     def _push(self, i, j, g):
-        """m_j (κ_i/ρ_i + κ'_j/ρ_j) ∇W_ij, κ'_j the pressure j shows (the coupling's)."""
+        """m_j (κ_i/ρ_i + κ'_j/ρ_j) ∇W_ij."""
         p = ti.static(self.pool.p)
-        kj = self.coupling.partner_pressure(p[j].kind, self.kappa[j])
-        return p[j].m * (self.kappa[i] / p[i].rho + kj / p[j].rho) * g
+        return p[j].m * (self.kappa[i] / p[i].rho + self._shown(j)) * g
 
     @ti.func
     def _push_own(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(),
