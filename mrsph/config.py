@@ -178,7 +178,10 @@ SCHEMA = Table(required=True, keys={
                                          "solve at most (counted and warned as max_iterations)"),
         "divergence_solve": Key("bool", True, doc="run the divergence solve each step (false: the "
                                 "density solve alone, as IISPH-like schemes)"),
-        "warm_start": Key("bool", True, doc="start the density solve from the last step's pressure")},
+        "warm_start": Key("float", 0.5, "[0, 1]", doc="the share of the last step's pressure the "
+                          "density solve starts from, where the kicked fluid is compressed (0: a "
+                          "cold start; 1, the whole, ratchets the 2D dam break's pressure up until "
+                          "it blows up)")},
         doc="The divergence-free solver (fluid.solver = \"dfsph\"); ignored by wcsph."),
     "physics": Table({
         "gravity": Key("vec", lambda dim: (0.0, -9.81, 0.0)[:dim], unit="m/s^2",

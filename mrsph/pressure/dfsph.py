@@ -59,11 +59,6 @@ from .eos import sound_speed
 # the warm start out of the loop first.
 ITERATIONS_PER_LAUNCH = 1
 
-# The share of the last step's pressure a density solve starts from, where the fluid is
-# compressed (see ``_warm``). SPlisHSPlasH takes half as well; the whole (1.0) made the
-# 2D dam break's pressure ratchet up step by step until it blew up within 20 steps.
-WARM_START = 0.5
-
 # The mirror-image pairs (a neighbour's image across a wall or the obstacle, or i's own)
 # each particle keeps with its factor, m_j ∇W_ij and m_j Lᵀ ∇W_ij, as ``gw`` keeps its
 # listed neighbours': every iteration then reads them instead of finding the image's
@@ -209,7 +204,7 @@ class DFSPH:
         self.min_iterations = (int(cfg["min_iterations"]), int(cfg["divergence_min_iterations"]))
         self.max_iterations = (int(cfg["max_iterations"]), int(cfg["divergence_max_iterations"]))
         self.divergence = bool(cfg["divergence_solve"])
-        self.warm_start = bool(cfg["warm_start"])
+        self.warm_start = float(cfg["warm_start"])
         fl = parts.scene["fluid"]
         self._damping_c = sound_speed(float(fl["stiffness"]), fl["eos"])
         cap = parts.pool.capacity
@@ -286,7 +281,7 @@ class DFSPH:
 
     def solve(self, n: int, dt: float, phase) -> None:
         """The constant-density solve on the kicked velocities, then p = ρ Σ κ."""
-        if self.warm_start:
+        if self.warm_start > 0.0:
             phase("pressure", self._warm, n, dt)
         else:
             phase("pressure", self._cold, n)
@@ -517,7 +512,7 @@ class DFSPH:
         neighbour sums costs compile time (the three took 3x as long, docs/performance.md).
 
         The warm start: where the kicked velocities compress a particle (ρ*_i > ρ0), κ_i
-        starts at ``WARM_START`` times the last step's p_i/ρ_i (0 for a new particle),
+        starts at ``dfsph.warm_start`` times the last step's p_i/ρ_i (0 for a new particle),
         elsewhere at 0. Less than the whole of the last pressure, and none where the fluid
         is not compressed, since a solve only adds pressure (its errors are compressions):
         a warm start past the solution is not taken back within the step, and the next
@@ -545,7 +540,7 @@ class DFSPH:
                     else:
                         k = 0.0
                         if p[i].rho + h_dt * rate > rho0 + self.fade.excess(i):
-                            k = ti.static(WARM_START) * p[i].p / p[i].rho
+                            k = ti.static(self.warm_start) * p[i].p / p[i].rho
                         self.kappa[i] = k
                         self.ksum[i] = k
                 elif mode == WARM:
