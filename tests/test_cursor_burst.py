@@ -67,3 +67,24 @@ def test_letting_go_of_a_held_cursor_splashes_nothing(solver):
     assert peak[1] <= 12.0, (f"demo_2d ({solver}): {peak[0]:g} ms after a cursor held 0.1 s at strength 20 was let go, "
                              f"the kinetic energy is {peak[1]:.2f} J (held: {held:.2f} J; expected <= 12), "
                              f"the fastest particle at {peak[2]:.2f} m/s")
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_a_cursor_dragged_through_resting_water_throws_nothing(solver, request):
+    """The mouse's refinement alone (no push) dragged along the floor of demo_2d's resting
+    pool at 2 m/s, jumping every 10 ms as the window moves it once a frame: the pool
+    should stay near rest. Measured session 37 (one thread), the kinetic energy's peak
+    over 0.4 s: wcsph 13.1 J at 13 ms (0.11 J at rest before), dfsph 45.1 J at 53 ms,
+    127 particles above 1 m/s (docs/performance.md, "A cursor dragged through resting
+    water": level-1 children of the coarse level's new virtual parents, thrown by a
+    coarse density solve that reads 3-8 % compression; not fixed). The bound sits
+    between."""
+    if solver == "dfsph":
+        request.applymarker(pytest.mark.xfail(reason="dfsph: a dragged cursor's refinement throws the "
+                                              "pool to ~45 J (docs/performance.md)", strict=False))
+    tool = load_tool("cursor_burst")
+    rows = tool.drag("demo_2d", SOLVERS[solver], (0.3, 0.12), tool.RADIUS, 2.5, (2.0, 0.0), 400.0, 10, threads=1)
+    ms, sp, ke = max(rows[1:], key=lambda r: r[2])
+    assert ke <= 25.0, (f"demo_2d ({solver}): the refinement of a cursor dragged at 2 m/s through the resting pool "
+                        f"threw it to {ke:.2f} J at {ms:g} ms, {int((sp > 1.0).sum())} particles above 1 m/s, the "
+                        f"fastest at {sp.max():.2f} m/s (at rest before {rows[0][2]:.2f} J; expected <= 25)")

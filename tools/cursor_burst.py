@@ -4,6 +4,7 @@
     python3 tools/cursor_burst.py --set adaptivity.split_fade=0     # without the fade
     python3 tools/cursor_burst.py --scene demo_3d --at 0.5,0.15,0.25 --radius 0.07
     python3 tools/cursor_burst.py --strength 20 --leave     # held as the window holds it, let go
+    python3 tools/cursor_burst.py --drag 2,0 --at 0.3,0.12  # dragged along the floor at 2 m/s
 
 The scene runs ``--settle`` simulated seconds (demo_2d's opening stir is over by then
 and the pool is at rest), then the mouse's disturbance is put at ``--at`` with a
@@ -14,6 +15,12 @@ ms): the fastest real particle, how many move faster than 1 m/s and than 0.3 m/s
 mean speed and the kinetic energy (J per metre of depth in 2D). At rest the pool
 reads a few cm/s; before ``adaptivity.split_fade`` (mrsph/multires/fade.py) demo_2d
 read 11 m/s and 1,638 particles above 1 m/s 2.5 ms after the cursor came.
+
+With ``--drag`` the cursor moves instead, from ``--at`` at the given velocity (m/s),
+jumping once every ``--frame`` ms as the window moves it once a frame, for ``--for`` ms;
+the kinetic energy is sampled every millisecond and its peak reported with when it
+came. The refinement alone should leave the pool near rest (docs/performance.md, "A
+cursor dragged through resting water").
 """
 from __future__ import annotations
 
@@ -75,6 +82,33 @@ def burst(scene: str, overrides: list[str], at, radius: float, settle: float, af
     return out
 
 
+def drag(scene: str, overrides: list[str], at, radius: float, settle: float, velocity,
+         duration_ms: float, frame_ms: float, threads: int | None, arch: str = "cpu",
+         strength: float = 1e-6) -> list[tuple[float, np.ndarray, float]]:
+    """[(ms after the cursor came, the real particles' speeds, their kinetic energy)], one
+    a millisecond, the first at 0 (before): the cursor starts at ``at`` and jumps to
+    at + velocity t every ``frame_ms``, its velocity (what its push pulls towards) the
+    drag's."""
+    from mrsph.config import load_scene
+    from mrsph.interaction import Disturbance
+    from mrsph.solver import Simulation
+    sc = load_scene(scene, overrides)
+    if len(at) != sc["dim"] or len(velocity) != sc["dim"]:
+        raise SystemExit(f"--at and --drag: {len(at)} and {len(velocity)} coordinates for a "
+                         f"{sc['dim']}D scene")
+    sim = Simulation(sc, arch=arch, threads=threads)
+    sim.advance(settle)
+    out = [(0.0, *speeds(sim))]
+    t0 = sim.time
+    for ms in range(1, int(round(duration_ms)) + 1):
+        frame_start = 1e-3 * frame_ms * ((ms - 1) // frame_ms)
+        centre = tuple(a + v * frame_start for a, v in zip(at, velocity))
+        sim.set_disturbance(Disturbance(centre, radius, strength, "push", tuple(velocity)))
+        sim.advance(t0 + 1e-3 * ms - sim.time)
+        out.append((float(ms), *speeds(sim)))
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0],
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
@@ -93,22 +127,40 @@ def main(argv=None) -> int:
     ap.add_argument("--leave", action="store_true",
                     help="then take the cursor away and report the same times after it left "
                          "(the refined fluid merges back)")
+    ap.add_argument("--drag", default=None, metavar="VX,VY[,VZ]",
+                    help="move the cursor from --at at this velocity, m/s (default: held still)")
+    ap.add_argument("--for", type=float, default=400.0, dest="duration",
+                    help="with --drag: how long, ms")
+    ap.add_argument("--frame", type=int, default=10, help="with --drag: ms between the cursor's jumps")
     args = ap.parse_args(argv)
     from mrsph.config import SceneError
     try:
         at = [float(c) for c in args.at.split(",")]
         after = [float(t) for t in args.after.split(",")]
+        velocity = None if args.drag is None else [float(c) for c in args.drag.split(",")]
     except ValueError:
-        ap.error("--at and --after take comma-separated numbers")
+        ap.error("--at, --after and --drag take comma-separated numbers")
+    if args.frame < 1 or args.duration <= 0:
+        ap.error(f"--frame takes an integer >= 1 (got {args.frame}) and --for a duration > 0 (got {args.duration:g})")
     try:
-        rows = burst(args.scene, args.overrides, at, args.radius, args.settle, after, args.threads,
-                     leave=args.leave, strength=args.strength)
+        if velocity is None:
+            rows = burst(args.scene, args.overrides, at, args.radius, args.settle, after, args.threads,
+                         leave=args.leave, strength=args.strength)
+        else:
+            rows = drag(args.scene, args.overrides, at, args.radius, args.settle, velocity, args.duration,
+                        args.frame, args.threads, strength=args.strength)
     except SceneError as e:
         for msg in e.problems:
             print(msg, file=sys.stderr)
         return 2
-    print(f"{args.scene} {' '.join(args.overrides)}".rstrip() + f": a still cursor at {tuple(at)}, "
+    how = "a still cursor" if velocity is None else f"a cursor dragged at {tuple(velocity)} m/s from"
+    print(f"{args.scene} {' '.join(args.overrides)}".rstrip() + f": {how} {tuple(at)}, "
           f"radius {args.radius} m, strength {args.strength:g} 1/s, after {args.settle} s")
+    if velocity is not None:
+        peak = max(rows[1:], key=lambda r: r[2])
+        median = float(np.median([ke for _, _, ke in rows[1:]]))
+        rows = [rows[0]] + [r for r in rows[1:] if r[0] in after] + [peak]
+        print(f"(the last line is the kinetic energy's peak; its median over the drag {median:.2f} J)")
     for ms, sp, ke in rows:
         label = "before" if ms == 0 else (f"{ms:g} ms" if ms > 0 else f"gone {-ms:g} ms")
         print(line(label, sp, ke))
