@@ -7,7 +7,9 @@
 The scene is the test's (``tank_scene``: 0.3 m of water at rest in a 0.3 m tank, 2 cm
 particles in 2D, 3 cm in 3D), and so is the measure: the real particles' mean speed,
 sampled every 2 ms over 0.3 s after 1.5 s of settling, over √(gH) (the test asks for at
-most 0.01). ``--nudge`` adds four runs with one key moved by about round-off
+most 0.01). It advances by ``sim.advance`` where the test steps one step at a time to
+read every stats row, so its float sequence, and a run's reading, may differ from the
+test's own run; what it is for is the spread over runs. ``--nudge`` adds four runs with one key moved by about round-off
 (``fluid.viscosity`` ×0.99 and ×1.01, ``dfsph.density_tolerance`` ×0.99 and ×1.01):
 under dfsph one run lands on either side of the bound as its float sequence falls
 (docs/performance.md, "The warm start's share"), so a change is judged over several.
@@ -22,8 +24,9 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+for _path in (ROOT, ROOT / "tests"):     # mrsph, and the test's scene (test_physics)
+    if str(_path) not in sys.path:
+        sys.path.insert(0, str(_path))
 
 #: one key moved by about round-off a run (``--nudge``): (key, factor on the test's value)
 NUDGES = (("fluid.viscosity", 0.99), ("fluid.viscosity", 1.01),
@@ -32,7 +35,6 @@ NUDGES = (("fluid.viscosity", 0.99), ("fluid.viscosity", 1.01),
 
 def settle(dim: int, solver: str, sets: list[str]) -> float:
     """The test's tank with ``sets`` on top: its settled mean speed over √(gH)."""
-    sys.path.insert(0, str(ROOT / "tests"))
     import numpy as np
     import test_physics as tp
     from scenekit import with_solver
@@ -52,7 +54,6 @@ def settle(dim: int, solver: str, sets: list[str]) -> float:
 def nudged(dim: int, solver: str, sets: list[str]) -> list[list[str]]:
     """``sets``, then with each of :data:`NUDGES` on top (the key's value as ``sets`` or the
     scene leaves it)."""
-    sys.path.insert(0, str(ROOT / "tests"))
     import test_physics as tp
     from scenekit import with_solver
     from mrsph.config import load_scene
@@ -81,7 +82,7 @@ def main(argv=None) -> int:
         for sets in runs:
             t0 = time.perf_counter()
             ratio = settle(args.dim, args.solver, sets)
-            print(f"{args.dim}D {args.solver} {' '.join(sets) or '(as the test)'}: mean speed "
+            print(f"{args.dim}D {args.solver} {' '.join(sets) or "(the test's scene)"}: mean speed "
                   f"{ratio:.4f} sqrt(gH) ({time.perf_counter() - t0:.0f} s)", flush=True)
     except SceneError as e:
         for msg in e.problems:
