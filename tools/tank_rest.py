@@ -82,7 +82,8 @@ def main(argv=None) -> int:
         for sets in runs:
             t0 = time.perf_counter()
             ratio = settle(args.dim, args.solver, sets)
-            print(f"{args.dim}D {args.solver} {' '.join(sets) or "(the test's scene)"}: mean speed "
+            label = " ".join(sets) or "(the test's scene)"
+            print(f"{args.dim}D {args.solver} {label}: mean speed "
                   f"{ratio:.4f} sqrt(gH) ({time.perf_counter() - t0:.0f} s)", flush=True)
     except SceneError as e:
         for msg in e.problems:
