@@ -1002,16 +1002,17 @@ def test_split_children_start_at_their_parents_pressure(dim, solver):
 
 
 
-def split_under_a_cursor(dim: int):
-    """The jittered block (wcsph, tau = 1 s) split under a still cursor, three steps on:
-    the children carry their offsets, measured and followed."""
+def split_under_a_cursor(dim: int, jitter_radius: float = 0.08):
+    """The jittered block (wcsph, tau = 1 s; jittered within ``jitter_radius`` of its
+    centre) split under a still cursor, three steps on: the children carry their
+    offsets, measured and followed."""
     from mrsph.interaction import Disturbance
     sim = make_sim(jittered_block_scene(dim, "wcsph", 1.0), threads=1)
     state = sim.save_state()
     rng = np.random.default_rng(7)
     n, s1 = state["n"], 2.0 * S0[dim]
     x = state["attributes"]["x"]
-    inside = np.flatnonzero(np.linalg.norm(x[:n] - 0.5, axis=1) < 0.08)
+    inside = np.flatnonzero(np.linalg.norm(x[:n] - 0.5, axis=1) < jitter_radius)
     x[inside] += rng.uniform(-0.2 * s1, 0.2 * s1, size=(len(inside), dim)).astype(x.dtype)
     sim.restore_state(state)
     sim.set_disturbance(Disturbance((0.5,) * dim, 0.1, 1e-6, "push", (0.0,) * dim))
@@ -1110,6 +1111,49 @@ def test_merging_back_compresses_nothing_around_it(dim):
         x0, eff0 = x1, eff1
     assert len(x0) < n_before and checked > 0, (f"{dim}D: {n_before} real particles before the passes, "
                                                 f"{len(x0)} after: nothing merged, the test is void")
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_a_split_moves_no_mass(dim):
+    """The placement of a split's children (``multires/placement.py``, the spacing
+    relaxation) spreads them about their parent's place and does not move the group: its
+    centre of mass is where the parent was, which is where its virtual parent, standing
+    for it at the coarse level, stays. A transient parent, next to fine particles, split
+    when the cursor grows: the relaxation pushes its children away from the fine ones.
+    Moved as a group, towards the coarse side, the virtual parent followed them at the
+    step's end and its coarse neighbours took the mass it brought for a compression: in
+    demo_2d under a dragged cursor a parent moved 7 mm, a quarter of its spacing, its
+    coarse neighbours went to 1.03-1.08 rho0 in a step, and the density solve threw its
+    children at 2.6 m/s (docs/performance.md, "A cursor dragged through resting water")."""
+    from mrsph.interaction import Disturbance
+    sim = split_under_a_cursor(dim, jitter_radius=0.16)
+    before = raw_pool(sim)
+    was_real = np.isin(before["kind"], REAL_KINDS) & (before["level"] == 1)
+    coarse = cKDTree(before["x"][was_real].astype(np.float64))
+    sim.set_disturbance(Disturbance((0.5,) * dim, 0.14, 1e-6, "push", (0.0,) * dim))
+    sim.multires.adapt(sim.time)
+    pool = raw_pool(sim)
+    s1 = 2.0 * S0[dim]
+    worst, spread, groups = 0.0, 0.0, 0
+    for vp in np.flatnonzero((pool["kind"] == V_PARENT) & (pool["level"] == 1)):
+        dist, _ = coarse.query(pool["x"][vp].astype(np.float64))
+        ch = pool["children"][vp][: pool["nchild"][vp]]
+        if dist > 1e-9 or len(ch) != 2 ** dim:
+            continue                  # not a particle split in this pass
+        m = pool["m"][ch].astype(np.float64)
+        xc = pool["x"][ch].astype(np.float64)
+        centre = (m[:, None] * xc).sum(axis=0) / m.sum()
+        worst = max(worst, float(np.linalg.norm(centre - pool["x"][vp])))
+        # how far the placement moved the children off their lattice about the parent,
+        # on which each is sqrt(d)/2 fine spacings from it
+        off = np.abs(np.linalg.norm(xc - pool["x"][vp], axis=1) - 0.5 * math.sqrt(dim) * S0[dim]).max()
+        spread = max(spread, float(off))
+        groups += 1
+    assert groups >= 4 and spread > 0.05 * S0[dim], (
+        f"{dim}D: {groups} particles split in the pass, their children moved at most {spread / S0[dim]:.3g} "
+        f"fine spacings off the lattice (expected >= 4 splits and a move > 0.05: the test is void)")
+    assert worst <= 1e-5 * s1, (f"{dim}D: a split's children have their centre of mass "
+                                f"{worst / s1:.3g} coarse spacings from their parent's place (expected round-off)")
 
 
 def test_scratch_flags_are_distinct_single_bits():

@@ -6,7 +6,8 @@ already there (``adaptivity.split_relax``):
 - ``fit``: the children of one split, as a block, at least half a fine spacing inside the
   walls and outside the obstacles;
 - ``relax`` ("spacing", the default): Jacobi iterations spreading them to
-  ``split_min_distance`` fine spacings from their real neighbours;
+  ``split_min_distance`` fine spacings from their real neighbours, about their group's
+  centre of mass, which stays where the parent was;
 - ``settle`` ("density"): Jacobi iterations moving each down its level's density
   gradient (walls and obstacles as mirror images) until it reads no more than its
   parent's density plus ``split_density_tolerance``.
@@ -62,6 +63,20 @@ class Placement:
         children thrown off at 5.9 m/s in a 2.4 m/s front. Moving positions keeps mass and
         momentum (velocities are untouched).
 
+        Each iteration takes from the children's moves their group's mean
+        (``_keep_centre``), so that a group is spread about its centre of mass and not
+        moved: the split particle, now the group's virtual parent, stands for it at the
+        coarse level where it stood. A transient parent's children are pushed away from
+        the fine particles beside it, all one way; moved as a group, the virtual parent
+        followed them at the step's end (``coupling.advect``), and the coarse particles on
+        that side took the mass it brought for a compression. demo_2d under a cursor
+        dragged at 2 m/s: a parent moved 7 mm, a quarter of its spacing, its coarse
+        neighbours went from rho0 to 1.03-1.08 rho0 in one step, and the density solve
+        (dfsph) threw its four children at 2.6 m/s; the pool's kinetic energy peaked at
+        45 J, 24 J with the centre kept (docs/performance.md, "A cursor dragged through
+        resting water"). ``fit`` still moves a group off a wall, and the walls' margin
+        may move a child after the mean is taken.
+
         New children of a *regular* parent are not in the grid yet (claimed past the sorted
         range), so they push only against sorted particles; a regular parent has no real
         fine particle within its support, so they rarely overlap any."""
@@ -86,7 +101,25 @@ class Placement:
                                 share = 0.5 if (p[j].flags & FRESH) != 0 else 1.0
                                 push += share * (dmin - rn) * r / ti.max(rn, 1e-6 * dmin)
                 p[i].a = push
+            self._keep_centre()
             self._move_fresh(margin)
+
+    @ti.func
+    def _keep_centre(self):
+        """Take from each new child's displacement (in ``a``) its group's mean, so that the
+        iteration spreads the group about its centre of mass and does not move it: the
+        group's virtual parent (the split particle) stays where the coarse level saw it.
+        The parent's ``a`` (not in use during the adaptivity pass) holds the mean."""
+        p = ti.static(self.pool.p)
+        for q in range(self.n_fresh[None]):
+            p[p[self.fresh[q]].parent].a = ti.Vector.zero(float, self.dim)
+        for q in range(self.n_fresh[None]):
+            i = self.fresh[q]
+            vp = p[i].parent
+            p[vp].a += p[i].a / ti.max(p[vp].nchild, 1)
+        for q in range(self.n_fresh[None]):
+            i = self.fresh[q]
+            p[i].a -= p[p[i].parent].a
 
     @ti.func
     def _move_fresh(self, margin):
