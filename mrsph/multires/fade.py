@@ -77,6 +77,18 @@ cursor above still peaked at 19-44 J. With it: 3.7-5.8 J, the fastest particle 1
 In demo_2d's opening stir (0.4-4 s) the offsets kept out of the pressure average
 0.01-0.14 % of ρ0 (0-0.08 % before); the mean density is unchanged (0.99-1.00 ρ0).
 
+What the pressure reads is what the passes between two density passes read too
+(``seen``): the split's reference, a merge's, and the virtual-mass limiter's target
+(``limiter.py``), which bounds a fine particle's density by its coarse neighbours'. Read
+raw, a coarse particle with a large offset (1.17 ρ0, 0.17 ρ0 of it offset) let its
+virtual children carry their whole mass onto a fine particle between them, which read
+1.20 ρ0 with no offset of its own, and the density solve pushed it at 1 MPa. demo_2d,
+the cursor's refinement dragged through the resting pool along twelve paths
+(docs/performance.md, "A cursor dragged through resting water"): the kinetic energy's
+peak 36 J on the median, up to 5979 J, before; 13 J, up to 40 J, with this and the
+placement's kept centre of mass (``placement.py``), each of which alone left peaks of
+176-267 J.
+
 The offset is measured, not computed at the split, because the children's neighbours are
 only all known at the next density pass: a split marks each child with ``born``
 (``drho`` = −1, a value no measured offset takes), and the density pass's ``measured``
@@ -190,7 +202,7 @@ class SplitFade:
         acc = 0.0
         for q in range(p[i].nchild):
             ch = self.pool.children[i, q]
-            acc += p[ch].m * (p[ch].rho - self.excess(ch))
+            acc += p[ch].m * self.seen(ch)
         return acc
 
     @ti.func
@@ -229,6 +241,23 @@ class SplitFade:
         if ti.static(self.on):
             d = ti.max(self.pool.p[i].drho, 0.0)
         return d
+
+    @ti.func
+    def seen(self, i):
+        """The density particle i's pressure read at its last density pass, ρ − drho; while
+        a re-measure is pending (a split's child, or a particle ``touch``ed in this
+        adaptivity pass: drho = −1 until the next density pass) its reference, which is
+        what its pressure will read of any rise. The adaptivity pass and the virtual-mass
+        limiter, which run between density passes, read this and not ρ − ``excess``:
+        a pending particle's raw density may hold an offset not yet re-measured (a
+        coarse particle at 1.17 ρ0 with 0.17 ρ0 of offset let the limiter give its virtual
+        children their whole mass, and a fine particle between them went to 1.20 ρ0)."""
+        p = ti.static(self.pool.p)
+        r = p[i].rho
+        if ti.static(self.on):
+            d = p[i].drho
+            r = p[i].rho_ref if d < 0.0 else p[i].rho - d
+        return r
 
     @ti.func
     def decay(self, i, dt):

@@ -9,7 +9,11 @@ level, V_i: from the virtual children at nominal mass). ρ_t is the largest of (
 times the mean density of the parents of those virtual children, weighted as in V_i
 (τ = ``adaptivity.virtual_density_tolerance``); i's own density of the last step, so that
 a fine particle compressed by its real neighbours keeps its virtual ones; and ρ0, below
-which the pressure is clamped and no force comes of the virtual mass. Each real particle
+which the pressure is clamped and no force comes of the virtual mass. With
+``adaptivity.split_fade`` the densities are those the pressure reads (``SplitFade.seen``)
+and ρ_t is raised by i's own offset, so that the virtual mass may bring i's pressure to
+the target and no further (read raw, a coarse parent's offset went into its fine
+neighbours' pressure: ``fade.py``). Each real particle
 hands s_i to the virtual children it lists (a virtual child keeps the least), and a
 virtual child's mass is 2^-d of its parent's times that share.
 
@@ -37,6 +41,7 @@ class VirtualMassLimiter:
     def __init__(self, parts):
         self.dim, self.levels = parts.dim, parts.levels
         self.pool, self.grids, self.lev, self.nb = parts.pool, parts.grids, parts.lev, parts.neighbours
+        self.fade = parts.fade      # densities as the pressure reads them (fade.py)
         self.rest_density = float(parts.scene["fluid"]["rest_density"])
         self.tolerance = float(parts.scene["adaptivity"]["virtual_density_tolerance"])
         # per slot, for one step: the least share a virtual child got; 1 between calls
@@ -61,7 +66,7 @@ class VirtualMassLimiter:
                 if p[j].kind == VIRTUAL_CHILD:
                     par = p[j].parent
                     wv = p[par].m / ti.static(2 ** self.dim) * w
-                    acc += ti.Vector([0.0, wv, wv * p[par].rho])
+                    acc += ti.Vector([0.0, wv, wv * self.fade.seen(par)])
                 else:
                     acc += ti.Vector([p[j].m * w, 0.0, 0.0])
 
@@ -107,8 +112,8 @@ class VirtualMassLimiter:
                 self.nb.candidates(i, xi, eye, xi, xi, False, l, listed, True, self._share_term, ctx, acc)
                 self.nb.images(i, h, self._image_shares, ctx, acc)
                 if acc[1] > 0.0:
-                    target = ti.max(acc[2] / acc[1] * ti.static(1.0 + self.tolerance),
-                                    p[i].rho, ti.static(self.rest_density))
+                    target = self.fade.excess(i) + ti.max(acc[2] / acc[1] * ti.static(1.0 + self.tolerance),
+                                                          self.fade.seen(i), ti.static(self.rest_density))
                     share = ti.min(ti.max((target - acc[0]) / acc[1], 0.0), 1.0)
                     if share < 1.0:
                         if listed:

@@ -358,7 +358,7 @@ class Multires:
                                 self.pool.children[i, q] = ch
                             p[i].nchild = self.nmax
                     if ok:
-                        rho_seen = p[i].rho - self.fade.excess(i)   # what its pressure read
+                        rho_seen = self.fade.seen(i)   # what its pressure read
                         # (transient parent: its virtual children become real)
                         for q in range(self.nmax):
                             ch = self.pool.children[i, q]
