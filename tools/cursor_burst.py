@@ -5,6 +5,7 @@
     python3 tools/cursor_burst.py --scene demo_3d --at 0.5,0.15,0.25 --radius 0.07
     python3 tools/cursor_burst.py --strength 20 --leave     # held as the window holds it, let go
     python3 tools/cursor_burst.py --drag 2,0 --at 0.3,0.12  # dragged along the floor at 2 m/s
+    python3 tools/cursor_burst.py --paths                   # twelve drags: each one's peak
 
 The scene runs ``--settle`` simulated seconds (demo_2d's opening stir is over by then
 and the pool is at rest), then the mouse's disturbance is put at ``--at`` with a
@@ -39,6 +40,14 @@ if str(ROOT) not in sys.path:
 AT = (0.5, 0.12)
 RADIUS = 0.128
 AFTER_MS = (2.5, 10.0, 20.0, 50.0, 100.0)
+#: ``--paths``: twelve drags through demo_2d's resting pool, (start, velocity m/s): along
+#: the floor, through the middle, down from the surface, up from the floor, diagonals, in
+#: both basins. One drag says little of a chaotic burst; their median and worst say more
+#: (docs/performance.md, "A cursor dragged through resting water").
+PATHS = (((0.3, 0.12), (2.0, 0.0)), ((0.3, 0.2), (2.0, 0.0)), ((0.9, 0.12), (-2.0, 0.0)),
+         ((0.3, 0.12), (1.0, 0.0)), ((0.5, 0.3), (0.0, -1.0)), ((0.2, 0.1), (1.5, 1.0)),
+         ((0.15, 0.25), (2.0, -0.5)), ((1.0, 0.25), (-1.5, 0.0)), ((0.6, 0.05), (0.0, 1.5)),
+         ((0.4, 0.15), (-1.0, 1.0)), ((1.4, 0.15), (0.5, 0.0)), ((0.7, 0.2), (2.0, 1.0)))
 
 
 def speeds(sim) -> tuple[np.ndarray, float]:
@@ -132,6 +141,9 @@ def main(argv=None) -> int:
     ap.add_argument("--for", type=float, default=400.0, dest="duration",
                     help="with --drag: how long, ms")
     ap.add_argument("--frame", type=int, default=10, help="with --drag: ms between the cursor's jumps")
+    ap.add_argument("--paths", action="store_true",
+                    help="drag along each of demo_2d's twelve PATHS in turn (--at and --drag unused): "
+                         "one line each with the kinetic energy's peak, then their median and worst")
     args = ap.parse_args(argv)
     from mrsph.config import SceneError
     try:
@@ -142,6 +154,25 @@ def main(argv=None) -> int:
         ap.error("--at, --after and --drag take comma-separated numbers")
     if args.frame < 1 or args.duration <= 0:
         ap.error(f"--frame takes an integer >= 1 (got {args.frame}) and --for a duration > 0 (got {args.duration:g})")
+    if args.paths:
+        if args.scene != "demo_2d":
+            ap.error(f"--paths: the paths are demo_2d's (got --scene {args.scene})")
+        try:
+            peaks = []
+            for start, vel in PATHS:
+                rows = drag(args.scene, args.overrides, start, args.radius, args.settle, vel, args.duration,
+                            args.frame, args.threads, strength=args.strength)
+                ms, sp, ke = max(rows[1:], key=lambda r: r[2])
+                peaks.append(ke)
+                print(f"from {start} at {vel} m/s: peak {ke:8.2f} J at {ms:3g} ms, {int((sp > 1.0).sum()):4d} "
+                      f"above 1 m/s, the fastest {sp.max():.2f} m/s", flush=True)
+        except SceneError as e:
+            for msg in e.problems:
+                print(msg, file=sys.stderr)
+            return 2
+        print(f"peaks over {len(PATHS)} paths: median {np.median(peaks):.2f} J, worst {max(peaks):.2f} J, "
+              f"{sum(k > 25.0 for k in peaks)} above 25 J")
+        return 0
     try:
         if velocity is None:
             rows = burst(args.scene, args.overrides, at, args.radius, args.settle, after, args.threads,
