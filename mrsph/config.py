@@ -163,6 +163,15 @@ SCHEMA = Table(required=True, keys={
         "density_tolerance": Key("float", 0.001, "> 0", doc="the density solve stops when the average "
                                  "predicted compression (rho* - rho0)/rho0 of the real particles is "
                                  "within this (0.001 = 0.1 %)"),
+        "rest_tolerance": Key("float", 0.0005, "> 0", doc="the tightest the density tolerance "
+                              "gets: in a slow flow (slow_flow) density_tolerance is scaled by "
+                              "how slow, down to this. The compression a solve leaves is undone "
+                              "the next step at about tolerance s/dt, a noise of its own in water "
+                              "at rest (the resting 3D tank moved at 1.3 % of sqrt(gH) "
+                              "unscaled, 0.8 % at 0.0005); = density_tolerance: unscaled"),
+        "slow_flow": Key("float", 0.1, "(0, 1]", doc="a step in which the fastest particle moves "
+                         "less than this share of its spacing is a slow flow: the density "
+                         "tolerance is scaled by max |u| dt / s over this (see rest_tolerance)"),
         "max_density_error": Key("float", 0.01, "> 0", doc="and until no real particle's predicted "
                                  "compression is above this (0.01 = 1 %): a hot spot of a few dozen "
                                  "particles hides in the average (docs/performance.md, the stirred "

@@ -208,6 +208,8 @@ class Integrator:
                 elif max_dt < 1.5 * dt:
                     dt = 0.5 * max_dt
             self.step_dt[None] = ti.min(dt, max_dt)
+            if ti.static(self.pressure.implicit):
+                self.pressure.note_step(cfl_lim * self.step_dt[None])   # spacings moved, at most
             out = self.step_dt[None]
             if not self.step_go[None]:
                 out = -1.0

@@ -31,27 +31,18 @@ pytestmark = pytest.mark.usefixtures("fresh_program")
 # Tests that fail because of the library: (name, case id) -> what was measured
 # (``scenekit.known_xfail``). The 3D dam-break front was listed here until the split
 # stopped throwing fluid (see ``refined_dam`` and docs/dam-front.md).
-KNOWN_FAILURES: dict[tuple[str, str], str] = {
-    # The rest noise of the DFSPH solve (see test_physics.KNOWN_FAILURES, the 3D tank): the
-    # pool's mean speed comes in bursts of 0.005-0.018 sqrt(gH) at 0.5 s intervals, and
-    # the test's 0.2 s window samples one. Measured 2026-11-26 (the test's scene, one
-    # thread): 0.0072 at defaults, 0.0096 with dfsph.min_iterations = 2 (10.7 density
-    # iterations a step either way); CI's run (more threads) read 0.0116. The wcsph pool
-    # reads 0.0025-0.0070 in 2D.
-    ("rest_speed", "2d-dfsph"): "2D DFSPH pool with a refined box: rest noise 0.007-0.012 sqrt(gH) "
-                                "around the 0.01 bound (issue 31)",
-    # Under -m open_issue (conftest.UNVERIFIED_DFSPH), measured 2026-11-26: 0.0121, its
-    # uniform twin 0.0156.
-    ("rest_speed", "3d-dfsph"): "3D DFSPH pool with a refined box settles to 0.0121 sqrt(gH) "
-                                "(uniform 0.0156), not 0.01 (issue 31)",
-}
+KNOWN_FAILURES: dict[tuple[str, str], str] = {}
+# The DFSPH pools' rest speed was listed until session 39 (0.007-0.012 sqrt(gH) in 2D,
+# 0.0121 in 3D): the density solve's leftover compression, undone at about eta s / dt each
+# step; the tolerance now scales with the step's share of its CFL bound (see
+# test_physics.KNOWN_FAILURES).
 
 
 # The largest density next to the level interface, adaptive against uniform
 # (test_density_next_to_the_interface_matches_uniform). The issue asks for 3 %. Held to
 # 0.5 %: measured within 0.1 % over four runs each with wcsph, and the weaker coupling
 # (`symmetric`, limiter off) reads +0.9 % / +1.6 % (README), which 3 % would let through.
-# The 3D DFSPH pool is held to 1.5 %: its rest noise (KNOWN_FAILURES) moves the average
+# The 3D DFSPH pool is held to 1.5 %: its rest noise (before session 39) moved the average
 # from run to run, -0.05, +0.30, -0.05 % here and +0.52 % in CI (2026-11-27; the uniform
 # run 1.0062 rho0 each time), and with the limiter off it read +0.43 and +0.03 %, so no
 # tighter bound would tell the two apart.

@@ -18,6 +18,9 @@ step (``solver.py``):
   scene's dissipation;
 - ``after_density(n, dt, phase)`` and, for an ``implicit`` solver, ``solve(n, dt, phase)``:
   host hooks the step calls after the density pass and between the kick and the drift;
+- ``note_step(moved)`` (``ti.func``, an ``implicit`` solver's): the spacings the step's
+  fastest particle moves, max |u| dt / s, once the integrator has chosen dt (dfsph
+  tightens its tolerance in slow flow);
 - ``one_launch``: True when those hooks do nothing on the host, so that an unprofiled
   step runs as one launch (``fused.py``);
 - ``take_stats()``, ``reset_counters()``: iterations and density error for stats.csv;
