@@ -154,36 +154,42 @@ def main(argv=None) -> int:
         ap.error("--at, --after and --drag take comma-separated numbers")
     if args.frame < 1 or args.duration <= 0:
         ap.error(f"--frame takes an integer >= 1 (got {args.frame}) and --for a duration > 0 (got {args.duration:g})")
-    if args.paths:
-        if args.scene != "demo_2d":
-            ap.error(f"--paths: the paths are demo_2d's (got --scene {args.scene})")
-        try:
-            peaks = []
-            for start, vel in PATHS:
-                rows = drag(args.scene, args.overrides, start, args.radius, args.settle, vel, args.duration,
-                            args.frame, args.threads, strength=args.strength)
-                ms, sp, ke = max(rows[1:], key=lambda r: r[2])
-                peaks.append(ke)
-                print(f"from {start} at {vel} m/s: peak {ke:8.2f} J at {ms:3g} ms, {int((sp > 1.0).sum()):4d} "
-                      f"above 1 m/s, the fastest {sp.max():.2f} m/s", flush=True)
-        except SceneError as e:
-            for msg in e.problems:
-                print(msg, file=sys.stderr)
-            return 2
-        print(f"peaks over {len(PATHS)} paths: median {np.median(peaks):.2f} J, worst {max(peaks):.2f} J, "
-              f"{sum(k > 25.0 for k in peaks)} above 25 J")
-        return 0
+    if args.paths and args.scene != "demo_2d":
+        ap.error(f"--paths: the paths are demo_2d's (got --scene {args.scene})")
     try:
-        if velocity is None:
-            rows = burst(args.scene, args.overrides, at, args.radius, args.settle, after, args.threads,
-                         leave=args.leave, strength=args.strength)
+        if args.paths:
+            _paths(args)
         else:
-            rows = drag(args.scene, args.overrides, at, args.radius, args.settle, velocity, args.duration,
-                        args.frame, args.threads, strength=args.strength)
+            _one(args, at, after, velocity)
     except SceneError as e:
         for msg in e.problems:
             print(msg, file=sys.stderr)
         return 2
+    return 0
+
+
+def _paths(args) -> None:
+    """--paths: each of PATHS dragged in turn, one line each, then the median and worst."""
+    peaks = []
+    for start, vel in PATHS:
+        rows = drag(args.scene, args.overrides, start, args.radius, args.settle, vel, args.duration,
+                    args.frame, args.threads, strength=args.strength)
+        ms, sp, ke = max(rows[1:], key=lambda r: r[2])
+        peaks.append(ke)
+        print(f"from {start} at {vel} m/s: peak {ke:8.2f} J at {ms:3g} ms, {int((sp > 1.0).sum()):4d} "
+              f"above 1 m/s, the fastest {sp.max():.2f} m/s", flush=True)
+    print(f"peaks over {len(PATHS)} paths: median {np.median(peaks):.2f} J, worst {max(peaks):.2f} J, "
+          f"{sum(k > 25.0 for k in peaks)} above 25 J")
+
+
+def _one(args, at, after, velocity) -> None:
+    """One cursor, held still at ``at`` or dragged from it: the lines at ``after``."""
+    if velocity is None:
+        rows = burst(args.scene, args.overrides, at, args.radius, args.settle, after, args.threads,
+                     leave=args.leave, strength=args.strength)
+    else:
+        rows = drag(args.scene, args.overrides, at, args.radius, args.settle, velocity, args.duration,
+                    args.frame, args.threads, strength=args.strength)
     how = "a still cursor" if velocity is None else f"a cursor dragged at {tuple(velocity)} m/s from"
     print(f"{args.scene} {' '.join(args.overrides)}".rstrip() + f": {how} {tuple(at)}, "
           f"radius {args.radius} m, strength {args.strength:g} 1/s, after {args.settle} s")
@@ -195,7 +201,6 @@ def main(argv=None) -> int:
     for ms, sp, ke in rows:
         label = "before" if ms == 0 else (f"{ms:g} ms" if ms > 0 else f"gone {-ms:g} ms")
         print(line(label, sp, ke))
-    return 0
 
 
 if __name__ == "__main__":
