@@ -31,7 +31,7 @@ KNOWN_FAILURES: dict[tuple[str, str], str] = {}
 # compression of its tolerance, undone the next step at about eta s / dt, a noise of
 # 0.0123-0.0128 sqrt(gH) in 3D and 0.0045-0.0128 in 2D (bimodal). The tolerance now scales
 # with the step's share of its CFL bound, down to dfsph.rest_tolerance (dfsph._tolerance):
-# 0.0058-0.0059 in 3D, 0.0029-0.0041 in 2D over five nudged runs each
+# 0.0078-0.0081 in 3D, 0.0037-0.0049 in 2D over five nudged runs each
 # (python3 tools/tank_rest.py --dim 2|3 --nudge).
 # The resting tank under wcsph was listed until fluid.hydrostatic_start and
 # fluid.artificial_viscosity; it now settles and reads hydrostatic pressure in 2D and 3D.
