@@ -20,7 +20,7 @@ Per step (``solver.py`` calls the hooks in this order):
 3. ``solve``: the constant-density solve, Jacobi iterations until the average predicted
    density error, (ρ*_i − ρ0)/ρ0 with ρ*_i = ρ_i + dt Σ_j m_j (u_i − u_j)·∇W_ij (compression
    only, so that a free surface is not pulled in), is within ``dfsph.density_tolerance``
-   (tightened in slow flow down to ``dfsph.rest_tolerance``, ``_tolerance``)
+   (tightened in slow flow down to ``dfsph.rest_tolerance``, ``tolerance.py``)
    and no particle's is above ``dfsph.max_density_error``:
    κ_i = (ρ*_i − ρ0) α_i / dt², u_i −= dt Σ_j m_j (κ_i/ρ_i + κ_j/ρ_j) ∇W_ij; warm-started
    from the last step's pressure (carried by the sort in the particle's ``p``);
@@ -50,6 +50,7 @@ from ..neighbours import ImageNeighbours
 from ..particles import is_real, is_virtual
 from .counts import DENSITY, DIVERGENCE, SolveCounts
 from .eos import sound_speed
+from .tolerance import RestTolerance
 
 # Jacobi iterations per kernel launch: the host reads the convergence after each launch.
 # More saves a launch and a read (~15 µs, against ~1.5 ms an iteration at 10k particles)
@@ -158,8 +159,7 @@ class DFSPH:
         self.cfl = float(cfg["cfl"])
         self.tolerance = (float(cfg["density_tolerance"]), float(cfg["divergence_tolerance"]))
         self.peak_tolerance = float(cfg["max_density_error"])
-        self.rest_tolerance = min(float(cfg["rest_tolerance"]), self.tolerance[DENSITY])
-        self.slow_flow = float(cfg["slow_flow"])
+        self.rest = RestTolerance(cfg, self.tolerance[DENSITY])     # the tolerance in slow flow
         self.min_iterations = (int(cfg["min_iterations"]), int(cfg["divergence_min_iterations"]))
         self.max_iterations = (int(cfg["max_iterations"]), int(cfg["divergence_max_iterations"]))
         self.divergence = bool(cfg["divergence_solve"])
@@ -177,9 +177,6 @@ class DFSPH:
         self.error = ti.field(ti.f64, shape=())      # the last iteration's average error
         self.peak = ti.field(float, shape=())         # the largest error, ρ* − ρ0 (density solve)
         self.n_real = ti.field(ti.i32, shape=())
-        # how slow the step's flow is: max_i |u_i| dt / s_l over dfsph.slow_flow (``note_step``)
-        self.flow_share = ti.field(ti.f64, shape=())
-        self.flow_share[None] = 1.0
         # the visits of each image's candidates, for Neighbours.images
         self._factor_images = ImageNeighbours(self.nb, self.kept.image_pair)
         self._rate_images = ImageNeighbours(self.nb, self._rate_pair)
@@ -216,21 +213,8 @@ class DFSPH:
 
     @ti.func
     def note_step(self, moved):
-        """The integrator's word on the step just chosen: the spacings its fastest particle
-        moves, max_i |u_i| dt / s_l, for ``_tolerance``."""
-        self.flow_share[None] = moved / ti.static(self.slow_flow)
-
-    @ti.func
-    def _tolerance(self, tol):
-        """The density solve's tolerance this step: ``dfsph.density_tolerance``, scaled in a
-        slow flow by max_i |u_i| dt / s_l over ``dfsph.slow_flow``, not below
-        ``dfsph.rest_tolerance``. The compression a solve leaves, η, is undone in the next
-        step at a speed of about η s/dt. Where the fastest particle moves a good part of a
-        spacing a step, that is a small share of its speed (η/λ in a step the CFL bound
-        sets); in water at rest, whose step is dt_max, it is a noise of its own that no
-        flow outgrows (the resting 3D tank's mean speed read 0.0126 √(gH) unscaled,
-        docs/performance.md)."""
-        return ti.max(ti.static(self.rest_tolerance), tol * ti.min(self.flow_share[None], 1.0))
+        """The spacings the step's fastest particle moves (``RestTolerance``)."""
+        self.rest.note_step(moved)
 
     @ti.func
     def density_done(self, i):
@@ -500,7 +484,7 @@ class DFSPH:
         p = ti.static(self.pool.p)
         rho0 = ti.static(self.rest_density)
         h_dt = ti.cast(dt, float)
-        stop = tol if mode != DENSITY else self._tolerance(tol)
+        stop = tol if mode != DENSITY else self.rest.of(tol)
         for _ in ti.static(range(ITERATIONS_PER_LAUNCH)):
             self.err[None] = 0.0
             self.peak[None] = 0.0
@@ -533,14 +517,15 @@ class DFSPH:
                 its = self.state[ITERS]
                 # the peak (0 in the divergence solve) too: a hot spot of a few dozen
                 # particles hides in the average of thousands
-                if avg <= stop and its >= min_it and self.peak[None] <= ti.static(self.peak_tolerance * rho0):
+                peak_ok = self.peak[None] <= ti.static(self.peak_tolerance * rho0)
+                if avg <= stop and its >= min_it and peak_ok:
                     self.state[DONE] = 1
                     self.state[RUNS] = 0
                 elif its >= max_it:
                     self.state[DONE] = 1
                     # short of a tolerance tightened at rest (``_tolerance``) but within the
                     # scene's own: converged as asked
-                    self.state[HIT_MAX] = 0 if avg <= tol and self.peak[None] <= ti.static(self.peak_tolerance * rho0) else 1
+                    self.state[HIT_MAX] = 0 if avg <= tol and peak_ok else 1
                     self.state[RUNS] = 0
                 else:
                     self.state[ITERS] = its + 1
