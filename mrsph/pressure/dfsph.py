@@ -73,6 +73,9 @@ IMAGE_PAIRS = {2: 32, 3: 64}
 # state[]: iterations applied, done, hit the maximum, whether this iteration runs
 ITERS, DONE, HIT_MAX, RUNS = range(4)
 
+# knobs[]: the warm start's share of the last pressure, the largest error allowed (ρ* − ρ0)
+WARM_SHARE, PEAK = range(2)
+
 WARM = 2      # what a sweep (``_sweep``) runs: a solve's iteration (DENSITY, DIVERGENCE), or the warm start
 
 
@@ -158,12 +161,14 @@ class DFSPH:
         self.rest_density = float(parts.scene["fluid"]["rest_density"])
         self.cfl = float(cfg["cfl"])
         self.tolerance = (float(cfg["density_tolerance"]), float(cfg["divergence_tolerance"]))
-        self.peak_tolerance = float(cfg["max_density_error"])
         self.rest = RestTolerance(cfg, self.tolerance[DENSITY])     # the tolerance in slow flow
         self.min_iterations = (int(cfg["min_iterations"]), int(cfg["divergence_min_iterations"]))
         self.max_iterations = (int(cfg["max_iterations"]), int(cfg["divergence_max_iterations"]))
         self.divergence = bool(cfg["divergence_solve"])
         self.warm_start = float(cfg["warm_start"])
+        self.knobs = ti.field(float, shape=2)       # in a field, not compiled in (as RestTolerance)
+        self.knobs[WARM_SHARE] = self.warm_start
+        self.knobs[PEAK] = float(cfg["max_density_error"]) * self.rest_density
         fl = parts.scene["fluid"]
         self._damping_c = sound_speed(float(fl["stiffness"]), fl["eos"])
         cap = parts.pool.capacity
@@ -505,7 +510,7 @@ class DFSPH:
                     else:
                         k = 0.0
                         if p[i].rho + h_dt * rate > rho0 + self.fade.excess(i):
-                            k = ti.static(self.warm_start) * p[i].p / p[i].rho
+                            k = self.knobs[WARM_SHARE] * p[i].p / p[i].rho
                         self.kappa[i] = k
                         self.ksum[i] = k
                 elif mode == WARM:
@@ -517,7 +522,7 @@ class DFSPH:
                 its = self.state[ITERS]
                 # the peak (0 in the divergence solve) too: a hot spot of a few dozen
                 # particles hides in the average of thousands
-                peak_ok = self.peak[None] <= ti.static(self.peak_tolerance * rho0)
+                peak_ok = self.peak[None] <= self.knobs[PEAK]
                 if avg <= stop and its >= min_it and peak_ok:
                     self.state[DONE] = 1
                     self.state[RUNS] = 0
