@@ -256,8 +256,8 @@ SCHEMA = Table(required=True, keys={
                               "such remnants stay fine (and keep the time step fine)"),
         "absorb_below": Key("float", 0.5, "[0, 1]", doc="a group that would merge into a "
                             "particle lighter than this share of its level's nominal mass is "
-                            "given instead to the nearest real regular particle of that level "
-                            "within half its support (its mass and momentum; it keeps its place and "
+                            "given instead to the nearest real particle of that level (of any "
+                            "kind) within half its support (its mass and momentum; it keeps its place and "
                             "within 2x nominal), or stays fine where there is none; so no "
                             "particle falls below half its level's mass through repeated "
                             "splits and merges; 0 = such groups merge"),

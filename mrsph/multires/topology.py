@@ -73,9 +73,13 @@ coarsest down (§5.4), rebuilding the grids between pairs, and for the coarse le
    there too, not only in the transition layer of §6.
 8. ``_absorb``: a group that would merge into a particle lighter than
    ``adaptivity.absorb_below`` (half) of level c's nominal mass is given instead to the
-   nearest real regular level-c particle within ``ABSORB_REACH`` h_c, which takes its mass
+   nearest real level-c particle within ``ABSORB_REACH`` h_c, which takes its mass
    and momentum (up to ``ABSORB_CAP`` times nominal) and keeps its place; with no such
-   neighbour the group stays fine. Without it, partial merges made light coarse particles, their
+   neighbour the group stays fine. Of any real kind: the coarse particles round a
+   remnant are transient parents, made so by the remnant itself, so with regular
+   receivers only a lone fine particle stayed fine for good (demo_2d after a drag: its
+   level's density read above rho0 at the centre of a coarse particle's virtual
+   children, and the DFSPH density solve pumped it to megapascals). Without it, partial merges made light coarse particles, their
    splits light children, and those merged lighter still: under a strong stir the median
    particle fell to 0.21-0.50 of its level's mass and the pool filled (docs/performance.md,
    the mass cascade). With it every real particle stays within [1/2, 2] of its level's
@@ -509,13 +513,13 @@ class Multires:
     def _may_receive(self, j, ctx):
         """Whether j may take a light group (ctx: level c, the group's mass, the cap)."""
         p = ti.static(self.pool.p)
-        return p[j].kind == REGULAR and p[j].level == ti.cast(ctx[0], ti.i32) and \
+        return is_real(p[j].kind) and p[j].level == ti.cast(ctx[0], ti.i32) and \
             ti.cast(p[j].m, ti.f64) + ctx[1] <= ctx[2]
 
     @ti.func
     def _absorb(self, c):
         """Step 8 of the module's docstring: each group ``_merge`` found too light goes to its
-        nearest regular level-c particle within ``ABSORB_REACH`` h_c (mass, mass-weighted means;
+        nearest real level-c particle within ``ABSORB_REACH`` h_c (mass, mass-weighted means;
         it keeps its place). One thread, in the order found, so that two groups never fill
         one receiver past ``ABSORB_CAP``."""
         p = ti.static(self.pool.p)
@@ -537,6 +541,9 @@ class Multires:
                         acc += p[ch].m * fld[ch]
                     fld[best] = acc / total
                 p[best].m = total
+                if (p[best].kind & ROLE_CHILD) != 0:      # its virtual parent weighs its group
+                    vp = p[best].parent
+                    p[vp].m = ti.cast(self._group_mass(vp), float)
                 self.fade.touch(p[best].x, c)
                 self._kill_group(i)
                 p[i].kind = DEAD
