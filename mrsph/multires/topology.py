@@ -75,15 +75,16 @@ coarsest down (§5.4), rebuilding the grids between pairs, and for the coarse le
    ``adaptivity.absorb_below`` (half) of level c's nominal mass is given instead to the
    nearest real level-c particle within ``ABSORB_REACH`` h_c, which takes its mass
    and momentum (up to ``ABSORB_CAP`` times nominal) and keeps its place; with no such
-   neighbour the group stays fine. Of any real kind: the coarse particles round a
-   remnant are transient parents, made so by the remnant itself, so with regular
-   receivers only a lone fine particle stayed fine for good (demo_2d after a drag: its
-   level's density read above rho0 at the centre of a coarse particle's virtual
-   children, and the DFSPH density solve pumped it to megapascals). Without it, partial merges made light coarse particles, their
-   splits light children, and those merged lighter still: under a strong stir the median
-   particle fell to 0.21-0.50 of its level's mass and the pool filled (docs/performance.md,
-   the mass cascade). With it every real particle stays within [1/2, 2] of its level's
-   nominal mass.
+   neighbour the group stays fine. The receiver may be of any real kind: the coarse
+   particles round a remnant are transient parents, made so by the remnant itself, so
+   with regular receivers only a lone fine particle stayed fine for good (demo_2d after
+   a drag: its level's density read above rho0 at the centre of a coarse particle's
+   virtual children, and the DFSPH density solve pumped it to megapascals; docs/
+   performance.md, "A remnant no one could take"). Without absorption, partial merges
+   made light coarse particles, their splits light children, and those merged lighter
+   still: under a strong stir the median particle fell to 0.21-0.50 of its level's mass
+   and the pool filled (docs/performance.md, the mass cascade). With it every real
+   particle stays within [1/2, 2] of its level's nominal mass.
 9. ``SplitFade.remeasure_touched`` (``adaptivity.split_fade`` only): every real particle
    whose neighbourhood this pair changed re-measures its fade offset (``fade.py``):
    level-c ones within h_c of a merge, an absorption, a new or gathered virtual parent
