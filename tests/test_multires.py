@@ -665,9 +665,9 @@ def test_a_lone_fine_particle_among_coarse_ones_is_absorbed(dim):
     with regular receivers only, it stayed fine for good, at the centre of a coarse
     particle's virtual children, where its own level's density read above rho0 wherever
     it went. Under dfsph demo_2d's density solve then pumped it to megapascals and ran to
-    its maximum iterations every step (0.006x real time and 75 J/m of kinetic energy
-    after a drag in the window). Here: one fine particle in a coarse block at rest, four
-    adaptivity passes."""
+    its maximum iterations every step (after a drag in the window: 0.004-0.008x real
+    time, 97 J/m of kinetic energy; docs/performance.md, "A remnant no one could take").
+    Here: one fine particle in a coarse block at rest, four adaptivity passes."""
     s1 = 2 * S0[dim]
     scene = {"description": "coarse block with one fine particle", "dim": dim,
              "domain": {"min": [0.0] * dim, "max": [1.0] * dim}, "particles": {"spacing": S0[dim]},
