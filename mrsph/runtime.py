@@ -10,6 +10,8 @@ import os
 
 import taichi as ti
 
+from . import kernel_build
+
 ARCHES = ("auto", "cpu", "gpu")
 _state: dict = {"key": None, "arch_name": None, "notice": None, "affinity": None}
 
@@ -67,6 +69,7 @@ def ensure(arch: str = "cpu", precision: str = "f32", threads: int | None = None
     key = (arch, precision, threads)
     if _state["key"] == key:
         return _state["arch_name"]
+    kernel_build.install()      # Taichi's kernel builds remember the source they read
     if _state["key"] is not None:
         ti.reset()
     _state["notice"] = None

@@ -78,3 +78,85 @@ def test_no_kernel_hides_a_particle_loop_inside_a_top_level_if():
     assert _loops_hidden_in_kernel_ifs(planted) == ["k (line 3: if m == 1)"]
     assert _loops_hidden_in_kernel_ifs(planted.replace("@ti.kernel\ndef k(", "@ti.func\ndef k_func(")) == \
         ["k_func (line 3: if m == 1)"]
+
+
+# ---------------------------------------------------------------- kernel_build.py
+@pytest.fixture
+def checked_positions(taichi_f32):
+    """Every position message the memoized ``get_pos_info`` returns while the test builds
+    kernels, compared with the one Taichi's own function makes for the same node."""
+    from taichi.lang.ast import ast_transformer_utils as utils
+    from mrsph import kernel_build
+    assert kernel_build.installed() == (True, ""), kernel_build.installed()
+    memoized = utils.ASTTransformerContext.get_pos_info
+    original = memoized.original
+    seen = {"calls": 0, "wrong": []}
+
+    def checked(ctx, node):
+        got, want = memoized(ctx, node), original(ctx, node)
+        seen["calls"] += 1
+        if got != want:
+            seen["wrong"].append((got, want))
+        return got
+
+    utils.ASTTransformerContext.get_pos_info = checked
+    yield seen
+    utils.ASTTransformerContext.get_pos_info = memoized
+
+
+def test_remembered_positions_are_taichis_own(checked_positions):
+    """Two nodes on one line, one function inlined at three call sites of two kernels:
+    each node keeps its own message (a key without the column would give the second
+    ``a`` the first one's caret)."""
+    import taichi as ti
+    x = ti.field(float, shape=4)
+
+    @ti.func
+    def twice(a, b):
+        return a * b + a - b
+
+    @ti.kernel
+    def first():
+        for i in x:
+            x[i] = twice(x[i], 2.0) + twice(1.0, x[i])
+
+    @ti.kernel
+    def second():
+        for i in x:
+            x[i] = twice(x[i], x[i])
+
+    first()
+    second()
+    assert checked_positions["calls"] > 20, checked_positions
+    assert not checked_positions["wrong"], \
+        f"{len(checked_positions['wrong'])} message(s) differ; first: {checked_positions['wrong'][0]}"
+
+
+def test_a_compile_error_still_points_at_its_line(taichi_f32):
+    """A kernel's error names its file, its line and a caret under the expression, after a
+    first kernel built the same function (the memoized source and positions)."""
+    import inspect
+    import taichi as ti
+    x = ti.field(float, shape=4)
+
+    @ti.func
+    def shaped(a):
+        return a + 1.0
+
+    @ti.kernel
+    def fine():
+        for i in x:
+            x[i] = shaped(x[i])
+
+    @ti.kernel
+    def broken():
+        for i in x:
+            x[i] = shaped(x[i]) + undefined_name  # noqa: F821
+
+    fine()
+    with pytest.raises(Exception) as err:
+        broken()
+    lines, first = inspect.getsourcelines(broken.__wrapped__ if hasattr(broken, "__wrapped__") else broken)
+    line = first + next(k for k, text in enumerate(lines) if "undefined_name" in text)
+    msg = str(err.value)
+    assert f"line {line}, in broken" in msg and "^" in msg and "undefined_name" in msg, msg
