@@ -20,8 +20,8 @@ Per step (``solver.py`` calls the hooks in this order):
 3. ``solve``: the constant-density solve, Jacobi iterations until the average predicted
    density error, (ρ*_i − ρ0)/ρ0 with ρ*_i = ρ_i + dt Σ_j m_j (u_i − u_j)·∇W_ij (compression
    only, so that a free surface is not pulled in), is within ``dfsph.density_tolerance``
-   (tightened in slow flow down to ``dfsph.rest_tolerance``, ``tolerance.py``)
-   and no particle's is above ``dfsph.max_density_error``:
+   (tightened in slow flow down to ``dfsph.rest_tolerance``) and no particle's is
+   above ``dfsph.max_density_error`` (the stopping rule: ``tolerance.py``):
    κ_i = (ρ*_i − ρ0) α_i / dt², u_i −= dt Σ_j m_j (κ_i/ρ_i + κ_j/ρ_j) ∇W_ij; warm-started
    from the last step's pressure (carried by the sort in the particle's ``p``);
 4. drift, collide and the virtual particles' advection (integrator).
@@ -50,7 +50,7 @@ from ..neighbours import ImageNeighbours
 from ..particles import is_real, is_virtual
 from .counts import DENSITY, DIVERGENCE, SolveCounts
 from .eos import sound_speed
-from .tolerance import RestTolerance
+from .tolerance import DONE, RUNS, Stopping
 
 # Jacobi iterations per kernel launch: the host reads the convergence after each launch.
 # More saves a launch and a read (~15 µs, against ~1.5 ms an iteration at 10k particles)
@@ -69,12 +69,6 @@ ITERATIONS_PER_LAUNCH = 1
 # (0.64 -> 0.38 ms at 6.4k particles with the images left out). A particle near a corner
 # with more image pairs than this sums them on the fly.
 IMAGE_PAIRS = {2: 32, 3: 64}
-
-# state[]: iterations applied, done, hit the maximum, whether this iteration runs
-ITERS, DONE, HIT_MAX, RUNS = range(4)
-
-# knobs[]: the warm start's share of the last pressure, the largest error allowed (ρ* − ρ0)
-WARM_SHARE, PEAK = range(2)
 
 WARM = 2      # what a sweep (``_sweep``) runs: a solve's iteration (DENSITY, DIVERGENCE), or the warm start
 
@@ -160,15 +154,11 @@ class DFSPH:
         self.fade = parts.fade    # a split child's target is rho0 + drho (multires/fade.py)
         self.rest_density = float(parts.scene["fluid"]["rest_density"])
         self.cfl = float(cfg["cfl"])
-        self.tolerance = (float(cfg["density_tolerance"]), float(cfg["divergence_tolerance"]))
-        self.rest = RestTolerance(cfg, self.tolerance[DENSITY])     # the tolerance in slow flow
-        self.min_iterations = (int(cfg["min_iterations"]), int(cfg["divergence_min_iterations"]))
-        self.max_iterations = (int(cfg["max_iterations"]), int(cfg["divergence_max_iterations"]))
+        self.stop = Stopping(cfg, self.rest_density)
         self.divergence = bool(cfg["divergence_solve"])
         self.warm_start = float(cfg["warm_start"])
-        self.knobs = ti.field(float, shape=2)       # in a field, not compiled in (as RestTolerance)
-        self.knobs[WARM_SHARE] = self.warm_start
-        self.knobs[PEAK] = float(cfg["max_density_error"]) * self.rest_density
+        self.warm_share = ti.field(float, shape=())     # in a field, not compiled in
+        self.warm_share[None] = self.warm_start
         fl = parts.scene["fluid"]
         self._damping_c = sound_speed(float(fl["stiffness"]), fl["eos"])
         cap = parts.pool.capacity
@@ -177,10 +167,7 @@ class DFSPH:
                                 self._grad, self._add_factor)
         self.kappa = ti.field(float, shape=cap)      # this iteration's κ_i
         self.ksum = ti.field(float, shape=cap)       # Σ κ_i over the density solve
-        self.state = ti.field(ti.i32, shape=4)
         self.err = ti.field(ti.f64, shape=())        # Σ of the real particles' errors
-        self.error = ti.field(ti.f64, shape=())      # the last iteration's average error
-        self.peak = ti.field(float, shape=())         # the largest error, ρ* − ρ0 (density solve)
         self.n_real = ti.field(ti.i32, shape=())
         # the visits of each image's candidates, for Neighbours.images
         self._factor_images = ImageNeighbours(self.nb, self.kept.image_pair)
@@ -188,7 +175,7 @@ class DFSPH:
         self._push_images = ImageNeighbours(self.nb, self._push_image)
         # how a warning reaches the user (the Simulation sets its own: app and warnings)
         self.warn = lambda msg: warnings.warn(msg, RuntimeWarning, stacklevel=4)
-        self.counts = SolveCounts(self.tolerance, self.max_iterations, lambda msg: self.warn(msg))
+        self.counts = SolveCounts(self.stop.tolerance, self.stop.max_iterations, lambda msg: self.warn(msg))
 
     # ------------------------------------------------------------------ interface
     def signal_speed(self) -> float:
@@ -219,7 +206,7 @@ class DFSPH:
     @ti.func
     def note_step(self, moved):
         """The spacings the step's fastest particle moves (``RestTolerance``)."""
-        self.rest.note_step(moved)
+        self.stop.rest.note_step(moved)
 
     @ti.func
     def density_done(self, i):
@@ -262,16 +249,11 @@ class DFSPH:
         whether the device says done (its outcome is read once, at the end: a state read
         per launch was 13 of a demo_2d step's 43 calls); returns (iterations, average
         error, stopped at the maximum)."""
-        self._start(self.tolerance[which], self.min_iterations[which], self.max_iterations[which])
-        while not self._sweep(n, dt, which, self.tolerance[which], self.min_iterations[which],
-                              self.max_iterations[which]):
+        self.stop.start()
+        while not self._sweep(n, dt, which, *self.stop.args(which)):
             pass
-        iterations, error, hit_max = self._outcome()
+        iterations, error, hit_max = self.stop.outcome()
         return int(iterations), float(error), bool(hit_max)
-
-    @ti.kernel
-    def _outcome(self) -> ti.types.vector(3, ti.f64):
-        return ti.Vector([self.state[ITERS], self.error[None], self.state[HIT_MAX]], ti.f64)
 
     # ------------------------------------------------------------------ device
     @ti.func
@@ -450,24 +432,16 @@ class DFSPH:
         velocities from their owners. Three loops (adaptive) or one."""
         p = ti.static(self.pool.p)
         for i in range(n):
-            if self.state[RUNS] and is_real(p[i].kind):
+            if self.stop.state[RUNS] and is_real(p[i].kind):
                 p[i].v -= scale * self._push_all(i)
         if ti.static(self.adaptive):
             for i in range(n):
-                if self.state[RUNS] and is_real(p[i].kind):
+                if self.stop.state[RUNS] and is_real(p[i].kind):
                     r = self.coupling.take_reaction(i, ti.Vector.zero(float, self.dim))
                     p[i].v += scale * r / p[i].m
             for j in range(n):
-                if self.state[RUNS] and is_virtual(p[j].kind):
+                if self.stop.state[RUNS] and is_virtual(p[j].kind):
                     self.coupling.follow_owners(j)
-
-    @ti.kernel
-    def _start(self, tol: ti.f64, min_it: ti.i32, max_it: ti.i32):
-        self.state[ITERS] = 0
-        self.state[DONE] = 0
-        self.state[HIT_MAX] = 0
-        self.state[RUNS] = 0
-        self.error[None] = 0.0
 
     @ti.kernel
     def _sweep(self, n: ti.i32, dt: ti.f64, mode: ti.i32, tol: ti.f64, min_it: ti.i32,
@@ -477,7 +451,7 @@ class DFSPH:
         of them), or the density solve's warm start. Each measures the rate of the current
         velocities, sets κ from it, and updates the velocities (``_update``); an iteration
         first decides on the device whether to stop (converged after at least ``min_it``
-        updates, or ``max_it`` reached). One kernel, not three, because every copy of the
+        updates, or ``max_it`` reached: ``Stopping``). One kernel, not three, because every copy of the
         neighbour sums costs compile time (the three took 3x as long, docs/performance.md).
 
         The warm start: where the kicked velocities compress a particle (ρ*_i > ρ0), κ_i
@@ -489,20 +463,20 @@ class DFSPH:
         p = ti.static(self.pool.p)
         rho0 = ti.static(self.rest_density)
         h_dt = ti.cast(dt, float)
-        stop = tol if mode != DENSITY else self.rest.of(tol)
+        state, peak = ti.static(self.stop.state, self.stop.peak)
         for _ in ti.static(range(ITERATIONS_PER_LAUNCH)):
             self.err[None] = 0.0
-            self.peak[None] = 0.0
-            self.state[RUNS] = 1 if mode == WARM else 1 - self.state[DONE]
+            peak[None] = 0.0
+            state[RUNS] = 1 if mode == WARM else 1 - state[DONE]
             for i in range(n):
-                if self.state[RUNS] and is_real(p[i].kind):
+                if state[RUNS] and is_real(p[i].kind):
                     rate = self._rate(i)
                     if mode == DENSITY:
                         e = ti.max(p[i].rho + h_dt * rate - rho0 - self.fade.excess(i), 0.0)   # ρ* − ρ0, compression only
                         self.kappa[i] = e * self.alpha[i] / (h_dt * h_dt)
                         self.err[None] += ti.cast(e, ti.f64)
-                        if e > self.peak[None]:     # a float max is a compare-and-swap loop
-                            ti.atomic_max(self.peak[None], e)
+                        if e > peak[None]:     # a float max is a compare-and-swap loop
+                            ti.atomic_max(peak[None], e)
                     elif mode == DIVERGENCE:
                         e = ti.max(rate, 0.0)                              # Dρ/Dt, compression only
                         self.kappa[i] = e * self.alpha[i]
@@ -510,38 +484,23 @@ class DFSPH:
                     else:
                         k = 0.0
                         if p[i].rho + h_dt * rate > rho0 + self.fade.excess(i):
-                            k = self.knobs[WARM_SHARE] * p[i].p / p[i].rho
+                            k = self.warm_share[None] * p[i].p / p[i].rho
                         self.kappa[i] = k
                         self.ksum[i] = k
                 elif mode == WARM:
                     self.kappa[i] = 0.0
                     self.ksum[i] = 0.0
-            if mode != WARM and self.state[RUNS]:
+            if mode != WARM and state[RUNS]:
                 avg = self.err[None] / ti.max(self.n_real[None], 1) / rho0
-                self.error[None] = avg
-                its = self.state[ITERS]
-                # the peak (0 in the divergence solve) too: a hot spot of a few dozen
-                # particles hides in the average of thousands
-                peak_ok = self.peak[None] <= self.knobs[PEAK]
-                if avg <= stop and its >= min_it and peak_ok:
-                    self.state[DONE] = 1
-                    self.state[RUNS] = 0
-                elif its >= max_it:
-                    self.state[DONE] = 1
-                    # short of a tolerance tightened at rest (``_tolerance``) but within the
-                    # scene's own: converged as asked
-                    self.state[HIT_MAX] = 0 if avg <= tol and peak_ok else 1
-                    self.state[RUNS] = 0
-                else:
-                    self.state[ITERS] = its + 1
+                self.stop.decide(mode, avg, tol, min_it, max_it)
             # the mode in the loop's bound, not around the loop: only a kernel's outermost
             # loops run in parallel, and inside an `if` this one ran on one thread (on a
             # GPU, 8 ms of every 9 a sweep took at 100k particles)
             for i in range(ti.select(mode == DENSITY, n, 0)):
-                if self.state[RUNS] and is_real(p[i].kind):
+                if state[RUNS] and is_real(p[i].kind):
                     self.ksum[i] += self.kappa[i]
             self._update(n, 1.0 if mode == DIVERGENCE else h_dt)
-        return self.state[DONE]
+        return state[DONE]
 
     def _warm(self, n: int, dt: float) -> None:
         """The warm start (``_sweep``), one velocity update with it."""

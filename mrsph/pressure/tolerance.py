@@ -1,11 +1,20 @@
-"""The density solve's tolerance in slow flow (``dfsph.py``; keys ``dfsph.rest_tolerance``
-and ``dfsph.slow_flow``). The compression a solve leaves, η, is undone the next step at a
-speed of about η s/dt. Where the fastest particle moves a good part of a spacing a step,
-that is a small share of its speed (η/λ in a step the CFL bound sets); in water at rest,
-whose step is dt_max, it is a noise of its own that no flow outgrows (the resting 3D
-tank's mean speed read 0.0126 √(gH) unscaled, docs/performance.md, "The rest noise")."""
+"""When a DFSPH solve stops (``dfsph.py``): its tolerance, tightened in slow flow, the
+largest error any particle may keep, and its minimum and maximum iterations, decided on
+the device after each iteration; the host reads the outcome once a solve.
+
+The tolerance in slow flow (keys ``dfsph.rest_tolerance`` and ``dfsph.slow_flow``). The
+compression a solve leaves, η, is undone the next step at a speed of about η s/dt. Where
+the fastest particle moves a good part of a spacing a step, that is a small share of its
+speed (η/λ in a step the CFL bound sets); in water at rest, whose step is dt_max, it is a
+noise of its own that no flow outgrows (the resting 3D tank's mean speed read
+0.0126 √(gH) unscaled, docs/performance.md, "The rest noise")."""
 
 import taichi as ti
+
+from .counts import DENSITY
+
+# Stopping.state[]: iterations applied, done, hit the maximum, whether this iteration runs
+ITERS, DONE, HIT_MAX, RUNS = range(4)
 
 
 @ti.data_oriented
@@ -31,3 +40,56 @@ class RestTolerance:
     def of(self, tol):
         """This step's tolerance, ``tol`` the scene's density_tolerance."""
         return ti.max(self.floor[None], tol * ti.min(self.share[None], 1.0))
+
+
+@ti.data_oriented
+class Stopping:
+    """The stopping rule of both solves (``DENSITY``, ``DIVERGENCE``) and its state: a
+    solve stops when its average error is within its tolerance after at least its minimum
+    iterations and, in the density solve, no particle's compression is above
+    ``dfsph.max_density_error`` (a hot spot of a few dozen particles hides in the average
+    of thousands); or at its maximum, counted as unconverged unless within the scene's own
+    tolerance (short of one tightened at rest only: converged as asked)."""
+
+    def __init__(self, cfg: dict, rest_density: float):
+        self.tolerance = (float(cfg["density_tolerance"]), float(cfg["divergence_tolerance"]))
+        self.min_iterations = (int(cfg["min_iterations"]), int(cfg["divergence_min_iterations"]))
+        self.max_iterations = (int(cfg["max_iterations"]), int(cfg["divergence_max_iterations"]))
+        self.rest = RestTolerance(cfg, self.tolerance[DENSITY])
+        self.limit = ti.field(float, shape=())      # the largest error allowed, ρ* − ρ0
+        self.limit[None] = float(cfg["max_density_error"]) * rest_density
+        self.state = ti.field(ti.i32, shape=4)
+        self.error = ti.field(ti.f64, shape=())     # the last iteration's average error
+        self.peak = ti.field(float, shape=())       # its largest error (density solve)
+
+    def args(self, which: int) -> tuple:
+        """The kernel arguments of solve ``which``: tolerance, min and max iterations."""
+        return self.tolerance[which], self.min_iterations[which], self.max_iterations[which]
+
+    @ti.kernel
+    def start(self):
+        for k in ti.static(range(4)):
+            self.state[k] = 0
+        self.error[None] = 0.0
+
+    @ti.func
+    def decide(self, which, avg, tol, min_it, max_it):
+        """After an iteration whose average error is ``avg``: done, or one more."""
+        self.error[None] = avg
+        its = self.state[ITERS]
+        stop = tol if which != DENSITY else self.rest.of(tol)
+        peak_ok = self.peak[None] <= self.limit[None]       # 0 in the divergence solve
+        if avg <= stop and its >= min_it and peak_ok:
+            self.state[DONE] = 1
+            self.state[RUNS] = 0
+        elif its >= max_it:
+            self.state[DONE] = 1
+            self.state[HIT_MAX] = 0 if avg <= tol and peak_ok else 1
+            self.state[RUNS] = 0
+        else:
+            self.state[ITERS] = its + 1
+
+    @ti.kernel
+    def outcome(self) -> ti.types.vector(3, ti.f64):
+        """(iterations, the last average error, stopped at the maximum)."""
+        return ti.Vector([self.state[ITERS], self.error[None], self.state[HIT_MAX]], ti.f64)
