@@ -151,7 +151,7 @@ def link_violations(sim, pool: dict) -> list[str]:
                        f" is not an alive transient child one level finer pointing back")
             break
     # (c') a virtual parent weighs its group: a child's mass changed (a light group
-    # absorbed by it, ``_absorb``) changes its virtual parent's with it
+    # absorbed by it, ``Absorption.run``) changes its virtual parent's with it
     for i in np.flatnonzero(kind == V_PARENT):
         k = int(nchild[i])
         group = math.fsum(pool["m"][children[i, :k]].astype(np.float64)) if 1 <= k <= nmax else 0.0
@@ -631,7 +631,7 @@ def test_no_particle_falls_below_half_its_level_mass(dim, absorb):
     (absorb_below = 0) a remnant of one fine particle merges into a coarse particle of
     2^-d of its level's mass, whose children are as light, and so on down (docs/
     performance.md, the mass cascade): the second case shows the check can fail."""
-    from mrsph.multires.topology import ABSORB_CAP
+    from mrsph.multires.absorb import ABSORB_CAP
     sim = make_sim(stirred_slab_scene(dim, merge_remnants=True, absorb_below=absorb))
     p0 = sim.particles(virtual=False)
     mass0 = math.fsum(p0["m"].astype(np.float64))
@@ -659,7 +659,7 @@ def test_no_particle_falls_below_half_its_level_mass(dim, absorb):
 def test_a_lone_fine_particle_among_coarse_ones_is_absorbed(dim):
     """A remnant of one fine particle in fluid that wants the coarse level (a drag's
     wake, when the fine fluid has merged back round it) is too light to merge alone, so
-    it goes to a coarse neighbour (``_absorb``). Its coarse neighbours are transient
+    it goes to a coarse neighbour (``absorb.py``). Its coarse neighbours are transient
     parents, made so by the remnant itself (every real coarse particle within h_c of a
     real fine one carries virtual children), so a receiver of any real kind must do:
     with regular receivers only, it stayed fine for good, at the centre of a coarse

@@ -2,8 +2,9 @@
 
 - ``topology.py``: ``Multires``, the adaptivity pass (criteria, split, merge, release,
   gather) that changes which particles exist and how they are linked, with
-  ``placement.py`` (where a split's children go) and ``gather.py`` (virtual parents
-  pooling their groups before a merge);
+  ``placement.py`` (where a split's children go), ``gather.py`` (virtual parents
+  pooling their groups before a merge) and ``absorb.py`` (groups too light to merge,
+  given to a coarse neighbour);
 - ``coupling.py``: one object per ``adaptivity.coupling`` mode (``Uniform`` without
   adaptivity), whose hooks the density, force and integration passes call;
 - ``limiter.py``: the virtual-mass limiter the coupling runs before the density pass;

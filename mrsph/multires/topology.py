@@ -71,20 +71,11 @@ coarsest down (§5.4), rebuilding the grids between pairs, and for the coarse le
    also wherever a fine particle's position wants level c (``_couple_fine``), so that a
    region fine all through can coarsen once nothing wants it fine; so merges happen
    there too, not only in the transition layer of §6.
-8. ``_absorb``: a group that would merge into a particle lighter than
-   ``adaptivity.absorb_below`` (half) of level c's nominal mass is given instead to the
-   nearest real level-c particle within ``ABSORB_REACH`` h_c, which takes its mass
-   and momentum (up to ``ABSORB_CAP`` times nominal) and keeps its place; with no such
-   neighbour the group stays fine. The receiver may be of any real kind: the coarse
-   particles round a remnant are transient parents, made so by the remnant itself, so
-   with regular receivers only a lone fine particle stayed fine for good (demo_2d after
-   a drag: its level's density read above rho0 at the centre of a coarse particle's
-   virtual children, and the DFSPH density solve pumped it to megapascals; docs/
-   performance.md, "A remnant no one could take"). Without absorption, partial merges
-   made light coarse particles, their splits light children, and those merged lighter
-   still: under a strong stir the median particle fell to 0.21-0.50 of its level's mass
-   and the pool filled (docs/performance.md, the mass cascade). With it every real
-   particle stays within [1/2, 2] of its level's nominal mass.
+8. ``Absorption.run`` (``absorb.py``): a group that would merge into a particle lighter
+   than ``adaptivity.absorb_below`` (half) of level c's nominal mass is given instead to
+   the nearest real level-c particle of any kind within half its support, which takes
+   its mass and momentum and keeps its place; with no such neighbour the group stays
+   fine. So every real particle stays within [1/2, 2] of its level's nominal mass.
 9. ``SplitFade.remeasure_touched`` (``adaptivity.split_fade`` only): every real particle
    whose neighbourhood this pair changed re-measures its fade offset (``fade.py``):
    level-c ones within h_c of a merge, an absorption, a new or gathered virtual parent
@@ -103,6 +94,7 @@ import itertools
 import numpy as np
 import taichi as ti
 
+from .absorb import Absorption
 from .gather import Gathering
 from .placement import FRESH, Placement   # FRESH: real child made by a split in this pass
 from ..particles import (DEAD, REGULAR, ROLE_CHILD, ROLE_PARENT, VIRTUAL_CHILD,
@@ -130,17 +122,6 @@ MERGE_RESERVE = 1.0 / 32.0
 # must be written there too (a test holds that the mass is the only one).
 COUNTERS = ("splits", "merges", "released", "gathered", "absorbed")
 EV_SPLITS, EV_MERGES, EV_RELEASED, EV_GATHERED, EV_ABSORBED = range(len(COUNTERS))   # indices into them
-
-# A particle that takes a light group (``Multires._absorb``) stays within this multiple of
-# its level's nominal mass, so that absorption cannot make arbitrarily heavy particles.
-ABSORB_CAP = 2.0
-# ... and is within this share of its support (half: one coarse spacing) of the group's
-# virtual parent. The group's mass and momentum jump to the receiver: from as far as a
-# whole support, a film's light groups fed the coarse particles at its tip, which ran
-# ahead as a carpet of single particles. The 3D dam-break front at 1 s over seven CFL
-# numbers (tools/dam_front.py): +8.6 % on average, up to +19.9 %, at a whole support;
-# +0.2 %, -0.4 .. +0.8 % at half (docs/dam-front.md, "The absorption's reach").
-ABSORB_REACH = 0.5
 
 
 def sampling_offsets(dim: int):
@@ -170,15 +151,6 @@ class Multires:
         self.release_factor = float(a["release_factor"])
         self.merge_min = int(a["merge_min_children"])   # 0 resolved by the config
         self.merge_remnants = bool(a["merge_remnants"])
-        # groups lighter than this share of their level's nominal mass are absorbed by
-        # a coarse neighbour instead of merging (``_absorb``); 0: they merge
-        self.absorb_below = float(a["absorb_below"])
-        # the receiver takes the group's mass-weighted means but keeps its place (moved,
-        # receivers at a 3D dam-break front were pulled onto the remnants ahead of them:
-        # the front ran 11 % ahead of the uniform run's, 1.6 % when they stay)
-        self._absorbed_means = [a for a in merge_mass_mean() if a != "x"]
-        self.absorbing = ti.field(ti.i32, shape=self.pool.capacity)
-        self.n_absorbing = ti.field(ti.i32, shape=())
         self.split_near_regular = bool(a["split_near_regular"])
         self.relax_by_density = a["split_relax"] == "density"
         self.offsets = ti.Vector.field(self.dim, float, shape=self.nmax)
@@ -190,6 +162,7 @@ class Multires:
         self._taken = np.zeros(len(COUNTERS), np.int64)
         self.place = Placement(parts)   # where the children of this pass's splits go
         self.gather = Gathering(parts, self.counters, EV_GATHERED)
+        self.absorb = Absorption(parts, self.counters, EV_MERGES, EV_ABSORBED)   # groups too light to merge
 
     # ------------------------------------------------------------------ host driver
     def adapt(self, time: float) -> None:
@@ -217,8 +190,8 @@ class Multires:
         self._couple_fine(n, c)
         self.gather.rounds(n, c)
         self._merge(n, c)
-        if ti.static(self.absorb_below > 0.0):
-            self._absorb(c)
+        if ti.static(self.absorb.on):
+            self.absorb.run(c)
         self.fade.remeasure_touched(n, c)
         self.pool.clamp_n()
 
@@ -253,7 +226,7 @@ class Multires:
     @ti.func
     def _kill_virtual_children(self, i):
         """Transient parent i drops its virtual children and the parent role."""
-        self._kill_group(i)
+        self.pool.drop_children(i)
         self.pool.p[i].kind = self.pool.p[i].kind & ~ROLE_PARENT
 
     # ------------------------------------------------------------------ kernels
@@ -466,12 +439,11 @@ class Multires:
                 for q in range(p[i].nchild):
                     if (p[self.pool.children[i, q]].kind & ROLE_PARENT) != 0:
                         ok = False
-                if ok and ti.static(self.absorb_below > 0.0):
-                    if self._group_mass(i) < ti.static(self.absorb_below) * self.lev.m[c]:
-                        ok = False      # too light to stand alone: given to a neighbour below
-                        self.absorbing[ti.atomic_add(self.n_absorbing[None], 1)] = i
+                if ok and ti.static(self.absorb.on):
+                    if self.absorb.takes(i, c):
+                        ok = False      # too light to stand alone: given to a neighbour
                 if ok:
-                    mass = ti.cast(self._group_mass(i), float)
+                    mass = ti.cast(self.pool.group_mass(i), float)
                     rho_seen = self.fade.group_seen(i) / mass
                     for fld in ti.static(self._fields(merge_mass_mean())):
                         acc = fld[i] * 0.0
@@ -479,76 +451,10 @@ class Multires:
                             ch = self.pool.children[i, q]
                             acc += p[ch].m * fld[ch]
                         fld[i] = acc / mass
-                    self._kill_group(i)
+                    self.pool.drop_children(i)
                     p[i].m = mass
                     p[i].parent = -1
                     p[i].kind = REGULAR
                     self.fade.born(i, rho_seen)     # what its group's pressure read (fade.py)
                     self.fade.touch(p[i].x, c)
                     ti.atomic_add(self.counters[EV_MERGES], 1)
-
-    @ti.func
-    def _group_mass(self, i):
-        """The mass of virtual parent i's children, summed in f64: a partial group's
-        children need not be equal, and an f32 running sum rounded at every child, so the
-        scene's real mass drifted (demo_2d: 2.6e-9 relative in 4 s). Rounded once by
-        the caller."""
-        mass64 = ti.cast(0.0, ti.f64)
-        for q in range(self.pool.p[i].nchild):
-            mass64 += ti.cast(self.pool.p[self.pool.children[i, q]].m, ti.f64)
-        return mass64
-
-    @ti.func
-    def _kill_group(self, i):
-        """Remove the children of i, a virtual parent or a transient parent (the caller
-        decides what i becomes)."""
-        p = ti.static(self.pool.p)
-        for q in range(p[i].nchild):
-            ch = self.pool.children[i, q]
-            p[ch].kind = DEAD
-            p[ch].parent = -1
-            self.pool.children[i, q] = -1
-        p[i].nchild = 0
-
-    @ti.func
-    def _may_receive(self, j, ctx):
-        """Whether j may take a light group (ctx: level c, the group's mass, the cap)."""
-        p = ti.static(self.pool.p)
-        return is_real(p[j].kind) and p[j].level == ti.cast(ctx[0], ti.i32) and \
-            ti.cast(p[j].m, ti.f64) + ctx[1] <= ctx[2]
-
-    @ti.func
-    def _absorb(self, c):
-        """Step 8 of the module's docstring: each group ``_merge`` found too light goes to its
-        nearest real level-c particle within ``ABSORB_REACH`` h_c (mass, mass-weighted means;
-        it keeps its place). One thread, in the order found, so that two groups never fill
-        one receiver past ``ABSORB_CAP``."""
-        p = ti.static(self.pool.p)
-        h = ti.static(ABSORB_REACH) * self._h(c)
-        cap = ti.static(ABSORB_CAP) * self.lev.m[c]
-        ti.loop_config(serialize=True)
-        for q in range(self.n_absorbing[None]):
-            i = self.absorbing[q]
-            group = self._group_mass(i)
-            ctx = ti.Vector([ti.cast(c, ti.f64), group, cap], ti.f64)
-            best = self.g.nearest(p[i].x, c, h * h, p.x, self._may_receive, ctx)
-            if best >= 0:
-                total64 = ti.cast(p[best].m, ti.f64) + group
-                total = ti.cast(total64, float)
-                for fld in ti.static(self._fields(self._absorbed_means)):
-                    acc = p[best].m * fld[best]
-                    for k in range(p[i].nchild):
-                        ch = self.pool.children[i, k]
-                        acc += p[ch].m * fld[ch]
-                    fld[best] = acc / total
-                p[best].m = total
-                if (p[best].kind & ROLE_CHILD) != 0:      # its virtual parent weighs its group
-                    vp = p[best].parent
-                    p[vp].m = ti.cast(self._group_mass(vp), float)
-                self.fade.touch(p[best].x, c)
-                self._kill_group(i)
-                p[i].kind = DEAD
-                p[i].parent = -1
-                ti.atomic_add(self.counters[EV_MERGES], 1)
-                ti.atomic_add(self.counters[EV_ABSORBED], 1)
-        self.n_absorbing[None] = 0
