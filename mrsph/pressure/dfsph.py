@@ -450,9 +450,10 @@ class DFSPH:
         Jacobi iteration of the density or the divergence solve (``ITERATIONS_PER_LAUNCH``
         of them), or the density solve's warm start. Each measures the rate of the current
         velocities, sets κ from it, and updates the velocities (``_update``); an iteration
-        first decides on the device whether to stop (converged after at least ``min_it``
-        updates, or ``max_it`` reached: ``Stopping``). One kernel, not three, because every copy of the
-        neighbour sums costs compile time (the three took 3x as long, docs/performance.md).
+        first decides on the device whether to stop (``Stopping``: converged after at
+        least ``min_it`` updates, or ``max_it`` reached). One kernel, not three, because
+        every copy of the neighbour sums costs compile time (the three took 3x as long,
+        docs/performance.md).
 
         The warm start: where the kicked velocities compress a particle (ρ*_i > ρ0), κ_i
         starts at ``dfsph.warm_start`` times the last step's p_i/ρ_i (0 for a new particle),
