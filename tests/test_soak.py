@@ -115,7 +115,12 @@ def test_cursor_pushes_pulls_and_lets_go_inside_the_fluid():
 
 def test_soak_short(fresh_program):
     """SHORT soak (1000 steps, not the 10^5 of test_soak_full): every check passes, the
-    stirring refines the fluid, and the summary line says so."""
+    stirring refines the fluid, and the summary line says so. Each level's median mass
+    stays within what absorption allows, [absorb_below, ABSORB_CAP] = [0.5, 2] of
+    nominal: the mass cascade of partial merges read medians of 0.21-0.50
+    (docs/performance.md). Not at most 1, as before absorption: with two threads the
+    run differs each time, and CI's had a nearly empty level 1 whose median read 1.50
+    (here 0.79-0.87 with hundreds of particles)."""
     res = soak_tool.soak(steps=1000, check_every=125, gesture_s=0.025)
     assert res.ok, res.failures
     assert res.steps == 1000 and res.checks == 8
@@ -125,7 +130,9 @@ def test_soak_short(fresh_program):
     line = res.summary()
     assert line.startswith("soak demo_2d: 1000 steps") and line.endswith("8 checks: OK")
     assert len(res.mass_ratio) == 3 and "median mass / nominal by level" in line, line
-    assert all(0.0 < r <= 1.0 + 1e-6 for r in res.mass_ratio if not math.isnan(r)), res.mass_ratio
+    from mrsph.multires.absorb import ABSORB_CAP
+    assert all(0.5 - 1e-6 <= r <= ABSORB_CAP + 1e-6 for r in res.mass_ratio if not math.isnan(r)), \
+        f"median mass / nominal by level {res.mass_ratio}; expected within [0.5, {ABSORB_CAP}]"
 
 
 def test_mass_ratios_are_per_level_medians_of_the_real_particles():
