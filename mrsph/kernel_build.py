@@ -50,8 +50,7 @@ def install() -> bool:
     kernel_impl.getsourcelines = functools.lru_cache(maxsize=None)(lines)
     kernel_impl.getsourcefile = functools.lru_cache(maxsize=None)(source_file)
     fill = functools.lru_cache(maxsize=None)(textwrap.fill)
-    kernel_impl.textwrap = types.SimpleNamespace(fill=lambda line, **kw: fill(line, **kw),
-                                                 dedent=textwrap.dedent)
+    kernel_impl.textwrap = types.SimpleNamespace(fill=fill, dedent=textwrap.dedent)
     context.get_pos_info = _remembered(position)
     _state.update(installed=True, why_not="")
     return True

@@ -105,15 +105,18 @@ def checked_positions(taichi_f32):
 
 
 def test_remembered_positions_are_taichis_own(checked_positions):
-    """Two nodes on one line, one function inlined at three call sites of two kernels:
-    each node keeps its own message (a key without the column would give the second
-    ``a`` the first one's caret)."""
+    """Two nodes on one line, the same nodes at the same columns on two lines, one
+    function inlined at three call sites of two kernels: each node keeps its own message
+    (a key without the column would give the second ``a`` of a line the first one's
+    caret; a key without the line, the second line the first one's)."""
     import taichi as ti
     x = ti.field(float, shape=4)
 
     @ti.func
     def twice(a, b):
-        return a * b + a - b
+        c = a * b + a
+        d = a - b - a
+        return c + d
 
     @ti.kernel
     def first():
@@ -134,7 +137,8 @@ def test_remembered_positions_are_taichis_own(checked_positions):
 
 def test_a_compile_error_still_points_at_its_line(taichi_f32):
     """A kernel's error names its file, its line and a caret under the expression, after a
-    first kernel built the same function (the memoized source and positions)."""
+    first kernel built the same function and a line above built the same nodes at the
+    same columns (the memoized source and positions)."""
     import inspect
     import taichi as ti
     x = ti.field(float, shape=4)
@@ -148,9 +152,12 @@ def test_a_compile_error_still_points_at_its_line(taichi_f32):
         for i in x:
             x[i] = shaped(x[i])
 
+    a_defined_name = 1.0        # as long as the missing name: the two lines differ only in their line
+
     @ti.kernel
     def broken():
         for i in x:
+            x[i] = shaped(x[i]) + a_defined_name
             x[i] = shaped(x[i]) + undefined_name  # noqa: F821
 
     fine()
