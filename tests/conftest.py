@@ -14,7 +14,8 @@ Nothing here touches Taichi at import time.
   kept together at the end of their module so that precision switches are rare.
 - ``slow`` tests (the long validation: adaptive against uniform flows, the 3D dam
   breaks, the real window) are deselected by pytest.ini's ``-m "not slow"``, so that the
-  default ``python3 -m pytest -q`` stays under ten minutes on 2 cores; they run with
+  default ``python3 -m pytest -q`` stays short (10-17 minutes on 2 cores, aiming at
+  ten; docs/performance.md); they run with
   ``python3 -m pytest -q -m slow`` (a ``-m`` on the command line replaces the default).
   Mark only the long run: where a test is parametrised (over dimension, say) and only
   some of its cases are long, name those cases' ids with
