@@ -105,7 +105,8 @@ UNVERIFIED_DFSPH: tuple = ()
 # case (the test id) -> one xdist group per case; None -> one group for the module.
 GROUPED = {"test_adaptive_flow.py": "case", "test_physics.py": "case",
            "test_app_window.py": None, "test_app_render.py": None, "test_app_record.py": None,
-           "test_app_swipe.py": None, "test_app_water.py": None, "test_config.py": None}
+           "test_app_swipe.py": None, "test_app_water.py": None, "test_config.py": None,
+           "test_grid.py": None}
 
 
 @pytest.hookimpl(tryfirst=True)     # before -m deselects: the slow marks must be on by then

@@ -26,18 +26,44 @@ MAX_NEIGHBOURS = 160
 BORDERLINE = 1e-5
 
 
-def build(dim, xs, levels, kinds=None, extra_capacity=8, cells_per_support=1, parallel=False):
+# Pools and grids built by ``build(..., reuse=True)``, by (dim, cells per support, sort
+# form): a test refills one instead of building its own. Building is most of a grid
+# test's time (Taichi builds and compiles a new object's kernels, ~3.5 s), and the sort
+# must find any contents anyway: a Simulation sorts the same pool every step. Each entry
+# holds the Taichi program it was built in, and is built again in another.
+_BUILT: dict = {}
+REUSED_CAPACITY = {2: 2048, 3: 5120}     # slots: every reused test's particles fit
+
+
+def _program():
+    import taichi as ti
+    return ti.lang.impl.get_runtime().prog
+
+
+def build(dim, xs, levels, kinds=None, extra_capacity=8, cells_per_support=1, parallel=False,
+          reuse=False):
     """A ParticlePool and LevelGrids holding the given particles (ids stored in ``slot``);
     ``parallel``: the sort's GPU form (atomic ranks, three-tier prefix sum), run here on
-    the CPU."""
+    the CPU. ``reuse``: refill the pool and grids that an earlier test of this module
+    built with the same dim, cells and sort form (``_BUILT``), their next sort a full one."""
     from mrsph.grid import LevelGrids
     from mrsph.particles import ParticlePool
 
+    def new(capacity):
+        pool = ParticlePool(dim, capacity)
+        return pool, LevelGrids(dim, LEVELS, [DOMAIN_MIN] * dim, [DOMAIN_MAX] * dim, H0, pool.capacity,
+                                cells_per_support, parallel), _program()
+
     n = len(xs)
-    pool = ParticlePool(dim, n + extra_capacity)
+    if not reuse:
+        pool, grids, _ = new(n + extra_capacity)
+    else:
+        key = (dim, cells_per_support, parallel)
+        if key not in _BUILT or _BUILT[key][2] is not _program() or _BUILT[key][0].capacity < n + extra_capacity:
+            _BUILT[key] = new(max(n + extra_capacity, REUSED_CAPACITY[dim]))
+        pool, grids, _ = _BUILT[key]
+        grids.sorted_n[None] = -1        # as a new grid: no sort to skip
     cap = pool.capacity          # rounded up to an odd multiple of 16 (storage_slots)
-    grids = LevelGrids(dim, LEVELS, [DOMAIN_MIN] * dim, [DOMAIN_MAX] * dim, H0, cap,
-                       cells_per_support, parallel)
     pad = lambda a, fill: np.concatenate([a, np.full((cap - n,) + a.shape[1:], fill, a.dtype)])  # noqa: E731
     pool.p.x.from_numpy(pad(xs.astype(np.float32), 0.0))
     pool.p.v.from_numpy(pad((xs * 3.0 + 1.0).astype(np.float32), 0.0))
@@ -51,12 +77,19 @@ def build(dim, xs, levels, kinds=None, extra_capacity=8, cells_per_support=1, pa
     return pool, grids
 
 
-def grid_neighbours(pool, grids, n):
-    """For each sorted slot, the ids (slot) of the particles the grid finds within h_l."""
+_SEARCHES: dict = {}     # id(grids) -> (grids, its program, search kernel, the kernel's fields)
+
+
+def _search_of(pool, grids):
+    """The test's own neighbour search over ``grids`` (built once a pool and grids)."""
     import taichi as ti
 
-    cnt = ti.field(ti.i32, shape=n)
-    nb = ti.field(ti.i32, shape=(n, MAX_NEIGHBOURS))
+    known = _SEARCHES.get(id(grids))
+    if known is not None and known[0] is grids and known[1] is _program():
+        return known[2], known[3]
+    cap = pool.capacity
+    cnt = ti.field(ti.i32, shape=cap)
+    nb = ti.field(ti.i32, shape=(cap, MAX_NEIGHBOURS))
     overflow = ti.field(ti.i32, shape=())
     wrong_level = ti.field(ti.i32, shape=())
     h = ti.field(float, shape=LEVELS)
@@ -64,7 +97,7 @@ def grid_neighbours(pool, grids, n):
         h[l] = H0 * 2**l
 
     @ti.kernel
-    def search(pool: ti.template(), grids: ti.template()):
+    def search(pool: ti.template(), grids: ti.template(), n: ti.i32):
         p = ti.static(pool.p)
         for i in range(n):
             c = 0
@@ -85,7 +118,16 @@ def grid_neighbours(pool, grids, n):
                         c += 1
             cnt[i] = c
 
-    search(pool, grids)
+    _SEARCHES[id(grids)] = (grids, _program(), search, (cnt, nb, overflow, wrong_level))
+    return search, (cnt, nb, overflow, wrong_level)
+
+
+def grid_neighbours(pool, grids, n):
+    """For each sorted slot, the ids (slot) of the particles the grid finds within h_l."""
+    search, (cnt, nb, overflow, wrong_level) = _search_of(pool, grids)
+    overflow[None] = 0
+    wrong_level[None] = 0
+    search(pool, grids, n)
     assert overflow[None] == 0, f"test kernel: more than {MAX_NEIGHBOURS} neighbours ({overflow[None]} dropped)"
     assert wrong_level[None] == 0, \
         f"{wrong_level[None]} candidates of another level found in the cells of a level's grid"
@@ -166,7 +208,7 @@ def test_grid_neighbours_equal_brute_force(dim, layout, cells, parallel):
     # put the particles at the domain edges and corners too (clamped cells, padding)
     xs[:dim, :] = DOMAIN_MIN
     xs[dim: 2 * dim, :] = DOMAIN_MAX
-    pool, grids = build(dim, xs, levels, cells_per_support=per_axis(cells, dim), parallel=parallel)
+    pool, grids = build(dim, xs, levels, cells_per_support=per_axis(cells, dim), parallel=parallel, reuse=True)
     n = grids.sort(pool)
     assert n == len(xs), f"sort returned {n} particles; expected {len(xs)} (none is DEAD)"
     expected, borderline = brute_force(xs, levels)
@@ -183,7 +225,7 @@ def test_a_sort_after_the_particles_moved_finds_their_new_neighbours(dim, cells,
     rng = np.random.default_rng(31 + dim)
     xs = random_positions(rng, dim, 1200 if dim == 2 else 2000)
     levels = (rng.uniform(size=len(xs)) < 0.35).astype(np.int32)
-    pool, grids = build(dim, xs, levels, cells_per_support=per_axis(cells, dim), parallel=parallel)
+    pool, grids = build(dim, xs, levels, cells_per_support=per_axis(cells, dim), parallel=parallel, reuse=True)
     n = grids.sort(pool)
     moved = random_positions(rng, dim, len(xs))
     ids = pool.p.slot.to_numpy()[:n]
@@ -205,7 +247,7 @@ def test_a_sort_with_nothing_moved_skips_and_any_change_resorts(dim, cells):
     rng = np.random.default_rng(53 + dim)
     xs = random_positions(rng, dim, 1200 if dim == 2 else 2000)
     levels = (rng.uniform(size=len(xs)) < 0.35).astype(np.int32)
-    pool, grids = build(dim, xs, levels, cells_per_support=per_axis(cells, dim))
+    pool, grids = build(dim, xs, levels, cells_per_support=per_axis(cells, dim), reuse=True)
     n = grids.sort(pool)
     before = pool.p.slot.to_numpy().copy()
     starts = grids.start.to_numpy().copy()
@@ -253,7 +295,7 @@ def test_sort_orders_by_cell_and_carries_every_attribute(dim, cells, parallel):
     rng = np.random.default_rng(7 + dim)
     xs = random_positions(rng, dim, 400)
     levels = (rng.uniform(size=len(xs)) < 0.5).astype(np.int32)
-    pool, grids = build(dim, xs, levels, cells_per_support=per_axis(cells, dim), parallel=parallel)
+    pool, grids = build(dim, xs, levels, cells_per_support=per_axis(cells, dim), parallel=parallel, reuse=True)
     n = grids.sort(pool)
     ids = pool.p.slot.to_numpy()[:n]
     assert sorted(ids.tolist()) == list(range(len(xs))), "the sort is not a permutation"
@@ -407,6 +449,7 @@ DENSITY_RUNS = {  # scene, overrides, simulated seconds before the check (the fl
 }
 
 
+@pytest.mark.slow_params("2d-uniform", "3d-adaptive")   # the quick run: 2D adaptive, 3D uniform
 @pytest.mark.parametrize("adaptive", [False, True], ids=["uniform", "adaptive"])
 def test_density_pass_equals_brute_force_sums_and_lists(dim, adaptive):
     """The solver's density pass (``_density``: runs of consecutive particles in a column
