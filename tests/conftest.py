@@ -12,13 +12,24 @@ Nothing here touches Taichi at import time.
   The Simulation itself picks the precision its scene asks for
   (:func:`mrsph.runtime.ensure`), so tests that need f64 say so in the scene; they are
   kept together at the end of their module so that precision switches are rare.
-- ``slow`` tests (the long validation: adaptive against uniform flows, the 3D dam
-  breaks, the real window) are deselected by pytest.ini's ``-m "not slow"``, so that the
-  default ``python3 -m pytest -q`` stays short (10-17 minutes on 2 cores, aiming at
-  ten; docs/performance.md); they run with
-  ``python3 -m pytest -q -m slow`` (a ``-m`` on the command line replaces the default).
-  Mark only the long run: where a test is parametrised (over dimension, say) and only
-  some of its cases are long, name those cases' ids with
+- Two tiers. The quick run (``python3 -m pytest -q``; pytest.ini's ``-m "not slow"``)
+  holds every guard once, in under ten minutes on 2 cores (8:47 from an empty Taichi
+  cache; docs/performance.md, "Two tiers"). ``-m slow`` holds the rest, and ``.ci/run``
+  runs both:
+  - the long validation: adaptive against uniform flows, the dam breaks, the tanks at
+    rest, the soaks' short run, the real window;
+  - the other cases of a long test (one of more than ~8 s) whose guard the quick run
+    already holds in one case: mostly the 3D case where the 2D one stays (one code path
+    for both dimensions; ``scenekit.DIMS_3D_SLOW``), a second pressure solver or coupling
+    mode where another case runs the same pass, and the 3D scenes whose 2D twin runs.
+    Each test names its slow cases where it is parametrised. The quick run keeps 3D
+    through the 3D demo, dam break and pour, the kernels, grids, rest density, momentum
+    and the errors a 3D step reports. Most of a test's time is building its Simulation
+    (~4 s of Taichi turning kernels into IR, ~3 s compiling them at the first step, even
+    from a warm offline cache), so a test is cut by building fewer, not by stepping less.
+  They run with ``python3 -m pytest -q -m slow`` (a ``-m`` on the command line replaces
+  the default). Mark only the long run: where a test is parametrised (over dimension,
+  say) and only some of its cases are long, name those cases' ids with
   ``@pytest.mark.slow_params("3d", ...)`` (or ``pytest.param(3, marks=pytest.mark.slow)``
   where the test owns the parameter), so the short cases stay in the default run.
 - ``open_issue`` tests: long validations of work an open issue has not finished (the

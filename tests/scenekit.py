@@ -22,6 +22,12 @@ def known_xfail(request, known: dict, case: str, key: str, measured: float) -> N
         request.applymarker(pytest.mark.xfail(strict=False, reason=f"{reason} (this run: {measured:.4g})"))
 
 
+# ------------------------------------------------------------------ the two tiers
+# The quick run (python3 -m pytest -q) holds every guard once; a long test's other
+# cases run in -m slow, which CI runs too (conftest.py, "two tiers").
+DIMS_3D_SLOW = [2, pytest.param(3, marks=pytest.mark.slow)]
+
+
 # ------------------------------------------------------------------ pressure solvers
 SOLVERS = ("wcsph", "dfsph")
 

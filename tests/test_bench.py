@@ -1,8 +1,9 @@
 """The benchmark (``python3 main.py bench``) and its plot (tools/plot_bench.py).
 
 The pair arithmetic, the table and the case sizes are checked on hand-made numbers
-(no Taichi); one smoke run of the command line checks that every kind of case runs and
-writes the documented JSON keys, not what the timings are.
+(no Taichi); smoke runs of the command line check that the cases run and write the
+documented JSON keys, not what the timings are: the rendered demo in the quick run, every
+kind of case (a run, a pair, the demo) in -m slow.
 """
 import json
 import math
@@ -148,14 +149,15 @@ def test_fluid_volume_of_the_demo():
 SMOKE_SET = "fluid.viscosity=4.0"
 
 
-def test_bench_smoke_writes_json_with_every_key(tmp_path):
-    """Smoke test: one short run of each kind of case through the command line (a run, a
-    pair, the rendered demo) at 5 % of their intervals; checks the JSON and the table,
-    not the timings."""
+def _bench_smoke(tmp_path, cases: list) -> tuple:
+    """One short run of ``cases`` through the command line at 5 % of their intervals:
+    (the JSON's rows by case name, the JSON, the process). Checks what every row must
+    hold: the documented keys, the override, a profiled interval timed phase by phase,
+    and its line in the table; not what the timings are."""
     out = tmp_path / "bench.json"
+    case_args = [arg for case in cases for arg in ("--case", case)]
     proc = subprocess.run(
-        [sys.executable, "main.py", "bench", "--case", "dam_break_2d uniform ~10k",
-         "--case", "dam_break_obstacle_2d s=3.5mm", "--case", "demo_2d", "--repeats", "1",
+        [sys.executable, "main.py", "bench", *case_args, "--repeats", "1",
          "--interval-scale", "0.05", "--json", str(out), "--set", SMOKE_SET],
         cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S)
     assert proc.returncode == 0, proc.stderr[-3000:]
@@ -165,8 +167,6 @@ def test_bench_smoke_writes_json_with_every_key(tmp_path):
     optimised = advanced_optimization()
     assert result["advanced_optimization"] is optimised
     assert ("TI_ADVANCED_OPTIMIZATION=0" in proc.stderr) is not optimised, proc.stderr[-2000:]
-    assert list(rows) == ["dam_break_2d uniform ~10k", "dam_break_obstacle_2d s=3.5mm adaptive",
-                          "dam_break_obstacle_2d s=3.5mm uniform", "demo_2d rendered"]
     assert result["overrides"] == [SMOKE_SET]
     assert result["gpu"] is None, result["gpu"]      # this suite runs on the CPU
     for r in rows.values():
@@ -180,6 +180,37 @@ def test_bench_smoke_writes_json_with_every_key(tmp_path):
         # an unprofiled step (fused.py), which would leave these at 0
         for phase in ("grid", "density", "forces", "timestep", "integrate"):
             assert r["phase_share"].get(phase, 0.0) > 0.0, (r["case"], phase, r["phase_share"])
+        assert r["case"] in proc.stdout
+    return rows, result, proc
+
+
+def _check_demo_row(demo: dict, stdout: str) -> None:
+    """The rendered demo's own keys: its frames, its renderer and its surface's share."""
+    assert DEMO_KEYS <= set(demo) and demo["renderer"] in ("ggui", "raster")
+    assert demo["frames"] == 1 and demo["frames_per_s"] > 0 and "render" in demo["phase_share"]
+    assert demo["reference_spacing"] == pytest.approx((demo["fluid_volume"] / 10_000) ** 0.5)
+    assert demo["surface_share"] == pytest.approx(demo["surface_ms"] / demo["window_frame_ms"])
+    assert 0 < demo["surface_ms"] < demo["window_frame_ms"]
+    assert "rendered frames/s" in stdout and "% of a window frame with it" in stdout
+
+
+def test_bench_smoke_the_rendered_demo(tmp_path):
+    """The quick run's smoke test of ``bench``: the rendered demo alone, the case a user
+    runs first, with every key a row and a demo row hold. Every kind of case runs in
+    the next test (-m slow): four builds, 100 s of this suite's ten minutes."""
+    rows, _, proc = _bench_smoke(tmp_path, ["demo_2d"])
+    assert list(rows) == ["demo_2d rendered"]
+    _check_demo_row(rows["demo_2d rendered"], proc.stdout)
+
+
+@pytest.mark.slow
+def test_bench_smoke_writes_json_with_every_key(tmp_path):
+    """Every kind of case (a run, a pair, the rendered demo) in one bench run: the pair's
+    summary joins its two rows, and the table prints them all."""
+    rows, result, proc = _bench_smoke(tmp_path, ["dam_break_2d uniform ~10k", "dam_break_obstacle_2d s=3.5mm",
+                                                 "demo_2d"])
+    assert list(rows) == ["dam_break_2d uniform ~10k", "dam_break_obstacle_2d s=3.5mm adaptive",
+                          "dam_break_obstacle_2d s=3.5mm uniform", "demo_2d rendered"]
     assert rows["dam_break_2d uniform ~10k"]["n_real"] == 10082
     adaptive, uniform = rows["dam_break_obstacle_2d s=3.5mm adaptive"], rows["dam_break_obstacle_2d s=3.5mm uniform"]
     assert adaptive["adaptive"] and not uniform["adaptive"] and uniform["levels"] == 1
@@ -187,16 +218,8 @@ def test_bench_smoke_writes_json_with_every_key(tmp_path):
     (pair,) = result["pairs"]
     assert set(pair) == PAIR_KEYS
     assert pair["speedup"] == pytest.approx(uniform["wall_s"] / adaptive["wall_s"])
-    demo = rows["demo_2d rendered"]
-    assert DEMO_KEYS <= set(demo) and demo["renderer"] in ("ggui", "raster")
-    assert demo["frames"] == 1 and demo["frames_per_s"] > 0 and "render" in demo["phase_share"]
-    assert demo["reference_spacing"] == pytest.approx((demo["fluid_volume"] / 10_000) ** 0.5)
-    assert demo["surface_share"] == pytest.approx(demo["surface_ms"] / demo["window_frame_ms"])
-    assert 0 < demo["surface_ms"] < demo["window_frame_ms"]
-    for name in rows:
-        assert name in proc.stdout
-    assert "=> adaptive vs uniform:" in proc.stdout and "rendered frames/s" in proc.stdout
-    assert "% of a window frame with it" in proc.stdout
+    assert "=> adaptive vs uniform:" in proc.stdout
+    _check_demo_row(rows["demo_2d rendered"], proc.stdout)
 
 
 def test_bench_rejects_an_unknown_case():

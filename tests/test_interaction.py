@@ -29,6 +29,7 @@ def block_scene(dim):
     }
 
 
+@pytest.mark.slow_params("3d")   # the quick run keeps 2D (conftest.py, "two tiers")
 def test_drag_pushes_inside_its_radius_along_the_drag_and_refines(dim):
     sim = Simulation(load_scene(block_scene(dim)), arch="cpu")
     before = sim.particles(virtual=False)
@@ -78,7 +79,7 @@ def test_drag_pushes_inside_its_radius_along_the_drag_and_refines(dim):
         f"(1); lowest is {back['lam'].min():.3f}")
 
 
-@pytest.mark.parametrize("name", ["region_2d", "region_3d"])
+@pytest.mark.parametrize("name", ["region_2d", pytest.param("region_3d", marks=pytest.mark.slow)])
 def test_offscreen_frame_of_an_adaptive_scene_shows_two_levels(name):
     from mrsph.app import palette
     from mrsph.app.record import vulkan_available
@@ -144,6 +145,7 @@ def test_paths_on_the_device_sample_as_the_host_does():
                 f"path {k} at t = {t}: device ({xs[k, q]}, {vs[k, q]}), host ({x}, {v})"
 
 
+@pytest.mark.slow_params("3d")   # the quick run keeps 2D (conftest.py, "two tiers")
 def test_a_stirrer_is_where_its_path_says_after_every_step(dim):
     """The stirrers follow their paths on the device, one launch a step: after each step
     (and after a restore) a stirrer's slot holds the path's position and velocity at the

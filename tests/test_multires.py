@@ -23,7 +23,7 @@ from mrsph.particles import (DEAD, REGULAR, TRANSIENT_BOTH as T_BOTH, TRANSIENT_
                              TRANSIENT_PARENT as T_PARENT, VIRTUAL_CHILD as V_CHILD,
                              VIRTUAL_PARENT as V_PARENT)
 
-from scenekit import dim_solver_params, watch_solves, with_solver, worst_leak
+from scenekit import DIMS_3D_SLOW, dim_solver_params, watch_solves, with_solver, worst_leak
 
 pytestmark = pytest.mark.usefixtures("fresh_program")
 
@@ -229,7 +229,7 @@ def moving_region_scene(dim: int, half_period_steps: int = 30, levels: int = 3) 
 # ================================================================== 1. links at every step
 # the dfsph cases compile a second solver's kernels (a minute or more each): the default
 # suite keeps the 2D links and the 2D coupling momentum with dfsph, -m slow the rest
-@pytest.mark.parametrize(("dim", "solver"), dim_solver_params(slow=("3d-dfsph",)))
+@pytest.mark.parametrize(("dim", "solver"), dim_solver_params(slow=("3d", "2d-dfsph", "3d-dfsph")))
 def test_links_hold_at_every_step_of_a_moving_refinement(dim, solver):
     """METHOD.md §3, §8: every virtual particle has a live owner that lists it, every
     transient child's virtual parent lists it, groups hold at most 2^d children, and no
@@ -291,7 +291,7 @@ def event_steps(sim, events: int = 100, max_steps: int = 150):
         yield steps, splits, merges, ev
 
 
-@pytest.mark.parametrize(("dim", "solver"), dim_solver_params(slow=("2d-dfsph", "3d-dfsph")))
+@pytest.mark.parametrize(("dim", "solver"), dim_solver_params(slow=("3d", "2d-dfsph", "3d-dfsph")))
 def test_mass_is_bit_identical_through_splits_and_merges(dim, solver):
     """METHOD.md §5, §6, §8: with full groups only (merge_min_children = 2^d),
     the total real mass (math.fsum of the masses) is bit-identical at every step of a run
@@ -323,6 +323,7 @@ def test_mass_is_bit_identical_through_splits_and_merges(dim, solver):
                     f"first {describe(pool, i)}: m = {pool['m'][i]!r}, nominal {nominal[pool['level'][i]]!r}")
 
 
+@pytest.mark.slow_params("3d")   # the quick run keeps 2D (conftest.py, "two tiers")
 def test_mass_is_kept_to_round_off_with_partial_groups(dim):
     """METHOD.md §6 ("a group need not be full"): with groups of any size allowed to merge
     once they can gather no more (merge_min_children = 1) merged particles carry
@@ -359,7 +360,7 @@ def test_mass_is_kept_to_round_off_with_partial_groups(dim):
 
 
 # ================================================================== 3. momentum through a pass
-@pytest.mark.parametrize(("dim", "solver"), dim_solver_params(slow=("2d-dfsph", "3d-dfsph")))
+@pytest.mark.parametrize(("dim", "solver"), dim_solver_params(slow=("3d", "2d-dfsph", "3d-dfsph")))
 def test_adaptivity_pass_keeps_momentum(dim, solver):
     """METHOD.md §5, §6, §8: a split gives the children the parent's velocity and a merge
     gives the merged particle the group's mass-weighted mean velocity, so the total real
@@ -445,7 +446,8 @@ def refined_blob_scene(dim: int) -> dict:
     }
 
 
-@pytest.mark.slow_params("3d-symmetric", "3d-variational-dfsph")
+# the quick run: the symmetric coupling under wcsph, the variational one under dfsph
+@pytest.mark.slow_params("2d-variational", "3d-symmetric", "3d-variational", "3d-variational-dfsph")
 @pytest.mark.parametrize(("coupling", "solver"), [
     pytest.param("variational", "wcsph", id="variational"),
     pytest.param("symmetric", "wcsph", id="symmetric"),
@@ -622,7 +624,7 @@ def test_fine_fluid_a_stirrer_left_merges_back(dim, remnants):
                                     f"{100 * share:g} %")
 
 
-@pytest.mark.slow_params("3d-absorbed", "3d-merged")
+@pytest.mark.slow_params("2d-merged", "3d-absorbed", "3d-merged")
 @pytest.mark.parametrize("absorb", [0.5, 0.0], ids=["absorbed", "merged"])
 def test_no_particle_falls_below_half_its_level_mass(dim, absorb):
     """Light groups go to a coarse neighbour (``adaptivity.absorb_below``): no real
@@ -656,6 +658,7 @@ def test_no_particle_falls_below_half_its_level_mass(dim, absorb):
         assert lightest < 0.5, f"{dim}D without absorption: lightest {lightest:.3f}; the stir made no cascade"
 
 
+@pytest.mark.slow_params("3d")   # the quick run keeps 2D (conftest.py, "two tiers")
 def test_a_lone_fine_particle_among_coarse_ones_is_absorbed(dim):
     """A remnant of one fine particle in fluid that wants the coarse level (a drag's
     wake, when the fine fluid has merged back round it) is too light to merge alone, so
@@ -702,6 +705,7 @@ def test_a_lone_fine_particle_among_coarse_ones_is_absorbed(dim):
     assert not (after["kind"] == V_CHILD).any(), f"{dim}D: virtual children left with no fine particle"
 
 
+@pytest.mark.slow_params("3d-criteria-only", "3d-near-regular")
 @pytest.mark.parametrize("on", [False, True], ids=["criteria-only", "near-regular"])
 def test_transient_parent_next_to_a_regular_fine_particle_splits_when_asked(dim, on):
     """METHOD.md §5.2's other trigger (``adaptivity.split_near_regular``): a transient
@@ -734,6 +738,7 @@ def test_transient_parent_next_to_a_regular_fine_particle_splits_when_asked(dim,
 
 
 # ================================================================== 6. seeding a block
+@pytest.mark.slow_params("3d")   # the quick run keeps 2D (conftest.py, "two tiers")
 def test_adaptive_seed_holds_the_uniform_runs_fluid(dim):
     """A block whose sides are not whole cells of the coarsest level (0.31, 0.27 and
     0.13 m against 4 cm: 7, 6 and 3 cells, and 3 or 1 cm left over) is seeded with the
@@ -858,14 +863,16 @@ def test_a_restored_state_steps_exactly_as_the_original(dim):
         f"t = {first.time!r} after {first.steps}")
     for key in a:
         assert np.array_equal(a[key], b[key]), f"{dim}D: the restored run's {key} differs after 30 steps"
-    with pytest.raises(ValueError, match="does not fit"):
-        other = Simulation(load_scene(moving_region_scene(5 - dim)), arch="cpu", threads=1)
-        other.restore_state(state)
+    # a state of another dimension or pool size is refused before anything is written
+    for wrong in (dict(state, dim=5 - dim), dict(state, capacity=state["capacity"] + 16)):
+        with pytest.raises(ValueError, match="does not fit"):
+            second.restore_state(wrong)
+    assert np.array_equal(raw_pool(second)["x"], b["x"]), f"{dim}D: a refused state changed the pool"
 
 
 # the dfsph cases in the default run: its kernels compiled as there (TI_ADVANCED_OPTIMIZATION=0)
 # gave the NaN; optimised, LLVM's fast math hid it
-@pytest.mark.parametrize(("dim", "solver"), dim_solver_params(slow=("3d",)))
+@pytest.mark.parametrize(("dim", "solver"), dim_solver_params(slow=("3d", "2d", "3d-dfsph")))
 def test_particles_whose_lists_overflowed_move_as_if_listed(dim, solver, monkeypatch):
     """A particle with more neighbours than its list holds (``MAX_NEIGHBOURS``) is summed
     over its grid block instead, in every pass, and one with more DFSPH image pairs than
@@ -908,6 +915,7 @@ def test_particles_whose_lists_overflowed_move_as_if_listed(dim, solver, monkeyp
 
 
 # ================================================================== capacity
+@pytest.mark.slow_params("3d")   # the quick run keeps 2D (conftest.py, "two tiers")
 def test_a_full_pool_refuses_splits_warns_once_and_loses_nothing(dim):
     """Issue 3 §7: a split that does not fit in the pool is refused, counted in the stats
     (``refused``) and reported once as a RuntimeWarning; the run goes on with its links
@@ -978,7 +986,7 @@ def jittered_block_scene(dim: int, solver: str, fade: float) -> dict:
     return for_solver(scene, solver)
 
 
-@pytest.mark.parametrize(("dim", "solver"), dim_solver_params(slow=("3d-dfsph",)))
+@pytest.mark.parametrize(("dim", "solver"), dim_solver_params(slow=("3d", "3d-dfsph")))
 def test_split_children_start_at_their_parents_pressure(dim, solver):
     """``adaptivity.split_fade`` (multires/fade.py): the children of a split of a
     disordered coarse fluid read more than their parent did where they land near another
@@ -1079,7 +1087,7 @@ def split_under_a_cursor(dim: int, jitter_radius: float = 0.08):
     return sim
 
 
-@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("dim", DIMS_3D_SLOW)
 def test_a_merge_starts_at_the_pressure_its_group_had(dim):
     """``adaptivity.split_fade`` for a merge: a merged particle's reference density is
     what its group's pressure read, the children's mass-weighted rho - drho (rho0 at
@@ -1126,7 +1134,7 @@ def test_a_merge_starts_at_the_pressure_its_group_had(dim):
                            f"rho - drho (rho0 at least) by {worst:.3g} kg/m^3")
 
 
-@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("dim", DIMS_3D_SLOW)
 def test_merging_back_compresses_nothing_around_it(dim):
     """``adaptivity.split_fade`` around a change of level: a particle whose neighbourhood
     an adaptivity pass changed (a merge, an absorption or a new virtual parent within
@@ -1170,7 +1178,7 @@ def test_merging_back_compresses_nothing_around_it(dim):
                                                 f"{len(x0)} after: nothing merged, the test is void")
 
 
-@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("dim", DIMS_3D_SLOW)
 def test_a_split_moves_no_mass(dim):
     """The placement of a split's children (``multires/placement.py``, the spacing
     relaxation) spreads them about their parent's place and does not move the group: its

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from mrsph.config import load_scene
-from scenekit import (SolveLog, advance_logged, box, case_id, dim_solver_params, known_xfail,
+from scenekit import (DIMS_3D_SLOW, SolveLog, advance_logged, box, case_id, dim_solver_params, known_xfail,
                       watch_solves, with_solver, worst_leak)
 
 G = 9.81
@@ -206,11 +206,12 @@ SAMPLE_S = 0.002      # modes (4 H / c = 0.05 s), which viscosity damps only slo
 # over 40 steps was +2 %
 
 
-@pytest.fixture(scope="module", params=dim_solver_params(slow=("2d-dfsph", "3d-dfsph"), fixture=True))
+@pytest.fixture(scope="module", params=dim_solver_params(slow=("3d", "2d-dfsph", "3d-dfsph"), fixture=True))
 def tank_run(request):
     """One settled tank per dimension and pressure solver, measured; shared by the tank
     tests below. A DFSPH run reads its stats row after every step (``SolveLog``). The
-    DFSPH tanks are long (900 steps of dt_max and a row a step): marked slow."""
+    DFSPH tanks are long (900 steps of dt_max and a row a step): marked slow; so is the
+    3D one (the quick run keeps 2D; conftest.py, "two tiers")."""
     from mrsph import runtime
     runtime.reset()
     dim, solver = request.param
@@ -419,7 +420,7 @@ def test_dam_break_density_error_stays_within_tolerance(dam_run):
     r["log"].check(r["case"] + " dam break")
 
 
-@pytest.mark.parametrize("dim", DIMS)
+@pytest.mark.parametrize("dim", DIMS_3D_SLOW)
 def test_emitter_delivers_its_flux_at_its_velocity(dim):
     """An emitter puts out one layer of its disc every s / |U| seconds, each particle at
     the emitter's velocity: over a run the fluid it adds is rho0 |U| A (stop - start) to
@@ -462,7 +463,7 @@ def test_emitter_delivers_its_flux_at_its_velocity(dim):
         f"{dim}D: the emitted jet's mean velocity {mean_u.round(3)} m/s; expected {vel} within 2 %")
 
 
-@pytest.mark.parametrize("dim", DIMS)
+@pytest.mark.parametrize("dim", DIMS_3D_SLOW)
 def test_a_horizontal_hose_does_not_spray_back(dim):
     """The pour scene's inflow turned sideways, with gravity: nothing comes out behind the
     disc. Without the nozzle, 76-87 of 540 particles (2D) and 24-31 of 870 (3D) were
@@ -480,6 +481,7 @@ def test_a_horizontal_hose_does_not_spray_back(dim):
         f"expected none")
 
 
+@pytest.mark.slow_params("3d")   # the quick run keeps 2D (conftest.py, "two tiers")
 def test_short_time_step_names_the_bound_that_set_it(dim):
     """dt below physics.dt_min: the message names the bound that made it. A resting tank
     whose dt_min is half its sound-speed step runs; one particle set moving at 150 m/s
@@ -541,6 +543,7 @@ def test_bad_disturbance_is_refused(bad):
 
 
 # ================================================================== blow-up report
+@pytest.mark.slow_params("3d-adaptive-nan", "3d-adaptive-speed")
 @pytest.mark.parametrize("poison", ["nan", "speed"])
 @pytest.mark.parametrize("adaptive", [True, False], ids=["adaptive", "uniform"])
 def test_nan_velocity_raises_simulation_error_naming_step_particle_level(dim, adaptive, poison):
@@ -635,6 +638,7 @@ def test_stats_dt_is_the_chosen_step_not_the_frame_remainder(dim):
 SOLVE_COLUMNS = ("solver", "density_iterations", "divergence_iterations", "density_error", "unconverged")
 
 
+@pytest.mark.slow_params("3d")   # the quick run keeps 2D (conftest.py, "two tiers")
 def test_dfsph_solve_stopped_at_its_maximum_is_counted_warned_once_and_written(dim, tmp_path):
     """A density solve that stops at dfsph.max_iterations before its tolerance is never
     silent (issue 31 §3): each such step is counted in the stats row (``unconverged``), a
@@ -713,6 +717,7 @@ def _dfsph_tank_rows(dim, sets, steps=15):
     return sim, rows
 
 
+@pytest.mark.slow_params("3d")   # the quick run keeps 2D (conftest.py, "two tiers")
 def test_dfsph_tightens_its_tolerance_in_water_at_rest(dim):
     """In water at rest (its fastest particle moves far less than dfsph.slow_flow of a
     spacing a step) every density solve stops within dfsph.rest_tolerance, not only

@@ -15,6 +15,9 @@ from mrsph.config import list_scenes, load_scene, mass_exact
 
 SCENES = [name for name, _ in list_scenes()]
 FRAMES = 5
+# 3D scenes whose 2D twin runs in the quick run: in -m slow (conftest.py, "two tiers");
+# demo_3d, dam_break_3d and pour_3d (the emitter) stay.
+SLOW_SCENES = ("region_3d", "dam_break_obstacle_3d", "slit_3d", "pool_3d")
 COARSER_3D = 2.0
 DOMAIN_TOL = 1e-6     # m: positions are float32, clamped onto the walls
 OBSTACLE_TOL = 1e-4   # m: signed distance a particle may sit inside an obstacle
@@ -44,11 +47,13 @@ def fresh_taichi():
 
 def test_there_are_scenes():
     assert SCENES, "no scenes in scenes/"
+    assert set(SLOW_SCENES) <= set(SCENES), f"SLOW_SCENES names no scene: {set(SLOW_SCENES) - set(SCENES)}"
     for name, description in list_scenes():
         assert description and "\n" not in description, name
 
 
-@pytest.mark.parametrize("name", SCENES)
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n in SLOW_SCENES else n
+                                  for n in SCENES])
 def test_scene_runs(name, fresh_taichi):
     from mrsph.solver import Simulation
     scene = load_scene(name)

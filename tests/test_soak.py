@@ -113,6 +113,7 @@ def test_cursor_pushes_pulls_and_lets_go_inside_the_fluid():
     assert step.max() == pytest.approx(10.0, rel=1e-6)
 
 
+@pytest.mark.slow    # 44 s: a long run, in -m slow (conftest.py, "two tiers")
 def test_soak_short(fresh_program):
     """SHORT soak (1000 steps, not the 10^5 of test_soak_full): every check passes, the
     stirring refines the fluid, and the summary line says so. Each level's median mass
