@@ -870,8 +870,8 @@ def test_a_restored_state_steps_exactly_as_the_original(dim):
     assert np.array_equal(raw_pool(second)["x"], b["x"]), f"{dim}D: a refused state changed the pool"
 
 
-# the dfsph cases in the default run: its kernels compiled as there (TI_ADVANCED_OPTIMIZATION=0)
-# gave the NaN; optimised, LLVM's fast math hid it
+# the 2D dfsph case in the quick run: its kernels compiled as there (TI_ADVANCED_OPTIMIZATION=0)
+# gave the NaN; optimised, LLVM's fast math hid it. The other cases guard the same visitor: -m slow
 @pytest.mark.parametrize(("dim", "solver"), dim_solver_params(slow=("3d", "2d", "3d-dfsph")))
 def test_particles_whose_lists_overflowed_move_as_if_listed(dim, solver, monkeypatch):
     """A particle with more neighbours than its list holds (``MAX_NEIGHBOURS``) is summed
