@@ -10,8 +10,8 @@ The Python API, without importing Taichi until it is used::
     print(sim.stats())
 
 ``load_scene``, ``Scene``, ``SceneError`` and ``list_scenes`` come from
-:mod:`mrsph.config` (no Taichi); ``Simulation`` and ``SimulationError`` from
-:mod:`mrsph.solver` and ``Disturbance`` from :mod:`mrsph.interaction` (these import
+:mod:`mrsph.scene.config` (no Taichi); ``Simulation`` and ``SimulationError`` from
+:mod:`mrsph.simulation` and ``Disturbance`` from :mod:`mrsph.scene.interaction` (these import
 Taichi on first access). The command line is :mod:`mrsph.cli` (``python3 main.py``).
 """
 from __future__ import annotations
@@ -20,13 +20,13 @@ import importlib
 
 # public name -> submodule it lives in; resolved on first access (PEP 562)
 _LAZY = {
-    "load_scene": "config",
-    "Scene": "config",
-    "SceneError": "config",
-    "list_scenes": "config",
-    "Simulation": "solver",
-    "SimulationError": "solver",
-    "Disturbance": "interaction",
+    "load_scene": "scene.config",
+    "Scene": "scene.config",
+    "SceneError": "scene.config",
+    "list_scenes": "scene.config",
+    "Simulation": "simulation",
+    "SimulationError": "simulation",
+    "Disturbance": "scene.interaction",
 }
 
 __all__ = sorted(_LAZY)

@@ -1,6 +1,6 @@
 """The one place where Taichi is initialised.
 
-Nothing in mrsph touches Taichi at import time; a :class:`~mrsph.solver.Simulation`
+Nothing in mrsph touches Taichi at import time; a :class:`~mrsph.simulation.Simulation`
 calls :func:`ensure` with the arch and precision it needs, and the command line and the
 test fixtures call it too.
 """

@@ -121,7 +121,7 @@ def watch_solves(sim) -> list:
     the density solve, ``solve``) so that each appends (which, Σ m Δv, Σ m |Δv|, σ) over
     the real particles: the momentum the solve's pressure accelerations added, how hard
     they pushed, and the float32 round-off of measuring the first. A WCSPH run has no solve: the list stays empty."""
-    from mrsph.particles import VIRTUAL_CHILD
+    from mrsph.sph.particles import VIRTUAL_CHILD
     out = []
     if not getattr(sim.pressure, "implicit", False):
         return out

@@ -19,7 +19,7 @@ import scipy.sparse as sparse
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from mrsph.config import load_scene
+from mrsph.scene.config import load_scene
 from scenekit import SolveLog, advance_logged, box, case_id, dim_solver_params, known_xfail, with_solver
 
 G = 9.81
@@ -50,7 +50,7 @@ PEAK_BOUND = {"3d-dfsph": 0.015}
 
 
 def make_sim(scene: dict):
-    from mrsph.solver import Simulation
+    from mrsph.simulation import Simulation
     return Simulation(load_scene(scene), arch="cpu")
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from mrsph.app.hud import solver_lines
 from mrsph.app.switch import next_solver, running_solver, why_not
-from mrsph.config import load_scene
+from mrsph.scene.config import load_scene
 
 #: A stats row of Simulation.stats() with fluid.solver = "dfsph" (the solver's keys only).
 DFSPH_ROW = {"solver": "dfsph", "density_iterations": 7.4, "divergence_iterations": 2.0,
@@ -60,7 +60,7 @@ def test_switch_refuses_a_scene_that_cannot_take_dfsph_in_one_line():
 
 
 def test_switch_says_the_stand_in_has_no_solver():
-    from mrsph.app.fake import FakeSimulation
+    from fake_app import FakeSimulation
     fake = FakeSimulation(dim=2)
     assert running_solver(fake.scene) is None
     assert why_not(fake.scene, "dfsph") == "this simulation has no pressure solver to switch"

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from mrsph.app.mouse import MouseDisturbance, pick_point, ray_box, ray_plane
-from mrsph.interaction import Disturbance
+from mrsph.scene.interaction import Disturbance
 
 DT = 1.0 / 60.0
 #: The documented time constant of the cursor-velocity smoothing (mouse.SMOOTHING_S),

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from mrsph.app import palette, record as rec
-from mrsph.app.fake import FakeSimulation
+from fake_app import FakeSimulation
 
 FRAMES = 10
 W, H = 320, 180

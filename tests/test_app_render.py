@@ -1,7 +1,7 @@
 """Palette, view transforms, the numpy rasteriser and the GGUI renderer (offscreen).
 
 GGUI tests skip with the reason when ``vulkan_available()`` says no. Every drawing test
-runs in 2D and 3D on the stand-in simulation of ``mrsph.app.fake``.
+runs in 2D and 3D on the stand-in simulation of ``fake_app``.
 """
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from mrsph.app import palette
-from mrsph.app.fake import FakeSimulation
+from fake_app import FakeSimulation
 from mrsph.app.raster import Rasterizer, rasterize
 from mrsph.app.view import OrbitCamera, View2D
 
@@ -160,7 +160,7 @@ def test_3d_camera_frames_the_box_left_of_the_panel(given):
     from types import SimpleNamespace
 
     from mrsph.app.render import Renderer
-    from mrsph.config import load_scene
+    from mrsph.scene.config import load_scene
 
     w, h = 1280, 720
     window = SimpleNamespace(get_canvas=lambda: None, get_window_shape=lambda: (w, h))

@@ -37,8 +37,8 @@ def pool_scene():
 @pytest.fixture(scope="module")
 def sim():
     from mrsph import runtime
-    from mrsph.config import load_scene
-    from mrsph.solver import Simulation
+    from mrsph.scene.config import load_scene
+    from mrsph.simulation import Simulation
     runtime.reset()
     yield Simulation(load_scene(pool_scene()), arch="cpu")
     runtime.reset()
@@ -50,7 +50,7 @@ def swipe(sim, path, settle_frames, frame_s=None):
     frames. Returns the top speed of the fluid over the whole run, the mean x velocity
     of the fluid within half the mouse's radius at the release, and the cap the mouse
     used."""
-    from mrsph.interaction import Disturbance
+    from mrsph.scene.interaction import Disturbance
     frame_s = frame_s or FRAME_S
     snap = sim.snapshot(stats=False)
     mouse = MouseDisturbance.for_domain(snap.domain_min, snap.domain_max, STIFFNESS,

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from mrsph.app import palette
-from mrsph.app.fake import FakeSimulation
+from fake_app import FakeSimulation
 from mrsph.app.geometry import Mark
 from mrsph.app.view import OrbitCamera, View2D
 
@@ -120,8 +120,8 @@ def test_obj_dump_reads_back_with_the_fluid_volume(tmp_path):
     """A 3D block of 0.4 x 0.2 x 0.3 m: the OBJ is a closed mesh (V - E + F = 2) whose
     volume is the block's within 3 %; 2D: the area within 3 %."""
     meshio = pytest.importorskip("meshio")
-    from mrsph.output import write_frame
-    from mrsph.surface import mesh_volume, polygon_area
+    from mrsph.io.output import write_frame
+    from mrsph.io.surface import mesh_volume, polygon_area
     for dim, s, size in ((3, 0.02, (0.4, 0.2, 0.3)), (2, 0.01, (0.4, 0.2))):
         x = np.stack(np.meshgrid(*[np.arange(s / 2, h, s) for h in size], indexing="ij"),
                      -1).reshape(-1, dim)

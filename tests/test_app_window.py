@@ -270,7 +270,7 @@ def test_window_frame_budget_cuts_frames_into_slow_motion(xdisplay, tmp_path):
     """With a budget smaller than any step, each drawn frame advances the stand-in
     simulation by exactly one of its steps (a quarter of a frame): the window draws
     what is done instead of waiting for whole frames."""
-    from mrsph.app.fake import FakeSimulation
+    from fake_app import FakeSimulation
     fake = FakeSimulation(dim=2)
     step = 1.0 / (fake.fps * fake.steps_per_frame)
     app = App(["-m", "mrsph.app", "--fake", "2", "--width", WIDTH, "--height", HEIGHT,
@@ -301,7 +301,7 @@ def test_window_real_scene_stir_and_quit(xdisplay, tmp_path):
     peak speed (values measured: at STIR_EFFICIENCY; the disc jumps more than its
     diameter a frame and pushes each parcel for one frame only)."""
     from mrsph.app.mouse import RADIUS_FRACTION
-    from mrsph.config import load_scene
+    from mrsph.scene.config import load_scene
     scene = "pool_2d"
     config = load_scene(scene)
     # whole frames: on this CPU a frame cut to the default budget is ~0.01 s of simulated
@@ -333,7 +333,7 @@ def test_window_switches_to_a_scene_that_auto_runs_on_more_threads(xdisplay, tmp
     for another one freed the window's fields under it, and the process died with a
     segmentation fault."""
     from mrsph import runtime
-    from mrsph.config import load_scene
+    from mrsph.scene.config import load_scene
     assert (runtime.auto_threads(load_scene("pool_2d")), runtime.auto_threads(load_scene("pool_3d"))) \
         == (1, None), "the two scenes no longer differ in their automatic thread count"
     # --frames and --dump, which the window does not honour, are said to be ignored (and

@@ -14,9 +14,9 @@ from pathlib import Path
 
 import pytest
 
-from mrsph.bench import (MULTIRES_PHASES, UNIFORM_OVERRIDE, _cases, _table, advanced_optimization,
+from mrsph.cli.bench import (MULTIRES_PHASES, UNIFORM_OVERRIDE, _cases, _table, advanced_optimization,
                          fluid_volume, gpu_name, pair_summary, solve_iterations)
-from mrsph.config import load_scene
+from mrsph.scene.config import load_scene
 from toolload import load_tool
 
 REPO = Path(__file__).resolve().parent.parent

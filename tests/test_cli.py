@@ -15,9 +15,9 @@ import meshio
 import numpy as np
 import pytest
 
-from mrsph.cli import NO_END, _show_warning
-from mrsph.config import list_scenes
-from mrsph.output import read_ply, stats_columns
+from mrsph.cli.commands import NO_END, _show_warning
+from mrsph.scene.config import list_scenes
+from mrsph.io.output import read_ply, stats_columns
 
 REPO = Path(__file__).resolve().parent.parent
 TIMEOUT_S = 300
@@ -188,7 +188,7 @@ def test_a_set_that_breaks_another_key_is_named(tmp_path):
 
 
 def test_frame_budget_is_read_in_milliseconds_and_zero_means_whole_frames():
-    from mrsph.cli import build_parser
+    from mrsph.cli.commands import build_parser
     parse = build_parser().parse_args
     budgets = {args: parse(list(args)).frame_budget for args in
                [(), ("--frame-budget", "25"), ("--frame-budget", "0")]}
@@ -349,11 +349,11 @@ def _imported_modules(path: Path) -> set[str]:
 def test_command_line_helpers_form_no_import_circle():
     """cli -> bench -> options and app -> options: bench and the app never import cli,
     and options, the bottom floor, imports neither cli nor bench."""
-    floor = {"mrsph.cli", "mrsph.bench"}
-    for path in [REPO / "mrsph" / "bench.py", *sorted((REPO / "mrsph" / "app").glob("*.py"))]:
-        assert "mrsph.cli" not in _imported_modules(path), f"{path.name} imports mrsph.cli"
-    assert not floor & _imported_modules(REPO / "mrsph" / "options.py")
-    code = "import sys, mrsph.options; print(sorted({'mrsph.cli', 'mrsph.bench', 'taichi'} & set(sys.modules)))"
+    floor = {"mrsph.cli.commands", "mrsph.cli.bench"}
+    for path in [REPO / "mrsph" / "cli" / "bench.py", *sorted((REPO / "mrsph" / "app").glob("*.py"))]:
+        assert "mrsph.cli.commands" not in _imported_modules(path), f"{path.name} imports mrsph.cli.commands"
+    assert not floor & _imported_modules(REPO / "mrsph" / "cli" / "options.py")
+    code = "import sys, mrsph.cli.options; print(sorted({'mrsph.cli.commands', 'mrsph.cli.bench', 'taichi'} & set(sys.modules)))"
     proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True,
                           timeout=TIMEOUT_S)
     assert proc.returncode == 0 and proc.stdout.strip() == "[]", proc.stdout + proc.stderr

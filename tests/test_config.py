@@ -1,4 +1,4 @@
-"""Scene schema, validation messages, overrides and loading (mrsph.config; no Taichi).
+"""Scene schema, validation messages, overrides and loading (mrsph.scene.config; no Taichi).
 
 ``test_docs_tables_match_schema`` keeps the key tables of docs/scenes.md in step with the
 schema; ``python3 tools/scene_docs.py`` regenerates them.
@@ -16,8 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from mrsph import config
-from mrsph.config import SCHEMA, SceneError, Table, list_scenes, load_scene, resolve_scene_path
+from mrsph.scene import config
+from mrsph.scene.config import SCHEMA, SceneError, Table, list_scenes, load_scene, resolve_scene_path
 from toolload import load_tool
 
 REPO = Path(__file__).resolve().parent.parent
@@ -673,7 +673,7 @@ def test_more_entries_than_the_fields_hold():
 def test_as_many_entries_as_the_fields_hold_run():
     """The limits above are the fields' sizes, not one less: 16 criteria, 7 stirrers and 32
     spheres and 32 boxes load, and every stirrer acts (its disturbance slot is active)."""
-    from mrsph.solver import Simulation
+    from mrsph.simulation import Simulation
     scene = minimal(2)
     scene["adaptivity"] = {"enabled": True, "levels": 2}
     scene["criteria"] = [{"type": "disturbance"}] * 16
@@ -801,7 +801,7 @@ def test_override_problems_and_scene_problems_together():
 
 
 def test_mass_is_exact_only_where_full_groups_merge():
-    from mrsph.config import mass_exact
+    from mrsph.scene.config import mass_exact
     assert mass_exact(load_scene("dam_break_2d").data)                        # uniform
     assert not mass_exact(load_scene("demo_2d").data)                         # remnants merge
     assert not mass_exact(load_scene("region_2d").data)                       # groups of 2 merge
@@ -954,7 +954,7 @@ def test_repo_scenes_are_valid():
 
 
 def test_import_is_light():
-    code = "import sys, mrsph.config; print('taichi' in sys.modules)"
+    code = "import sys, mrsph.scene.config; print('taichi' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True)
     assert out.returncode == 0 and out.stdout.strip() == "False", out.stderr
 

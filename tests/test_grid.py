@@ -1,4 +1,4 @@
-"""Neighbour grids (mrsph/grid.py) against brute force, and the counting sort's bookkeeping.
+"""Neighbour grids (mrsph/sph/grid.py) against brute force, and the counting sort's bookkeeping.
 
 A pool with particles of two levels is sorted by ``LevelGrids.sort``; a small Taichi
 kernel then enumerates, for every particle, the candidates of the grid block around its
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from mrsph.particles import DEAD, REGULAR, TRANSIENT_CHILD, VIRTUAL_PARENT
+from mrsph.sph.particles import DEAD, REGULAR, TRANSIENT_CHILD, VIRTUAL_PARENT
 
 pytestmark = pytest.mark.usefixtures("taichi_f32")
 
@@ -46,8 +46,8 @@ def build(dim, xs, levels, kinds=None, extra_capacity=8, cells_per_support=1, pa
     ``parallel``: the sort's GPU form (atomic ranks, three-tier prefix sum), run here on
     the CPU. ``reuse``: refill the pool and grids that an earlier test of this module
     built with the same dim, cells and sort form (``_BUILT``), their next sort a full one."""
-    from mrsph.grid import LevelGrids
-    from mrsph.particles import ParticlePool
+    from mrsph.sph.grid import LevelGrids
+    from mrsph.sph.particles import ParticlePool
 
     def new(capacity):
         pool = ParticlePool(dim, capacity)
@@ -189,7 +189,7 @@ SORTS = pytest.mark.parametrize("parallel", [False, True], ids=["serial-sort", "
 
 def per_axis(cells, dim):
     """Cells per support along each axis: an int for every axis, or the solver's choice."""
-    from mrsph.solver import CELLS_PER_SUPPORT
+    from mrsph.simulation import CELLS_PER_SUPPORT
 
     return tuple(CELLS_PER_SUPPORT[dim]) if cells == "solver" else (cells,) * dim
 
@@ -306,7 +306,7 @@ def test_sort_orders_by_cell_and_carries_every_attribute(dim, cells, parallel):
     assert np.array_equal(pool.p.m.to_numpy()[:n], ids.astype(np.float32) + 0.5), "masses not carried"
     assert np.array_equal(pool.p.level.to_numpy()[:n], levels[ids]), "levels not carried"
     # keys: offset of the level + linear cell index, non-decreasing along the pool
-    from mrsph.grid import PAD_SUPPORTS
+    from mrsph.sph.grid import PAD_SUPPORTS
     keys = []
     offset = 0
     offsets = []
@@ -400,7 +400,7 @@ def test_pool_arrays_are_sized_so_that_they_do_not_alias(asked):
     more: at a multiple of 4 KiB (249 856 slots, a 3D scene's automatic capacity) the
     same index of every attribute falls in one L1 set, and the sort's copy took 3.7x
     as long (particles.storage_slots)."""
-    from mrsph.particles import ParticlePool, storage_slots
+    from mrsph.sph.particles import ParticlePool, storage_slots
     pool = ParticlePool(3, asked)
     slots = pool.capacity
     assert slots == storage_slots(asked) and asked <= slots < asked + 32, \
@@ -421,7 +421,7 @@ def test_a_claim_leaves_its_reserve_free_for_claims_without_one():
     refused and counted, and does not use up the reserve for a claim without one."""
     import taichi as ti
 
-    from mrsph.particles import ParticlePool
+    from mrsph.sph.particles import ParticlePool
     pool = ParticlePool(2, 16)
     cap = pool.capacity
 
@@ -458,10 +458,10 @@ def test_density_pass_equals_brute_force_sums_and_lists(dim, adaptive):
     (no wall image) must get ρ_i = Σ_j m_j W_poly6(x_i − x_j, h_l) over the particles of
     its level, and its neighbour list must be the brute-force set."""
 
-    from mrsph.config import load_scene
-    from mrsph.kernels import constants
-    from mrsph.particles import VIRTUAL_CHILD
-    from mrsph.solver import Simulation
+    from mrsph.scene.config import load_scene
+    from mrsph.sph.kernels import constants
+    from mrsph.sph.particles import VIRTUAL_CHILD
+    from mrsph.simulation import Simulation
 
     name, sets, warm = DENSITY_RUNS[(dim, adaptive)]
     sim = Simulation(load_scene(name, sets), threads=2)

@@ -7,9 +7,9 @@ frame of a real adaptive scene must show at least two level colours.
 import numpy as np
 import pytest
 
-from mrsph.config import load_scene
-from mrsph.interaction import Disturbance
-from mrsph.solver import Simulation
+from mrsph.scene.config import load_scene
+from mrsph.scene.interaction import Disturbance
+from mrsph.simulation import Simulation
 
 pytestmark = pytest.mark.usefixtures("fresh_program")
 
@@ -121,7 +121,7 @@ def test_paths_on_the_device_sample_as_the_host_does():
     import taichi as ti
 
     from mrsph import runtime
-    from mrsph.interaction import Paths, path_sample
+    from mrsph.scene.interaction import Paths, path_sample
 
     runtime.ensure("cpu", "f32")
     paths = Paths(2, PATHS)
@@ -150,7 +150,7 @@ def test_a_stirrer_is_where_its_path_says_after_every_step(dim):
     """The stirrers follow their paths on the device, one launch a step: after each step
     (and after a restore) a stirrer's slot holds the path's position and velocity at the
     simulation's time, in the solver's precision."""
-    from mrsph.interaction import path_sample
+    from mrsph.scene.interaction import path_sample
     scene = block_scene(dim)
     path = [[0.0] + [0.2] * dim, [0.01] + [0.8] * dim, [0.02] + [0.5] * dim]
     scene["stirrers"] = [{"radius": 0.1, "strength": 20.0, "path": path, "loop": True}]

@@ -14,7 +14,7 @@ import pytest
 from scipy import integrate
 from scipy.spatial import cKDTree
 
-from mrsph.kernels import (constants, lattice_density_sum, poly6_np, spiky_grad_np, spiky_np,
+from mrsph.sph.kernels import (constants, lattice_density_sum, poly6_np, spiky_grad_np, spiky_np,
                            visc_lap_np, viscosity_np)
 
 H = 0.7          # an arbitrary support radius: nothing may silently assume h = 1
@@ -142,10 +142,10 @@ def test_kernels_vanish_at_and_beyond_h(dim):
 
 # ------------------------------------------------------------------ Taichi functions
 def _taichi_kernel_values(rvecs: np.ndarray, h: float, dim: int):
-    """poly6, spiky_grad and visc_lap evaluated by the Taichi functions of mrsph.kernels."""
+    """poly6, spiky_grad and visc_lap evaluated by the Taichi functions of mrsph.sph.kernels."""
     import taichi as ti
 
-    from mrsph.kernels import poly6, spiky_grad, visc_lap
+    from mrsph.sph.kernels import poly6, spiky_grad, visc_lap
 
     c = constants(h, dim)
 

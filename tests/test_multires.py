@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from mrsph.config import load_scene
-from mrsph.particles import (DEAD, REGULAR, TRANSIENT_BOTH as T_BOTH, TRANSIENT_CHILD as T_CHILD,
+from mrsph.scene.config import load_scene
+from mrsph.sph.particles import (DEAD, REGULAR, TRANSIENT_BOTH as T_BOTH, TRANSIENT_CHILD as T_CHILD,
                              TRANSIENT_PARENT as T_PARENT, VIRTUAL_CHILD as V_CHILD,
                              VIRTUAL_PARENT as V_PARENT)
 
@@ -36,7 +36,7 @@ RULE_E_KINDS = (REGULAR,)
 
 
 def make_sim(scene: dict, threads: int | None = None):
-    from mrsph.solver import Simulation
+    from mrsph.simulation import Simulation
     return Simulation(load_scene(scene), arch="cpu", threads=threads)
 
 
@@ -529,7 +529,7 @@ def test_symmetric_coupling_is_refused_with_dfsph(dim):
     """The implicit solver hands a virtual particle's reaction to its owners within each
     iteration; the symmetric coupling's own reaction pass cannot: the scene is refused,
     in one line naming the key, its value and what to use (issue 31 §2)."""
-    from mrsph.config import SceneError
+    from mrsph.scene.config import SceneError
     scene = for_solver(refined_blob_scene(dim), "dfsph")
     scene["adaptivity"]["coupling"] = "symmetric"
     with pytest.raises(SceneError) as info:
@@ -797,7 +797,7 @@ def test_profiled_steps_take_the_same_physics_as_fused_ones(dim, adaptive):
     ulp apart after 6 steps), so they agree to round-off, not to the bit. One thread: on
     more, an adaptive run's reactions are atomic float adds in the threads' order, and
     two plain runs of it already part at round-off (see the restored-state test below)."""
-    from mrsph.solver import Simulation
+    from mrsph.simulation import Simulation
 
     scene = moving_region_scene(dim)
     scene["physics"]["gravity"] = [0.0, -9.81] + [0.0] * (dim - 2)
@@ -840,7 +840,7 @@ def test_a_restored_state_steps_exactly_as_the_original(dim):
     One thread: with more, the reactions handed on to the owners are atomic float adds
     in whatever order the threads reach them, and two runs part at round-off level (two
     plain runs of this scene on two threads: the first velocity differs after 42 steps)."""
-    from mrsph.solver import Simulation
+    from mrsph.simulation import Simulation
 
     scene = moving_region_scene(dim)
     first = Simulation(load_scene(scene), arch="cpu", threads=1)
@@ -882,9 +882,9 @@ def test_particles_whose_lists_overflowed_move_as_if_listed(dim, solver, monkeyp
     every kind of particle are in the sums. The two sum in another order, so they agree
     to round-off. Found by the stirred soak (session 35): under dfsph the own block holds
     i itself at r = 0, which the solver took for i on a wall, and its velocity went NaN."""
-    import mrsph.neighbours
+    import mrsph.sph.neighbours
     import mrsph.pressure.dfsph
-    from mrsph.solver import Simulation
+    from mrsph.simulation import Simulation
 
     scene = for_solver(moving_region_scene(dim), solver)
     scene["physics"]["gravity"] = [0.0, -9.81] + [0.0] * (dim - 2)
@@ -895,7 +895,7 @@ def test_particles_whose_lists_overflowed_move_as_if_listed(dim, solver, monkeyp
     for _ in range(2):      # the slab's impact, where the walls' images push hardest
         listed.step()       # (after 12 steps a wrong image term in the solve went unseen)
     state = listed.save_state()
-    monkeypatch.setattr(mrsph.neighbours, "MAX_NEIGHBOURS", {2: 1, 3: 1})
+    monkeypatch.setattr(mrsph.sph.neighbours, "MAX_NEIGHBOURS", {2: 1, 3: 1})
     monkeypatch.setattr(mrsph.pressure.dfsph, "IMAGE_PAIRS", {2: 1, 3: 1})   # dfsph's image pairs too
     overflowed = Simulation(load_scene(scene), arch="cpu", threads=1)
     overflowed.restore_state(state)
@@ -996,7 +996,7 @@ def test_split_children_start_at_their_parents_pressure(dim, solver):
     children spread, and decays as exp(-t/tau) at most. The coarse block is jittered by
     up to a fifth of its spacing, as a fluid that has flowed is, so that the children
     overlap."""
-    from mrsph.interaction import Disturbance
+    from mrsph.scene.interaction import Disturbance
     tau = 0.01
     scene = jittered_block_scene(dim, solver, tau)
     sim = make_sim(scene, threads=1)
@@ -1071,7 +1071,7 @@ def split_under_a_cursor(dim: int, jitter_radius: float = 0.08):
     """The jittered block (wcsph, tau = 1 s; jittered within ``jitter_radius`` of its
     centre) split under a still cursor, three steps on: the children carry their
     offsets, measured and followed."""
-    from mrsph.interaction import Disturbance
+    from mrsph.scene.interaction import Disturbance
     sim = make_sim(jittered_block_scene(dim, "wcsph", 1.0), threads=1)
     state = sim.save_state()
     rng = np.random.default_rng(7)
@@ -1190,7 +1190,7 @@ def test_a_split_moves_no_mass(dim):
     demo_2d under a dragged cursor a parent moved 7 mm, a quarter of its spacing, its
     coarse neighbours went to 1.03-1.08 rho0 in a step, and the density solve threw its
     children at 2.6 m/s (docs/performance.md, "A cursor dragged through resting water")."""
-    from mrsph.interaction import Disturbance
+    from mrsph.scene.interaction import Disturbance
     sim = split_under_a_cursor(dim, jitter_radius=0.16)
     before = raw_pool(sim)
     was_real = np.isin(before["kind"], REAL_KINDS) & (before["level"] == 1)
@@ -1233,6 +1233,6 @@ def test_mass_is_the_only_attribute_divided_on_split_or_summed_on_merge():
     """The split and merge kernels (multires/topology.py) write the divide/sum rules of
     the mass by hand, as the merge's mass-weighted means need it; an attribute given
     either rule would be carried wrongly."""
-    from mrsph.particles import ATTRIBUTES
+    from mrsph.sph.particles import ATTRIBUTES
     ruled = [a.name for a in ATTRIBUTES if a.on_split == "divide" or a.on_merge == "sum"]
     assert ruled == ["m"], f"attributes with divide/sum rules: {ruled}; topology.py writes only the mass"

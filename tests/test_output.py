@@ -6,7 +6,7 @@ import meshio
 import numpy as np
 import pytest
 
-from mrsph.output import FORMATS, StatsWriter, frame_path, read_ply, stats_columns, write_frame
+from mrsph.io.output import FORMATS, StatsWriter, frame_path, read_ply, stats_columns, write_frame
 
 DIMS = [2, 3]
 

@@ -12,7 +12,7 @@ import re
 import numpy as np
 import pytest
 
-from mrsph.config import load_scene
+from mrsph.scene.config import load_scene
 from scenekit import (DIMS_3D_SLOW, SolveLog, advance_logged, box, case_id, dim_solver_params, known_xfail,
                       watch_solves, with_solver, worst_leak)
 
@@ -49,7 +49,7 @@ def stiffness_for(height: float) -> float:
 
 
 def make_sim(scene: dict):
-    from mrsph.solver import Simulation
+    from mrsph.simulation import Simulation
     return Simulation(load_scene(scene), arch="cpu")
 
 
@@ -428,7 +428,7 @@ def test_emitter_delivers_its_flux_at_its_velocity(dim):
     between steps check that the clock counts only the open interval. The jet stays whole
     and moves at U: without the nozzle (emitters.Emitters.hold) the 2D jet broke up
     at its outlet and was thrown back out of it, its mean velocity 1.54 m/s for 1.5."""
-    from mrsph.config import emitter_disc
+    from mrsph.scene.config import emitter_disc
     s, speed, start, stop = 0.02, 1.5, 0.04, 0.4437
     lo, hi = box(dim, (0.0, 0.0), (1.0, 0.5), (0.0, 0.4))
     centre = [0.1] + [0.25] * (dim - 1) if dim == 2 else [0.1, 0.25, 0.2]
@@ -468,7 +468,7 @@ def test_a_horizontal_hose_does_not_spray_back(dim):
     """The pour scene's inflow turned sideways, with gravity: nothing comes out behind the
     disc. Without the nozzle, 76-87 of 540 particles (2D) and 24-31 of 870 (3D) were
     behind it after 0.3 s (one thread, two), thrown back out of the outlet."""
-    from mrsph.solver import Simulation
+    from mrsph.simulation import Simulation
     centre = [0.1, 0.65] if dim == 2 else [0.08, 0.55, 0.15]
     vel = [1.0] + [0.0] * (dim - 1)
     scene = load_scene(f"pour_{dim}d", [f"emitters.0.center={centre}", f"emitters.0.velocity={vel}"])
@@ -487,7 +487,7 @@ def test_short_time_step_names_the_bound_that_set_it(dim):
     whose dt_min is half its sound-speed step runs; one particle set moving at 150 m/s
     (under max_speed) makes the CFL bound ~6x shorter, and the report says so and gives
     the speed, rather than blaming the sound speed."""
-    from mrsph.solver import SimulationError
+    from mrsph.simulation import SimulationError
 
     scene = tank_scene(dim)
     probe = make_sim(scene)
@@ -511,8 +511,8 @@ def test_short_time_step_set_by_a_disturbance_names_it(dim):
     """A mouse disturbance so strong that its stability cap 0.5/strength falls below
     physics.dt_min: the message names the disturbance and its strength (it used to blame
     the CFL bound, with a particle speed nothing had)."""
-    from mrsph.interaction import Disturbance
-    from mrsph.solver import SimulationError
+    from mrsph.scene.interaction import Disturbance
+    from mrsph.simulation import SimulationError
 
     scene = tank_scene(dim)
     sim = make_sim(scene)
@@ -534,7 +534,7 @@ def test_bad_disturbance_is_refused(bad):
     """The window and scripts build Disturbance values; a bad one is refused where it is
     made, with the field's name, not taken into the step (an infinite strength made a
     zero time step; a short velocity was replaced by zero)."""
-    from mrsph.interaction import Disturbance
+    from mrsph.scene.interaction import Disturbance
 
     args = dict(center=(0.5, 0.5), radius=0.1, strength=10.0, velocity=(0.0, 0.0)) | bad
     field = next(iter(bad))
@@ -550,7 +550,7 @@ def test_nan_velocity_raises_simulation_error_naming_step_particle_level(dim, ad
     """Adaptive and uniform runs find a bad particle in different loops (a uniform run
     takes the accelerations in its force pass): both must report it, a NaN velocity as
     well as a finite one past ``physics.max_speed``."""
-    from mrsph.solver import SimulationError
+    from mrsph.simulation import SimulationError
 
     scene = tank_scene(dim)
     # two levels, no refinement criterion: the block is seeded at level 1 (the slabs that
@@ -605,7 +605,7 @@ def test_overflowing_acceleration_is_named(dim, g):
     """Gravity of 1e31 m/s² (past the 1e30 bound) or 1e20 (finite, but its square is past
     f32's range, the default precision): every particle's acceleration is refused, and
     the report names it (it used to give the particle's speed, 0 m/s, as the reason)."""
-    from mrsph.solver import SimulationError
+    from mrsph.simulation import SimulationError
 
     scene = tank_scene(dim)
     scene["physics"]["gravity"] = [0.0, -g] + [0.0] * (dim - 2)
@@ -649,7 +649,7 @@ def test_dfsph_solve_stopped_at_its_maximum_is_counted_warned_once_and_written(d
     import csv
     import warnings
 
-    from mrsph.output import StatsWriter
+    from mrsph.io.output import StatsWriter
 
     scene = with_solver(tank_scene(dim), "dfsph")
     scene["dfsph"] = {"max_iterations": 1, "density_tolerance": 1e-9}
@@ -708,7 +708,7 @@ def test_dfsph_converged_solves_are_not_counted(dim):
 
 
 def _dfsph_tank_rows(dim, sets, steps=15):
-    from mrsph.solver import Simulation
+    from mrsph.simulation import Simulation
     sim = Simulation(load_scene(with_solver(tank_scene(dim), "dfsph"), sets), arch="cpu")
     rows = []
     for _ in range(steps):

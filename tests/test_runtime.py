@@ -6,7 +6,7 @@ import os
 import pytest
 
 from mrsph import runtime
-from mrsph.config import load_scene
+from mrsph.scene.config import load_scene
 
 
 def test_auto_threads_by_starting_particles():

@@ -11,7 +11,7 @@ scene files themselves are sized for an interactive run.
 import numpy as np
 import pytest
 
-from mrsph.config import list_scenes, load_scene, mass_exact
+from mrsph.scene.config import list_scenes, load_scene, mass_exact
 
 SCENES = [name for name, _ in list_scenes()]
 FRAMES = 5
@@ -55,7 +55,7 @@ def test_there_are_scenes():
 @pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n in SLOW_SCENES else n
                                   for n in SCENES])
 def test_scene_runs(name, fresh_taichi):
-    from mrsph.solver import Simulation
+    from mrsph.simulation import Simulation
     scene = load_scene(name)
     if scene.dim == 3:
         scene = scene.with_overrides({"particles.spacing": COARSER_3D * scene.particles.spacing})

@@ -39,7 +39,7 @@ def test_the_soak_caps_its_cursor_harder_than_the_window_unless_asked():
     """By default the cursor may ask for 8 domain sizes a second (12.8 m/s in demo_2d);
     ``--window-cap`` caps it as the window does, at a tenth of sqrt(fluid.stiffness)."""
     from mrsph.app.mouse import safe_speed
-    from mrsph.config import load_scene
+    from mrsph.scene.config import load_scene
     data = load_scene("demo_2d").data
     harsh, window = soak_tool.soak_mouse(data), soak_tool.soak_mouse(data, window_cap=True)
     assert harsh.max_speed == pytest.approx(8.0 * 1.6), harsh.max_speed
@@ -104,7 +104,7 @@ def test_mass_is_exact_where_only_full_groups_merge_and_to_round_off_elsewhere()
 
 
 def test_cursor_pushes_pulls_and_lets_go_inside_the_fluid():
-    from mrsph.config import load_scene
+    from mrsph.scene.config import load_scene
     data = load_scene("demo_2d").data
     cursor = soak_tool.ScriptedCursor(data, speed=10.0, gesture_s=0.5)
     assert [cursor.buttons(t) for t in (0.1, 0.6, 1.1, 1.6)] == [{"left"}, {"right"}, set(), {"left"}]
@@ -143,7 +143,7 @@ def test_soak_short(fresh_program, monkeypatch):
 def test_mass_ratios_are_per_level_medians_of_the_real_particles():
     """The summary's mass drift: real particles only (a virtual one's mass is a share of
     its owner's), over the level's nominal mass; nan for a level with no real particle."""
-    from mrsph.particles import REGULAR, TRANSIENT_CHILD, VIRTUAL_CHILD
+    from mrsph.sph.particles import REGULAR, TRANSIENT_CHILD, VIRTUAL_CHILD
     parts = {"kind": np.array([REGULAR, REGULAR, TRANSIENT_CHILD, VIRTUAL_CHILD, REGULAR]),
              "level": np.array([0, 0, 0, 0, 1]),
              "m": np.array([1.0, 0.5, 0.25, 9.0, 1.0], np.float32)}

@@ -25,7 +25,7 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 RUNS = [
     ("dam_break_2d", "scenes/dam_break_2d.toml", {}),
     ("dam_break_3d", "scenes/dam_break_3d.toml", {"particles.spacing": 0.02}),
-    ("demo_2d", "scenes/demo_2d.toml", {}),
+    ("demo_2d_wcsph", "scenes/demo_2d.toml", {"fluid.solver": "wcsph"}),
     ("pour_3d", "scenes/pour_3d.toml", {}),
     ("obstacle_3d", "scenes/dam_break_obstacle_3d.toml", {}),
     ("region_2d_symmetric", "scenes/region_2d.toml", {"adaptivity.coupling": "symmetric"}),
@@ -38,8 +38,8 @@ RUNS = [
 
 def record(out: pathlib.Path, steps: int, only: str | None = None) -> None:
     from mrsph import runtime
-    from mrsph.config import load_scene
-    from mrsph.solver import Simulation
+    from mrsph.scene.config import load_scene
+    from mrsph.simulation import Simulation
     root = pathlib.Path(__file__).resolve().parents[1]
     out.mkdir(parents=True, exist_ok=True)
     for name, path, overrides in RUNS:

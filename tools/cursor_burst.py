@@ -68,9 +68,9 @@ def burst(scene: str, overrides: list[str], at, radius: float, settle: float, af
     """[(ms after the cursor came, the real particles' speeds, their kinetic energy)], the
     first at 0 (before); with ``leave``, then the cursor goes and the same times after it
     left follow, as negative ms."""
-    from mrsph.config import load_scene
-    from mrsph.interaction import Disturbance
-    from mrsph.solver import Simulation
+    from mrsph.scene.config import load_scene
+    from mrsph.scene.interaction import Disturbance
+    from mrsph.simulation import Simulation
     sc = load_scene(scene, overrides)
     if len(at) != sc["dim"]:
         raise SystemExit(f"--at: {len(at)} coordinates for a {sc['dim']}D scene")
@@ -98,9 +98,9 @@ def drag(scene: str, overrides: list[str], at, radius: float, settle: float, vel
     a millisecond, the first at 0 (before): the cursor starts at ``at`` and jumps to
     at + velocity t every ``frame_ms``, its velocity (what its push pulls towards) the
     drag's."""
-    from mrsph.config import load_scene
-    from mrsph.interaction import Disturbance
-    from mrsph.solver import Simulation
+    from mrsph.scene.config import load_scene
+    from mrsph.scene.interaction import Disturbance
+    from mrsph.simulation import Simulation
     sc = load_scene(scene, overrides)
     if len(at) != sc["dim"] or len(velocity) != sc["dim"]:
         raise SystemExit(f"--at and --drag: {len(at)} and {len(velocity)} coordinates for a "
@@ -145,7 +145,7 @@ def main(argv=None) -> int:
                     help="drag along each of demo_2d's twelve PATHS in turn (--at and --drag unused): "
                          "one line each with the kinetic energy's peak, then their median and worst")
     args = ap.parse_args(argv)
-    from mrsph.config import SceneError
+    from mrsph.scene.config import SceneError
     try:
         at = [float(c) for c in args.at.split(",")]
         after = [float(t) for t in args.after.split(",")]

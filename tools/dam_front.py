@@ -51,8 +51,8 @@ def run_one(dim: int, solver: str, viscosity: float, cfl: float, sets: list[str]
     sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
     import numpy as np
     import test_adaptive_flow as flow
-    from mrsph.config import load_scene
-    from mrsph.solver import Simulation
+    from mrsph.scene.config import load_scene
+    from mrsph.simulation import Simulation
 
     raw = flow.refined_dam(dim)
     raw["fluid"]["viscosity"] *= viscosity
@@ -96,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
 
     if args.one:
         sys.path.insert(0, str(ROOT))
-        from mrsph.config import SceneError
+        from mrsph.scene.config import SceneError
         try:
             print(json.dumps(run_one(**json.loads(args.one))), flush=True)
         except SceneError as e:

@@ -18,8 +18,8 @@ sys.path.insert(0, str(ROOT))
 
 from mrsph.app.raster import Rasterizer  # noqa: E402
 from mrsph.app.record import record  # noqa: E402
-from mrsph.config import load_scene  # noqa: E402
-from mrsph.solver import Simulation  # noqa: E402
+from mrsph.scene.config import load_scene  # noqa: E402
+from mrsph.simulation import Simulation  # noqa: E402
 
 
 #: kinds.png: the world window (m) around the lower-left corner of region_2d's refined
@@ -65,7 +65,7 @@ def kinds_figure(path: Path) -> None:
     virtual parents as white rings joined to the transient children they stand for."""
     from mrsph.app import palette
     from mrsph.app.view import View2D
-    from mrsph.particles import DEAD, TRANSIENT_BOTH, TRANSIENT_CHILD, VIRTUAL_CHILD, VIRTUAL_PARENT
+    from mrsph.sph.particles import DEAD, TRANSIENT_BOTH, TRANSIENT_CHILD, VIRTUAL_CHILD, VIRTUAL_PARENT
 
     sim = Simulation(load_scene("region_2d", ["adaptivity.levels=2"]), arch="cpu")
     snap = sim.snapshot(stats=False)

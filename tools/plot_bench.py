@@ -36,7 +36,7 @@ STYLE = {True: dict(color="tab:orange", marker="o", label="adaptive (2 levels)")
 
 def sweep(repeats: int, arch: str, threads, scale: float, dims=(2, 3)) -> dict:
     """Run the pair sweep; returns a bench-shaped result ({"cases": rows, "pairs": ...})."""
-    from mrsph.bench import run_pair
+    from mrsph.cli.bench import run_pair
     rows, pairs = [], []
     for dim in dims:
         scene, spacings = SWEEP[dim]
@@ -115,7 +115,7 @@ def plot(result: dict, path: Path) -> Path:
 
 
 def main(argv=None) -> int:
-    from mrsph.options import threads_arg
+    from mrsph.cli.options import threads_arg
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0],
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     ap.add_argument("json", nargs="?", help="a bench result (python3 main.py bench --json FILE)")

@@ -20,7 +20,7 @@ Every ``--check-every`` steps, and after the last one, it checks:
   stops on a NaN acceleration, and on a time step below ``physics.dt_min``: both count
   as failures here);
 - every real particle inside the domain box and outside every obstacle (signed
-  distances evaluated in numpy from the scene, as ``mrsph/boundary.py`` defines them),
+  distances evaluated in numpy from the scene, as ``mrsph/sph/boundary.py`` defines them),
   to within :data:`POSITION_TOLERANCE` finest spacings;
 - the real mass equal to the mass at the start (``math.fsum`` over the float64 values of
   the masses): exactly where the scene merges full groups only (splits and merges of full
@@ -113,7 +113,7 @@ def mass_ratios(parts: dict, nominal) -> list[float]:
     (nan for an empty level). Not a check: partial merges make lighter particles by design
     (a group of one, a quarter in 2D), but a run that drifts far below 1 has fewer
     particles than its spacing says, each with more neighbours (docs/performance.md)."""
-    from mrsph.particles import VIRTUAL_CHILD
+    from mrsph.sph.particles import VIRTUAL_CHILD
     real = parts["kind"] < VIRTUAL_CHILD
     out = []
     for level, m in enumerate(nominal):
@@ -143,9 +143,9 @@ PARTIAL_MASS_RTOL = 1e-6
 
 
 def mass_rtol(scene_data: dict) -> float:
-    """0 (exact) where only full groups merge (:func:`mrsph.config.mass_exact`), else
+    """0 (exact) where only full groups merge (:func:`mrsph.scene.config.mass_exact`), else
     :data:`PARTIAL_MASS_RTOL`."""
-    from mrsph.config import mass_exact
+    from mrsph.scene.config import mass_exact
     if "adaptivity" not in scene_data or mass_exact(scene_data):
         return 0.0
     return PARTIAL_MASS_RTOL
@@ -153,7 +153,7 @@ def mass_rtol(scene_data: dict) -> float:
 
 def check_state(parts: dict, scene_data: dict, mass0: float, tolerance: float) -> list[str]:
     """The checks of one moment, as failure lines (empty when all pass)."""
-    from mrsph.particles import VIRTUAL_CHILD
+    from mrsph.sph.particles import VIRTUAL_CHILD
     problems = []
     x, v = parts["x"].astype(np.float64), parts["v"].astype(np.float64)
     bad = ~(np.isfinite(x).all(axis=1) & np.isfinite(v).all(axis=1))
@@ -231,9 +231,9 @@ def soak(steps: int = 100_000, check_every: int = 500, scene="demo_2d", override
          radius_fraction: float | None = None, gesture_s: float = GESTURE_S,
          progress=None, window_cap: bool = False) -> SoakResult:
     """Run the soak (see the module docstring); ``progress(result)`` after every check."""
-    from mrsph.config import load_scene
-    from mrsph.particles import VIRTUAL_CHILD
-    from mrsph.solver import Simulation, SimulationError
+    from mrsph.scene.config import load_scene
+    from mrsph.sph.particles import VIRTUAL_CHILD
+    from mrsph.simulation import Simulation, SimulationError
 
     sc = load_scene(scene, list(overrides))
     data = sc.data
@@ -314,7 +314,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.steps < 1 or args.check_every < 1:
         ap.error("--steps and --check-every must be positive")
-    from mrsph.config import SceneError
+    from mrsph.scene.config import SceneError
     report_every = max(1, args.steps // args.check_every // 20)
 
     def progress(r: SoakResult):

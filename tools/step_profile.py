@@ -20,7 +20,7 @@ After ``--warm`` steps it runs ``--steps`` more and prints:
 The counts come from a second pass over the same number of steps, run without the
 profiler (the profiler syncs after every task).
 
-A weakly compressible step is one launch (``mrsph/fused.py``), so its tasks are named
+A weakly compressible step is one launch (``mrsph/sph/fused.py``), so its tasks are named
 ``_step_..._kernel_K``; ``--by-phase`` steps phase by phase instead, as ``bench``'s
 profiled interval does, so that each task carries its phase's kernel name (``run``,
 ``end_step``, ...), at the cost of the launches the fused step saves.
@@ -88,8 +88,8 @@ def main(argv=None) -> int:
     os.environ["TI_KERNEL_PROFILER"] = "1"     # read by the ti.init that Simulation makes
     import taichi as ti
 
-    from mrsph.config import SceneError, load_scene
-    from mrsph.solver import Simulation
+    from mrsph.scene.config import SceneError, load_scene
+    from mrsph.simulation import Simulation
     try:
         scene = load_scene(args.scene, args.overrides)
     except SceneError as e:

@@ -38,8 +38,8 @@ def settle(dim: int, solver: str, sets: list[str]) -> float:
     import numpy as np
     import test_physics as tp
     from scenekit import with_solver
-    from mrsph.config import load_scene
-    from mrsph.solver import Simulation
+    from mrsph.scene.config import load_scene
+    from mrsph.simulation import Simulation
 
     sim = Simulation(load_scene(with_solver(tp.tank_scene(dim), solver), sets), arch="cpu", threads=1)
     sim.advance(tp.SETTLE_S)
@@ -56,7 +56,7 @@ def nudged(dim: int, solver: str, sets: list[str]) -> list[list[str]]:
     scene leaves it)."""
     import test_physics as tp
     from scenekit import with_solver
-    from mrsph.config import load_scene
+    from mrsph.scene.config import load_scene
 
     scene = load_scene(with_solver(tp.tank_scene(dim), solver), sets)
     runs = [sets]
@@ -76,7 +76,7 @@ def main(argv=None) -> int:
     ap.add_argument("--nudge", action="store_true",
                     help="also run with one key moved by about round-off, four runs")
     args = ap.parse_args(argv)
-    from mrsph.config import SceneError
+    from mrsph.scene.config import SceneError
     try:
         runs = nudged(args.dim, args.solver, args.sets) if args.nudge else [args.sets]
         for sets in runs:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from mrsph.options import WINDOW_FRAME_BUDGET_MS, frame_budget_arg
+from mrsph.cli.options import WINDOW_FRAME_BUDGET_MS, frame_budget_arg
 
 
 def main(argv=None) -> int:
@@ -37,8 +37,8 @@ def main(argv=None) -> int:
                    args.frame_budget)
         return 0
 
-    from mrsph.config import SceneError, list_scenes, load_scene
-    from mrsph.solver import Simulation
+    from mrsph.scene.config import SceneError, list_scenes, load_scene
+    from mrsph.simulation import Simulation
     names = [name for name, _ in list_scenes()]
     scene = args.scene or (names[0] if names else None)
     if scene is None:

@@ -108,11 +108,11 @@ class Mark(NamedTuple):
 
 def stirrer_marks(scene, t: float) -> list[Mark]:
     """The scene's stirrers at simulated time ``t``: where the solver puts them, from
-    the same scene data and the same ``mrsph.interaction.path_sample``."""
+    the same scene data and the same ``mrsph.scene.interaction.path_sample``."""
     stirrers = scene_setting(scene, "stirrers", None) or []
     if not stirrers:
         return []
-    from mrsph.interaction import path_sample   # imports Taichi (not initialised): lazily
+    from mrsph.scene.interaction import path_sample   # imports Taichi (not initialised): lazily
     out = []
     for st in stirrers:
         pos, _vel = path_sample(st["path"], t, bool(st.get("loop", True)))
@@ -143,9 +143,9 @@ def mark_segments(mark: Mark, dim: int, facing=None) -> np.ndarray:
 
 
 def water(snapshot, rgb):
-    """The water view's surface of a snapshot (``mrsph.surface.surface``), coloured by
+    """The water view's surface of a snapshot (``mrsph.io.surface.surface``), coloured by
     the particles' colours ``rgb`` (N, 3) mixed into the water's (palette.WATER_TINT)."""
-    from mrsph.surface import surface
+    from mrsph.io.surface import surface
     from . import palette
     tint = (1.0 - palette.WATER_TINT) * np.asarray(palette.WATER_COLOUR) + palette.WATER_TINT * np.asarray(rgb)
     return surface(snapshot.x, snapshot.m, snapshot.rho, snapshot.level, snapshot.kind, snapshot.dim, tint)

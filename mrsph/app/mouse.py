@@ -67,8 +67,8 @@ def safe_speed(stiffness: float | None, domain_min, domain_max) -> float:
 
 
 def _default_factory(**kwargs):
-    # Imported lazily: mrsph.interaction imports Taichi, this module must stay light.
-    from mrsph.interaction import Disturbance
+    # Imported lazily: mrsph.scene.interaction imports Taichi, this module must stay light.
+    from mrsph.scene.interaction import Disturbance
     return Disturbance(**kwargs)
 
 
@@ -79,7 +79,7 @@ class MouseDisturbance:
     ``radius`` is clamped to [radius_min, radius_max] on every update.
     ``max_speed`` (m/s) caps the push's target velocity and the pull's (see the module
     docstring); ``dt`` of :meth:`update` is wall-clock time.
-    ``factory`` builds the disturbance (default: ``mrsph.interaction.Disturbance``).
+    ``factory`` builds the disturbance (default: ``mrsph.scene.interaction.Disturbance``).
     """
 
     def __init__(self, dim: int, radius: float = 0.1, strength: float = DEFAULT_STRENGTH,

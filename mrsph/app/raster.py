@@ -18,7 +18,8 @@ import functools
 
 import numpy as np
 
-from . import geometry, palette
+from . import geometry
+from . import palette
 from .palette import Style
 from .view import OrbitCamera, View2D
 
@@ -134,7 +135,7 @@ class Rasterizer:
     def _fill_water(self, snap, rgb, view):
         """2D water view: pixels whose φ (bilinear on the surface grid) reaches the
         level set take the grid's colour; returns the outline segments (world)."""
-        from mrsph.surface import ISO, marching_squares, volume_fraction
+        from mrsph.io.surface import ISO, marching_squares, volume_fraction
         tint = (1.0 - palette.WATER_TINT) * np.asarray(palette.WATER_COLOUR) + palette.WATER_TINT * rgb
         grid = volume_fraction(snap.x, snap.m, snap.rho, snap.level, snap.kind, tint)
         if grid is None:

@@ -175,7 +175,7 @@ class _GifSink:
 
 class _PngSink:
     def __init__(self, path: Path, fps: float):
-        from mrsph.output import clear_frames
+        from mrsph.io.output import clear_frames
         self.path, self.i = path, 0
         path.mkdir(parents=True, exist_ok=True)
         clear_frames(path, ("png",))

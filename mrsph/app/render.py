@@ -16,7 +16,7 @@ compile and a memory block Taichi never returns), and draws
 * marks of what acts on the water (the mouse's reach, the scene's stirrers) as circles
   (3D: rings facing the camera), and, in the water view (``surface=True``), the fluid
   as a filled, level-tinted area with its outline (2D) or a lit mesh (3D) from
-  :mod:`mrsph.surface` instead of the particles.
+  :mod:`mrsph.io.surface` instead of the particles.
 
 ``canvas.circles`` / ``canvas.lines`` / ``canvas.triangles`` always draw their whole
 field, so unused slots are parked far outside the view (``_PARK``) with radius 0.
@@ -29,7 +29,8 @@ from pathlib import Path
 import numpy as np
 import taichi as ti
 
-from . import geometry, palette
+from . import geometry
+from . import palette
 from .palette import Style
 from .raster import AMBIENT, DIFFUSE, LINE_WIDTH_FRACTION
 from .view import OrbitCamera, View2D, camera_for_scene, scene_setting

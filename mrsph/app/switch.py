@@ -17,7 +17,7 @@ MAX_REASON_CHARS = 200
 def solver_names() -> tuple[str, ...]:
     """The solvers a scene may name, in the order the switch cycles through them (the
     scene schema's choices of ``fluid.solver``)."""
-    from mrsph.config import SCHEMA
+    from mrsph.scene.config import SCHEMA
     return tuple(SCHEMA.keys["fluid"].keys["solver"].choices)
 
 

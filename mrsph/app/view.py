@@ -246,7 +246,7 @@ def circle_loop(center, radius: float, segments: int = 64, axes=(0, 1)) -> np.nd
 
 
 def scene_setting(scene, dotted: str, default):
-    """``scene.get(dotted)`` for an ``mrsph.config.Scene``, a nested dict lookup for a
+    """``scene.get(dotted)`` for an ``mrsph.scene.config.Scene``, a nested dict lookup for a
     plain dict, ``default`` when the key or the scene is missing. The app reads only
     optional presentation keys (render.*, run.fps) this way, so a missing key is never
     an error here."""

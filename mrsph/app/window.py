@@ -50,7 +50,7 @@ import sys
 import time
 
 from . import palette
-from .probe import display_available  # noqa: F401  (mrsph.cli imports it from here)
+from .probe import display_available  # noqa: F401  (mrsph.cli.commands imports it from here)
 from .mouse import MouseDisturbance, safe_speed
 from .pointer import Pointer
 from .hud import Rates, Speed, draw_hud, hud_rect_px
@@ -241,7 +241,7 @@ class _App:
         """A scene with another float precision would re-initialise Taichi, which
         destroys this window's fields: refuse it with the reason instead."""
         try:
-            from mrsph.config import load_scene
+            from mrsph.scene.config import load_scene
             want = scene_setting(load_scene(name), "particles.precision", None)
         except Exception:
             return True  # let make_sim report the problem

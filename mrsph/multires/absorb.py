@@ -17,7 +17,7 @@ pumped it to megapascals (docs/performance.md, "A remnant no one could take").""
 
 import taichi as ti
 
-from ..particles import DEAD, ROLE_CHILD, is_real, merge_mass_mean
+from mrsph.sph.particles import DEAD, ROLE_CHILD, is_real, merge_mass_mean
 
 # A particle that takes a light group stays within this multiple of its level's nominal
 # mass, so that absorption cannot make arbitrarily heavy particles.

@@ -21,8 +21,8 @@ from typing import NamedTuple
 
 import taichi as ti
 
-from ..kernels import poly6
-from ..particles import DEAD, ROLE_PARENT, VIRTUAL_CHILD, VIRTUAL_PARENT, is_real, is_virtual
+from mrsph.sph.kernels import poly6
+from mrsph.sph.particles import DEAD, ROLE_PARENT, VIRTUAL_CHILD, VIRTUAL_PARENT, is_real, is_virtual
 from .limiter import VirtualMassLimiter
 
 

@@ -97,7 +97,7 @@ turns it into the excess.
 
 import taichi as ti
 
-from ..particles import is_real
+from mrsph.sph.particles import is_real
 
 # ``touched`` bits during an adaptivity pass's level pair (c − 1, c)
 REMEASURE = 1      # a real particle whose neighbourhood changed

@@ -12,7 +12,7 @@ next pass and gathered again), is within ``gather_factor`` coarse spacings, and,
 
 import taichi as ti
 
-from ..particles import DEAD, VIRTUAL_PARENT
+from mrsph.sph.particles import DEAD, VIRTUAL_PARENT
 
 GATHER_ROUNDS = 3  # pairings per pass: 1 → 2 → 4 → 8 children in the best case
 

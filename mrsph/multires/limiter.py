@@ -32,8 +32,8 @@ measurements behind each choice are in docs/dam-front.md.
 
 import taichi as ti
 
-from ..kernels import poly6
-from ..particles import VIRTUAL_CHILD, is_real
+from mrsph.sph.kernels import poly6
+from mrsph.sph.particles import VIRTUAL_CHILD, is_real
 
 
 @ti.data_oriented

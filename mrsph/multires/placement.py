@@ -18,7 +18,7 @@ so these loops run serially over that list.
 
 import taichi as ti
 
-from ..particles import DEAD, is_real
+from mrsph.sph.particles import DEAD, is_real
 
 FRESH = 32         # scratch flag of a real child made by a split in this pass (one of topology's)
 

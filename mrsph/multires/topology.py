@@ -97,7 +97,7 @@ import taichi as ti
 from .absorb import Absorption
 from .gather import Gathering
 from .placement import FRESH, Placement   # FRESH: real child made by a split in this pass
-from ..particles import (DEAD, REGULAR, ROLE_CHILD, ROLE_PARENT, VIRTUAL_CHILD,
+from mrsph.sph.particles import (DEAD, REGULAR, ROLE_CHILD, ROLE_PARENT, VIRTUAL_CHILD,
                         VIRTUAL_PARENT, is_real, merge_mass_mean, split_inherited)
 
 # scratch bits in ``flags`` during one level pair of a pass

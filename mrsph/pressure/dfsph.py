@@ -46,8 +46,8 @@ import warnings
 
 import taichi as ti
 
-from ..neighbours import ImageNeighbours
-from ..particles import is_real, is_virtual
+from mrsph.sph.neighbours import ImageNeighbours
+from mrsph.sph.particles import is_real, is_virtual
 from .counts import DENSITY, DIVERGENCE, SolveCounts
 from .eos import sound_speed
 from .tolerance import DONE, RUNS, Stopping

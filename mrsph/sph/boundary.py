@@ -11,7 +11,7 @@ import numpy as np
 import taichi as ti
 
 
-from .config import MAX_OBSTACLES
+from mrsph.limits import MAX_OBSTACLES
 
 
 @ti.data_oriented

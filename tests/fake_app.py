@@ -1,4 +1,4 @@
-"""A tiny stand-in for ``mrsph.solver.Simulation``: same public surface, toy physics.
+"""A tiny stand-in for ``mrsph.simulation.Simulation``: same public surface, toy physics.
 
 Used by the app tests and for developing the renderer without the real solver. The
 fluid is a block on a lattice whose spacing doubles per level (finest at the free
@@ -12,10 +12,10 @@ import time
 
 import numpy as np
 
-from mrsph.snapshot import Snapshot
+from mrsph.io.snapshot import Snapshot
 
 
-# The stand-in produces the real snapshot type (Taichi-free, mrsph/snapshot.py).
+# The stand-in produces the real snapshot type (Taichi-free, mrsph/io/snapshot.py).
 FakeSnapshot = Snapshot
 
 

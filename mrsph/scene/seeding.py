@@ -6,9 +6,9 @@ equilibrium, and the one way particles enter the pool (``append``), which emitte
 import numpy as np
 import taichi as ti
 
-from .config import LATTICE_EPS
-from .particles import REGULAR
-from .pressure.eos import hydrostatic_heights
+from mrsph.limits import LATTICE_EPS
+from mrsph.sph.particles import REGULAR
+from mrsph.pressure.eos import hydrostatic_heights
 
 
 @ti.data_oriented

@@ -26,7 +26,7 @@ fluid compressed ~3×) falls back to the grid everywhere (``is_listed``).
 
 import taichi as ti
 
-from .config import MAX_NEIGHBOURS   # the lists' length, which bounds the pool
+from mrsph.limits import MAX_NEIGHBOURS   # the lists' length, which bounds the pool
 
 
 @ti.data_oriented

@@ -32,7 +32,7 @@ NO_END = "error: a headless run needs an end: pass --frames N (or set run.frames
 
 
 def _default_scene() -> str:
-    from .config import SCENES_DIR
+    from mrsph.scene.config import SCENES_DIR
     for name in PREFERRED_DEFAULT_SCENES:
         if (SCENES_DIR / f"{name}.toml").is_file():
             return name
@@ -40,7 +40,7 @@ def _default_scene() -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .output import FORMATS
+    from mrsph.io.output import FORMATS
     parser = Parser(
         prog="python3 main.py",
         description="mrsph: adaptive-resolution SPH fluids in Taichi.\n"
@@ -125,7 +125,7 @@ def _show_warning(default):
 
 # ----------------------------------------------------------------------------- commands
 def _cmd_list(argv) -> int:
-    from .config import list_scenes
+    from mrsph.scene.config import list_scenes
     if argv and argv[0] in ("-h", "--help"):
         print("usage: python3 main.py list\n\nThe scenes in scenes/, each with its description.")
         return EXIT_OK
@@ -135,7 +135,7 @@ def _cmd_list(argv) -> int:
         return EXIT_USAGE
     scenes = list_scenes()
     if not scenes:
-        from .config import SCENES_DIR
+        from mrsph.scene.config import SCENES_DIR
         print(f"no scenes in {SCENES_DIR}", file=sys.stderr)
         return EXIT_OK
     width = max(len(name) for name, _ in scenes)
@@ -145,8 +145,8 @@ def _cmd_list(argv) -> int:
 
 
 def _cmd_bench(argv) -> int:
-    if importlib.util.find_spec("mrsph.bench") is None:
-        print("mrsph: benchmarks are not available in this version (mrsph/bench.py is missing)",
+    if importlib.util.find_spec("mrsph.cli.bench") is None:
+        print("mrsph: benchmarks are not available in this version (mrsph/cli/bench.py is missing)",
               file=sys.stderr)
         return EXIT_USAGE
     from . import bench
@@ -168,14 +168,14 @@ class _Dumper:
     """Frame files and stats.csv rows for --dump, one per rendered frame."""
 
     def __init__(self, directory, fmt, dim, levels):
-        from .output import DUMP_SUFFIXES, StatsWriter, clear_frames
+        from mrsph.io.output import DUMP_SUFFIXES, StatsWriter, clear_frames
         self.directory, self.fmt, self.dim = Path(directory), fmt, dim
         clear_frames(self.directory, DUMP_SUFFIXES)    # of any format: all are ours
         self.stats = StatsWriter(self.directory / "stats.csv", dim, levels)
         self.last_row: dict | None = None
 
     def dump(self, snap) -> None:
-        from .output import write_frame
+        from mrsph.io.output import write_frame
         parts = {"x": snap.x, "v": snap.v, "m": snap.m, "rho": snap.rho,
                  "level": snap.level, "kind": snap.kind}
         if snap.p is not None:      # a stand-in without a pressure dumps zeros
@@ -204,8 +204,8 @@ class _DumpingSim:
 
 
 def _make_sim(scene, args):
-    from . import runtime
-    from .solver import Simulation
+    from mrsph import runtime
+    from mrsph.simulation import Simulation
     sim = Simulation(scene, arch=args.arch, threads=runtime.auto_threads(scene, args.threads))
     notice = runtime.notice()
     if notice:
@@ -242,7 +242,7 @@ def _run_headless(sim, frames: int, args) -> int:
 
 
 def _record(sim, out, frames: int, args) -> Path:
-    from .app.record import record
+    from mrsph.app.record import record
     if Path(out).is_file():
         _err(f"mrsph: {out} exists; it is replaced")
     target = sim
@@ -258,16 +258,16 @@ def _record(sim, out, frames: int, args) -> Path:
 
 
 def _run_window_or_video(scene, args) -> int:
-    from .app.window import display_available
+    from mrsph.app.window import display_available
     ok, why = display_available()
     if ok:
-        from .app.window import run_window
+        from mrsph.app.window import run_window
         if args.dump:
             _err("mrsph: --dump applies to headless runs and recordings; the window does not dump")
         if args.frames is not None:
             _err("mrsph: --frames applies to headless runs and recordings; the window runs "
                  "until it is closed (add --headless to run N frames)")
-        from .config import SCENES_DIR, list_scenes, load_scene
+        from mrsph.scene.config import SCENES_DIR, list_scenes, load_scene
         names = [name for name, _ in list_scenes()]
         # the window offers the scenes of scenes/ by name; a scene from elsewhere by path
         own = Path(scene.path).resolve() == (SCENES_DIR / f"{scene.name}.toml").resolve()
@@ -278,7 +278,7 @@ def _run_window_or_video(scene, args) -> int:
         # one thread count for the window's life, as --threads resolves it for the first
         # scene: another count re-initialises Taichi, which frees the window's fields
         # under it (a scene switch from a small scene to a large one crashed the window)
-        from . import runtime
+        from mrsph import runtime
         fixed = argparse.Namespace(**{**vars(args), "threads": runtime.auto_threads(scene, args.threads)})
 
         def make_sim(name, overrides=None):
@@ -299,7 +299,7 @@ def _run_window_or_video(scene, args) -> int:
         _err(problem)
         return EXIT_USAGE
     _err(f"mrsph: no window ({why}); recording {frames} frames to {out} instead")
-    from .solver import SimulationError
+    from mrsph.simulation import SimulationError
     sim = _make_sim(scene, args)
     try:
         path = _record(sim, out, frames, args)
@@ -315,7 +315,7 @@ def _run_window_or_video(scene, args) -> int:
 
 
 def _run(args) -> int:
-    from .config import load_scene
+    from mrsph.scene.config import load_scene
     scene = load_scene(args.scene, args.overrides)
     # a window does not dump: its --dump folder is made only once no window opens
     dumps = args.dump and (args.headless or args.out)
@@ -344,7 +344,7 @@ def main(argv=None) -> int:
         return _cmd_list(argv[1:])
     if argv and argv[0] == "bench":
         return _cmd_bench(argv[1:])
-    from .config import SceneError
+    from mrsph.scene.config import SceneError
     args = build_parser().parse_args(argv)
     if args.scene in ("list", "bench") and not Path(args.scene).exists():
         # "--quiet list": the commands come first, before any option
@@ -369,7 +369,7 @@ def main(argv=None) -> int:
             return EXIT_FAILED
         except Exception as e:
             # only a SimulationError is expected here; the solver is imported by then
-            solver = sys.modules.get("mrsph.solver")
+            solver = sys.modules.get("mrsph.simulation")
             if solver is not None and isinstance(e, solver.SimulationError):
                 _err(f"error: {e}")
                 return EXIT_FAILED

@@ -132,8 +132,8 @@ def fluid_volume(scene) -> float:
 
 def _fresh_sim(scene, arch, threads):
     """A Simulation in a fresh Taichi program, stepped once: (sim, seconds taken)."""
-    from . import runtime
-    from .solver import Simulation
+    from mrsph import runtime
+    from mrsph.simulation import Simulation
     runtime.reset()   # frees the previous case's fields; each case starts like a new run
     t0 = time.perf_counter()
     sim = Simulation(scene, arch=arch, threads=runtime.auto_threads(scene, threads))
@@ -183,7 +183,7 @@ def run_case(name, scene_name, overrides, warm, interval, repeats, arch, threads
              kind="run") -> dict:
     """Time one scene: ``repeats`` consecutive intervals of ``interval`` simulated
     seconds after simulating up to ``warm`` seconds; then one profiled interval."""
-    from .config import load_scene
+    from mrsph.scene.config import load_scene
 
     scene = load_scene(scene_name, list(overrides))
     sim, compile_s = _fresh_sim(scene, arch, threads)
@@ -213,7 +213,7 @@ def solve_iterations(solves) -> dict:
 def _start_profile(sim) -> None:
     """Time each phase from now on. A profiled step calls each phase of the fused kernels
     apart; the first one compiles those variants (seconds), so it is taken untimed."""
-    from .solver import PHASES
+    from mrsph.simulation import PHASES
     sim.profile = True
     sim.step()
     sim.timers = {k: 0.0 for k in PHASES}
@@ -260,7 +260,7 @@ def run_pair(name, scene_name, overrides, warm, interval, repeats, arch, threads
     times the same simulated interval, and a slow or fast spell of the machine (this
     2-core VM has them, minutes long) falls on both runs of the pair alike instead of on
     whichever ran then. The profiled interval comes last, also from the warm state."""
-    from .config import load_scene
+    from mrsph.scene.config import load_scene
 
     variants = (("adaptive", ()), ("uniform", (UNIFORM_OVERRIDE,)))
     setup = {}
@@ -295,10 +295,10 @@ def run_pair(name, scene_name, overrides, warm, interval, repeats, arch, threads
 def run_demo(name, scene_name, overrides, warm, interval, repeats, arch, threads="auto") -> dict:
     """Record the scene offscreen as the app does: whole frames (``interval`` rounded to
     frames, at least one), each advanced, snapshotted and rendered."""
-    from .app.palette import Style
-    from .app.record import DEFAULT_SIZE, _open_frames
-    from .app.view import scene_setting
-    from .config import load_scene
+    from mrsph.app.palette import Style
+    from mrsph.app.record import DEFAULT_SIZE, _open_frames
+    from mrsph.app.view import scene_setting
+    from mrsph.scene.config import load_scene
 
     scene = load_scene(scene_name, list(overrides))
     sim, compile_s = _fresh_sim(scene, arch, threads)
@@ -371,8 +371,8 @@ def _surface_cost(source, sim, repeats) -> tuple[float, float, float]:
     surface is computed again on the same snapshot apart, for its own time. The
     renderer reuses a surface for the same snapshot, so each drawing below gets a copy."""
     import dataclasses
-    from .app import palette
-    from .app.geometry import water
+    from mrsph.app import palette
+    from mrsph.app.geometry import water
     from .options import WINDOW_FRAME_BUDGET_MS, frame_budget_arg
     budget = frame_budget_arg(WINDOW_FRAME_BUDGET_MS)
     snap = sim.snapshot()
@@ -472,7 +472,7 @@ def gpu_name(arches) -> str | None:
 
 def _scene_problems(cases) -> list[str]:
     """Every problem of the cases' scenes with their overrides, once each (none: [])."""
-    from .config import SceneError, load_scene
+    from mrsph.scene.config import SceneError, load_scene
     problems = []
     for c in cases:
         try:

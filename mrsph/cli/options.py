@@ -1,10 +1,10 @@
-"""Command-line helpers shared by ``python3 main.py`` (:mod:`mrsph.cli`), its ``bench``
-command (:mod:`mrsph.bench`) and ``python -m mrsph.app``: exit codes, argument types that
+"""Command-line helpers shared by ``python3 main.py`` (:mod:`mrsph.cli.commands`), its ``bench``
+command (:mod:`mrsph.cli.bench`) and ``python -m mrsph.app``: exit codes, argument types that
 report a bad value in one line, the parser and help formatter, and the checks that an
 output file or directory can be written before a run starts.
 
-The bottom floor of the command line: it imports neither :mod:`mrsph.cli` nor
-:mod:`mrsph.bench` (so ``cli -> bench -> options`` and ``app -> options`` hold no circle),
+The bottom floor of the command line: it imports neither :mod:`mrsph.cli.commands` nor
+:mod:`mrsph.cli.bench` (so ``cli -> bench -> options`` and ``app -> options`` hold no circle),
 and nothing from Taichi.
 """
 from __future__ import annotations
@@ -14,7 +14,7 @@ import math
 import os
 from pathlib import Path
 
-#: Exit status of ``python3 main.py`` (and of its ``bench`` command): see mrsph.cli.
+#: Exit status of ``python3 main.py`` (and of its ``bench`` command): see mrsph.cli.commands.
 EXIT_OK = 0
 EXIT_FAILED = 1
 EXIT_USAGE = 2
@@ -73,7 +73,7 @@ def positive_float(text: str) -> float:
 
 def fps_arg(text: str) -> float:
     """--fps: a number of frames per second within config.FPS_RANGE."""
-    from .config import FPS_RANGE
+    from mrsph.scene.config import FPS_RANGE
     lo, hi = FPS_RANGE
     try:
         value = float(text)

@@ -22,7 +22,7 @@ Named criteria (``[[criteria]] type = ...``):
 import numpy as np
 import taichi as ti
 
-from .config import MAX_CRITERIA
+from mrsph.limits import MAX_CRITERIA
 
 TYPES = {"region": 0, "obstacles": 1, "disturbance": 2}
 

@@ -21,31 +21,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-SCENES_DIR = Path(__file__).resolve().parent.parent / "scenes"
+SCENES_DIR = Path(__file__).resolve().parents[2] / "scenes"
 
 REQUIRED = object()  # default of a key that the scene must give
-# Counted in cells of h0 (the level-0 grid splits those 2x in 2D, 4x in 3D along its rows,
-# grid.CELLS_PER_SUPPORT); past ~50e6 such cells its per-cell arrays alone take hundreds
-# of MB, so such a domain is almost surely a unit slip.
-MAX_GRID_CELLS = 50e6
-# Neighbour list length per dimension (solver.py): about 3x the neighbour count of the
-# rest lattice (12 in 2D, 26 in 3D within h = 2 s), so that only a strongly compressed
-# particle overflows (it then loops over the grid instead; results are the same).
-MAX_NEIGHBOURS = {2: 40, 3: 80}
-# Particle slots, per dimension: the neighbour lists hold MAX_NEIGHBOURS + 1 entries a
-# slot and Taichi indexes a field with 32 bits, so slots x 41 (2D) or x 81 (3D) must stay
-# below 2^31: 52 M and 26 M slots, tens of GB at 0.3-0.6 kB a slot. Refused before
-# Taichi tries to allocate (9e7 slots in 2D ended in an int32 overflow, then the OOM killer).
-MAX_CAPACITY = {d: (2**31 - 1) // (MAX_NEIGHBOURS[d] + 1) // 10**6 * 10**6 for d in (2, 3)}
-# Frames per second (run.fps, --fps): a GIF holds a frame at most 655 s, and a
-# frame interval of a millisecond is already far below any time step that matters.
-FPS_RANGE = (0.1, 1000.0)
-# Sizes of the Taichi fields that hold a scene's shapes, criteria and stirrers (allocated
-# once, so that a scene's count does not recompile kernels); a scene asking for more is
-# refused here rather than cut short where the fields are filled.
-MAX_OBSTACLES = 32     # of each shape (boundary.py)
-MAX_CRITERIA = 16      # criteria.py
-MAX_STIRRERS = 7       # interaction.py: one disturbance slot is the mouse's
+from mrsph.limits import (FPS_RANGE, LATTICE_EPS, MAX_CAPACITY, MAX_CRITERIA, MAX_GRID_CELLS,  # noqa: F401
+                          MAX_NEIGHBOURS, MAX_OBSTACLES, MAX_STIRRERS)
+
 # Automatic capacity = int(CAPACITY_MARGIN * lattice + emitted) + CAPACITY_SLACK: splits
 # turn one particle into 2^d and virtual particles need slots too, hence the margin.
 CAPACITY_MARGIN = 1.5
@@ -53,9 +34,6 @@ CAPACITY_SLACK = 1024
 # An emitter counts for at most this long when sizing automatic capacity (its default
 # stop time of 1e9 s would otherwise ask for unbounded memory).
 EMIT_HORIZON_S = 60.0
-# Slack of floor() in the lattice count, so that 0.3 / 0.1 = 2.9999999999999996 counts 3.
-LATTICE_EPS = 1e-9
-
 
 class SceneError(Exception):
     """Everything wrong with a scene; ``problems`` has one line per problem."""

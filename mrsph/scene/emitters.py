@@ -7,7 +7,7 @@ import numpy as np
 import taichi as ti
 
 from .config import emitter_disc
-from .particles import is_real
+from mrsph.sph.particles import is_real
 
 
 @ti.data_oriented

@@ -35,21 +35,21 @@ import taichi as ti
 
 from . import pressure as pressure_solvers
 from . import runtime
-from .boundary import Boundary
-from .criteria import Criteria
-from .density import Density
-from .emitters import Emitters
-from .forces import Forces
-from .fused import FusedStep
-from .grid import CELLS_PER_SUPPORT, LevelGrids
-from .integrator import Integrator, SimulationError
-from .interaction import MOUSE_SLOT, Disturbance, Disturbances, Paths, path_sample
-from .levels import Levels
+from .sph.boundary import Boundary
+from .scene.criteria import Criteria
+from .sph.density import Density
+from .scene.emitters import Emitters
+from .sph.forces import Forces
+from .sph.fused import FusedStep
+from .sph.grid import CELLS_PER_SUPPORT, LevelGrids
+from .sph.integrator import Integrator, SimulationError
+from .scene.interaction import MOUSE_SLOT, Disturbance, Disturbances, Paths, path_sample
+from .sph.levels import Levels
 from .multires import COUNTERS, Multires, SplitFade, make_coupling
-from .neighbours import Neighbours
-from .particles import ATTRIBUTES, DEAD, REGULAR, VIRTUAL_CHILD, ParticlePool
-from .seeding import Seeder
-from .snapshot import Snapshot
+from .sph.neighbours import Neighbours
+from .sph.particles import ATTRIBUTES, DEAD, REGULAR, VIRTUAL_CHILD, ParticlePool
+from .scene.seeding import Seeder
+from .io.snapshot import Snapshot
 
 __all__ = ["Simulation", "SimulationError", "PHASES"]
 
@@ -58,7 +58,7 @@ PHASES = ("emit", "adapt", "grid", "density", "divergence", "forces", "virtual_c
 
 
 def _as_scene(scene):
-    from .config import Scene, load_scene
+    from .scene.config import Scene, load_scene
     if isinstance(scene, Scene):
         return scene
     return load_scene(scene)

@@ -17,7 +17,7 @@ little-endian point cloud (ParaView, MeshLab, Blender) with the properties
 ``x y z vx vy vz m rho p level kind``; 2D positions and velocities get z = 0.
 ``frame_00000.vtu`` is a VTK unstructured grid of vertex cells (ParaView) with ``v``,
 ``m``, ``rho``, ``p``, ``level`` and ``kind`` as point data, written by meshio.
-``frame_00000.obj`` is not the particles but the fluid's surface (:mod:`mrsph.surface`,
+``frame_00000.obj`` is not the particles but the fluid's surface (:mod:`mrsph.io.surface`,
 the window's water view) as a Wavefront OBJ triangle mesh for Blender and the like:
 3D, a closed mesh with vertex normals, wound outward; 2D, the filled area as triangles
 in the plane z = 0. Vertices are shared between triangles (merged to 1e-9 m).
@@ -163,7 +163,7 @@ def read_ply(path) -> dict:
 def _write_obj(path: Path, a: dict, dim: int) -> None:
     from .surface import surface
     found = surface(a["x"], a["m"], a["rho"], a["level"], a["kind"], dim)
-    lines = ["# fluid surface written by mrsph (mrsph/surface.py)", "o fluid"]
+    lines = ["# fluid surface written by mrsph (mrsph/io/surface.py)", "o fluid"]
     if found is not None and len(found[1]):
         corners = _pad3(np.asarray(found[1], np.float64))
         normals = _pad3(np.asarray(found[2], np.float64)) if dim == 3 else None

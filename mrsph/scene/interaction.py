@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import taichi as ti
 
-from .config import MAX_STIRRERS
+from mrsph.limits import MAX_STIRRERS
 
 MAX_DISTURBANCES = 1 + MAX_STIRRERS   # slot 0 is the mouse's, the others the scene's stirrers
 MOUSE_SLOT = 0

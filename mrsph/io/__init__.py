@@ -1,0 +1,1 @@
+"""Input and output: snapshots, frame dumps, the water surface."""

@@ -1,0 +1,1 @@
+"""The scene: its schema and loading (config), seeding, emitters, refinement criteria, interaction."""

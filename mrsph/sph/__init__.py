@@ -1,0 +1,1 @@
+"""The SPH core: kernels, particles, levels, grids, neighbours, walls, density, forces, integration."""
