@@ -19,6 +19,7 @@ message are unchanged. Taichi is pinned (requirements.txt); on another version w
 internals differ, :func:`install` leaves Taichi as it is and says so in
 :func:`installed`.
 """
+
 from __future__ import annotations
 
 import functools
@@ -40,9 +41,9 @@ def install() -> bool:
     try:
         from taichi.lang import kernel_impl
         from taichi.lang.ast import ast_transformer_utils as utils
+
         context = utils.ASTTransformerContext
-        originals = (kernel_impl.getsourcelines, kernel_impl.getsourcefile,
-                     kernel_impl.textwrap, context.get_pos_info)
+        originals = (kernel_impl.getsourcelines, kernel_impl.getsourcefile, kernel_impl.textwrap, context.get_pos_info)
     except (ImportError, AttributeError) as e:
         _state["why_not"] = f"this Taichi's internals differ from 1.7.4's ({e})"
         return False
@@ -64,13 +65,21 @@ def _remembered(position):
 
     def get_pos_info(ctx, node):
         body = getattr(node, "body", None)
-        key = (ctx.func.func, ctx.lineno_offset, ctx.indent, type(node), node.lineno,
-               node.end_lineno, node.col_offset, node.end_col_offset,
-               body[0].lineno if isinstance(body, list) and body else None)
+        key = (
+            ctx.func.func,
+            ctx.lineno_offset,
+            ctx.indent,
+            type(node),
+            node.lineno,
+            node.end_lineno,
+            node.col_offset,
+            node.end_col_offset,
+            body[0].lineno if isinstance(body, list) and body else None,
+        )
         msg = made.get(key)
         if msg is None:
             msg = made[key] = position(ctx, node)
         return msg
 
-    get_pos_info.original = position        # for the test that compares the two
+    get_pos_info.original = position  # for the test that compares the two
     return get_pos_info

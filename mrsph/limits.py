@@ -21,10 +21,8 @@ FPS_RANGE = (0.1, 1000.0)
 # Sizes of the Taichi fields that hold a scene's shapes, criteria and stirrers (allocated
 # once, so that a scene's count does not recompile kernels); a scene asking for more is
 # refused here rather than cut short where the fields are filled.
-MAX_OBSTACLES = 32     # of each shape (boundary.py)
-MAX_CRITERIA = 16      # criteria.py
-MAX_STIRRERS = 7       # interaction.py: one disturbance slot is the mouse's
+MAX_OBSTACLES = 32  # of each shape (boundary.py)
+MAX_CRITERIA = 16  # criteria.py
+MAX_STIRRERS = 7  # interaction.py: one disturbance slot is the mouse's
 # Slack of floor() in the lattice count, so that 0.3 / 0.1 = 2.9999999999999996 counts 3.
 LATTICE_EPS = 1e-9
-
-

@@ -4,6 +4,7 @@ Nothing in mrsph touches Taichi at import time; a :class:`~mrsph.simulation.Simu
 calls :func:`ensure` with the arch and precision it needs, and the command line and the
 test fixtures call it too.
 """
+
 from __future__ import annotations
 
 import os
@@ -38,7 +39,7 @@ def _try_gpu(kwargs) -> bool:
     """Initialise on the first GPU backend that works; False (and reset) if none does.
     Backends whose driver is missing are skipped before ti.init: a failed ti.init falls
     back to the CPU and announces it, which printed "Starting on arch=x64" twice."""
-    ti.set_logging_level(ti.ERROR)      # the driver probe warns "libcuda.so lib not found"
+    ti.set_logging_level(ti.ERROR)  # the driver probe warns "libcuda.so lib not found"
     try:
         present = [name for name in _GPU_ARCHES if ti.lang.misc.is_arch_supported(getattr(ti, name))]
     finally:
@@ -69,19 +70,21 @@ def ensure(arch: str = "cpu", precision: str = "f32", threads: int | None = None
     key = (arch, precision, threads)
     if _state["key"] == key:
         return _state["arch_name"]
-    kernel_build.install()      # Taichi's kernel builds remember the source they read
+    kernel_build.install()  # Taichi's kernel builds remember the source they read
     if _state["key"] is not None:
         ti.reset()
     _state["notice"] = None
-    kwargs = dict(arch=ti.cpu, default_fp=ti.f64 if precision == "f64" else ti.f32,
-                  log_level=ti.WARN, offline_cache=True)
+    kwargs = dict(
+        arch=ti.cpu, default_fp=ti.f64 if precision == "f64" else ti.f32, log_level=ti.WARN, offline_cache=True
+    )
     if threads:
         kwargs["cpu_max_num_threads"] = threads
-    _pin(threads == 1)      # before ti.init: its pool threads inherit the affinity
+    _pin(threads == 1)  # before ti.init: its pool threads inherit the affinity
     if not (arch in ("auto", "gpu") and _try_gpu(kwargs)):
         if arch == "gpu":
-            _state["notice"] = ("--arch gpu: Taichi found no CUDA or Metal GPU on this "
-                                "machine; running on the CPU instead")
+            _state["notice"] = (
+                "--arch gpu: Taichi found no CUDA or Metal GPU on this machine; running on the CPU instead"
+            )
         ti.init(**kwargs)
     _state["key"] = key
     _state["arch_name"] = _arch_name()
@@ -111,7 +114,7 @@ def _current_core() -> int | None:
     try:
         with open("/proc/thread-self/stat", encoding="ascii") as f:
             fields = f.read().rsplit(")", 1)[1].split()
-        return int(fields[36])      # field 39 counted from 1; fields 1-2 are before ")"
+        return int(fields[36])  # field 39 counted from 1; fields 1-2 are before ")"
     except (OSError, IndexError, ValueError):
         return None
 

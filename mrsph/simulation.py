@@ -35,30 +35,43 @@ import taichi as ti
 
 from . import pressure as pressure_solvers
 from . import runtime
-from .sph.boundary import Boundary
+from .io.snapshot import Snapshot
+from .multires import COUNTERS, Multires, SplitFade, make_coupling
 from .scene.criteria import Criteria
-from .sph.density import Density
 from .scene.emitters import Emitters
+from .scene.interaction import MOUSE_SLOT, Disturbance, Disturbances, Paths, path_sample
+from .scene.seeding import Seeder
+from .sph.boundary import Boundary
+from .sph.density import Density
 from .sph.forces import Forces
 from .sph.fused import FusedStep
 from .sph.grid import CELLS_PER_SUPPORT, LevelGrids
 from .sph.integrator import Integrator, SimulationError
-from .scene.interaction import MOUSE_SLOT, Disturbance, Disturbances, Paths, path_sample
 from .sph.levels import Levels
-from .multires import COUNTERS, Multires, SplitFade, make_coupling
 from .sph.neighbours import Neighbours
 from .sph.particles import ATTRIBUTES, DEAD, REGULAR, VIRTUAL_CHILD, ParticlePool
-from .scene.seeding import Seeder
-from .io.snapshot import Snapshot
 
 __all__ = ["Simulation", "SimulationError", "PHASES"]
 
-PHASES = ("emit", "adapt", "grid", "density", "divergence", "forces", "virtual_coupling", "timestep",
-          "pressure", "integrate", "boundaries", "virtual_advect")
+PHASES = (
+    "emit",
+    "adapt",
+    "grid",
+    "density",
+    "divergence",
+    "forces",
+    "virtual_coupling",
+    "timestep",
+    "pressure",
+    "integrate",
+    "boundaries",
+    "virtual_advect",
+)
 
 
 def _as_scene(scene):
     from .scene.config import Scene, load_scene
+
     if isinstance(scene, Scene):
         return scene
     return load_scene(scene)
@@ -71,7 +84,7 @@ class Simulation:
         self.scene = _as_scene(scene)
         s = self.scene.data
         self.arch_name = runtime.ensure(arch, s["particles"]["precision"], threads)
-        self.threads = threads      # None: all cores (see runtime.auto_threads)
+        self.threads = threads  # None: all cores (see runtime.auto_threads)
         self.dim = int(s["dim"])
         self.adaptive = bool(s["adaptivity"]["enabled"])
         self.levels = int(s["adaptivity"]["levels"]) if self.adaptive else 1
@@ -93,23 +106,48 @@ class Simulation:
         symmetric = self.adaptive and a["coupling"] == "symmetric"
         self.lev = Levels(d, L, float(part["spacing"]), float(part["support"]), self.rest_density, symmetric)
         self.s0, self.h0, self.m0 = self.lev.s0, self.lev.h0, self.lev.m0
-        self.grids = LevelGrids(d, L, s["domain"]["min"], s["domain"]["max"], self.h0, self.capacity,
-                                CELLS_PER_SUPPORT[d], parallel=runtime.on_gpu())
-        self.boundary = Boundary(d, s["domain"]["min"], s["domain"]["max"], s["obstacles"],
-                                 s["domain"]["restitution"], s["domain"]["friction"])
+        self.grids = LevelGrids(
+            d,
+            L,
+            s["domain"]["min"],
+            s["domain"]["max"],
+            self.h0,
+            self.capacity,
+            CELLS_PER_SUPPORT[d],
+            parallel=runtime.on_gpu(),
+        )
+        self.boundary = Boundary(
+            d,
+            s["domain"]["min"],
+            s["domain"]["max"],
+            s["obstacles"],
+            s["domain"]["restitution"],
+            s["domain"]["friction"],
+        )
         self.disturbances = Disturbances(d)
         # band and background_level as config.py resolved them (given or automatic); a
         # uniform run (adaptivity off) has one level whatever the scene's background
         specs = s["criteria"] if self.adaptive else []
         # every waypoint path on the device: the stirrers', then the moving regions'
         stirring = [(st["path"], st["loop"]) for st in s["stirrers"]]
-        self.paths = Paths(d, stirring + [(c["path"], c.get("loop", False)) for c in specs
-                                          if c["type"] == "region" and c.get("path")])
-        self.criteria = Criteria(d, specs, float(a["band"]), float(min(a["background_level"], L - 1)),
-                                 self.paths, len(stirring))
-        parts = SimpleNamespace(scene=s, dim=d, levels=L, adaptive=self.adaptive, pool=self.pool,
-                                lev=self.lev, grids=self.grids, boundary=self.boundary,
-                                disturbances=self.disturbances, criteria=self.criteria)
+        self.paths = Paths(
+            d, stirring + [(c["path"], c.get("loop", False)) for c in specs if c["type"] == "region" and c.get("path")]
+        )
+        self.criteria = Criteria(
+            d, specs, float(a["band"]), float(min(a["background_level"], L - 1)), self.paths, len(stirring)
+        )
+        parts = SimpleNamespace(
+            scene=s,
+            dim=d,
+            levels=L,
+            adaptive=self.adaptive,
+            pool=self.pool,
+            lev=self.lev,
+            grids=self.grids,
+            boundary=self.boundary,
+            disturbances=self.disturbances,
+            criteria=self.criteria,
+        )
         parts.neighbours = self.neighbours = Neighbours(d, self.pool, self.grids, self.boundary)
         parts.fade = SplitFade(parts)
         self.multires = Multires(parts) if self.adaptive else None
@@ -126,8 +164,21 @@ class Simulation:
         self.emitters = Emitters(parts, self.seeder)
         self.pressure.warn = self._warn
         # a step in one launch where the solver allows it, when not profiled (see step)
-        self.fused = FusedStep(self.grids, self.pool, self.coupling, self.density, self.forces, self.integrator,
-                               self.disturbances, self.paths, len(s["stirrers"])) if self.pressure.one_launch else None
+        self.fused = (
+            FusedStep(
+                self.grids,
+                self.pool,
+                self.coupling,
+                self.density,
+                self.forces,
+                self.integrator,
+                self.disturbances,
+                self.paths,
+                len(s["stirrers"]),
+            )
+            if self.pressure.one_launch
+            else None
+        )
 
     # ================================================================== state
     def reset(self) -> None:
@@ -144,7 +195,7 @@ class Simulation:
         self.dt = float(s["physics"]["dt_max"])
         self.integrator.set_chosen_dt(self.dt)
         self._events = dict.fromkeys(COUNTERS, 0)
-        self._refused_reported = 0   # pool.refused at the last stats row
+        self._refused_reported = 0  # pool.refused at the last stats row
         self._events_due = False
         self._refusal_warned = False
         self.warnings: list[str] = []
@@ -152,7 +203,7 @@ class Simulation:
             for level, xs in self.seeder.block_lattices(b["min"], b["max"]):
                 ps = None
                 if s["fluid"]["hydrostatic_start"]:
-                    if self.pressure.implicit:      # an incompressible block: its pressure
+                    if self.pressure.implicit:  # an incompressible block: its pressure
                         ps = self.seeder.hydrostatic_pressure(xs, b["min"], b["max"])
                     xs = self.seeder.hydrostatic(xs, b["min"], b["max"])
                 self.seeder.append(xs, np.tile(np.asarray(b["velocity"], np.float64), (len(xs), 1)), level, ps)
@@ -164,8 +215,10 @@ class Simulation:
         self.grids.sort(self.pool)
         if self.pool.refused[None] > 0:
             raise SimulationError(
-                f"{self.scene.path}: particles.capacity = {self.scene.data['particles']['capacity']} is too small for the "
-                f"initial fluid ({self.pool.refused[None]} claims refused); raise it or set 0 for automatic")
+                f"{self.scene.path}: particles.capacity = {self.scene.data['particles']['capacity']} is too "
+                f"small for the initial fluid ({self.pool.refused[None]} claims refused); "
+                "raise it or set 0 for automatic"
+            )
 
     # ================================================================== the step
     def _phase(self, name, fn, *args, overhead: float = 0.0):
@@ -302,14 +355,16 @@ class Simulation:
         ev = self.multires.take_counters()
         for k, v in ev.items():
             self._events[k] += v
-        if self.pool.refused[None] > 0:     # any claim of the passes (or emitters) refused
+        if self.pool.refused[None] > 0:  # any claim of the passes (or emitters) refused
             self._warn_refused()
 
     def _warn_refused(self):
         if not self._refusal_warned:
             self._refusal_warned = True
-            self._warn(f"particle pool full (particles.capacity = {self.capacity}): splits/emission "
-                       f"refused and counted in stats (refused); the simulation goes on coarser")
+            self._warn(
+                f"particle pool full (particles.capacity = {self.capacity}): splits/emission "
+                f"refused and counted in stats (refused); the simulation goes on coarser"
+            )
 
     def _warn(self, msg: str) -> None:
         """A warning the app shows (``warnings``) and Python's warnings machinery reports."""
@@ -320,12 +375,13 @@ class Simulation:
         """The stirrers at time t: their slots are set once (radius, strength, mode; the
         host's copy keeps where each was then), then follow their paths on the device
         (each step: ``_follow_paths``, or the fused step's launch)."""
-        stirrers = self.scene.data["stirrers"]     # at most MAX_STIRRERS (config)
+        stirrers = self.scene.data["stirrers"]  # at most MAX_STIRRERS (config)
         for i, st in enumerate(stirrers):
             if self.disturbances.get(1 + i) is None:
                 pos, vel = path_sample(st["path"], t, st["loop"])
-                self.disturbances.set(1 + i, Disturbance(tuple(pos), st["radius"], st["strength"],
-                                                         st["mode"], tuple(vel)))
+                self.disturbances.set(
+                    1 + i, Disturbance(tuple(pos), st["radius"], st["strength"], st["mode"], tuple(vel))
+                )
         self._follow_paths(t)
 
     def _follow_paths(self, t):
@@ -337,8 +393,10 @@ class Simulation:
         """Alive particles as numpy arrays: x, v, m, rho, p, level, kind, parent, drho, ..."""
         n = self.pool.count()
         p = ti.static(self.pool.p)
-        out = {k: getattr(p, k).to_numpy()[:n]
-               for k in ("x", "v", "m", "rho", "p", "level", "kind", "parent", "nchild", "lam", "drho")}
+        out = {
+            k: getattr(p, k).to_numpy()[:n]
+            for k in ("x", "v", "m", "rho", "p", "level", "kind", "parent", "nchild", "lam", "drho")
+        }
         keep = out["kind"] != DEAD
         if not virtual:
             keep &= out["kind"] < VIRTUAL_CHILD
@@ -356,9 +414,14 @@ class Simulation:
         v = parts["v"][real].astype(np.float64)
         mom = (m[:, None] * v).sum(axis=0) if len(m) else np.zeros(self.dim)
         # before the first step there is no step to report: dt 0, not dt_max
-        row = {"frame": self.frame, "time": self.time, "dt": self.integrator.chosen_dt() if self.steps else 0.0,
-               "n_real": int(real.sum()), "n_virtual": int((~real).sum()),
-               "total_mass": math.fsum(m.tolist())}
+        row = {
+            "frame": self.frame,
+            "time": self.time,
+            "dt": self.integrator.chosen_dt() if self.steps else 0.0,
+            "n_real": int(real.sum()),
+            "n_virtual": int((~real).sum()),
+            "total_mass": math.fsum(m.tolist()),
+        }
         for k, ax in enumerate("xyz"[: self.dim]):
             row[f"momentum_{ax}"] = float(mom[k])
         row["kinetic_energy"] = float(0.5 * (m * (v * v).sum(axis=1)).sum())
@@ -376,8 +439,9 @@ class Simulation:
         # WCSPH: the real particles' mean compression), solves stopped at their maximum
         solve = self.pressure.take_stats()
         if solve["density_error"] is None:
-            solve["density_error"] = float(np.maximum(rho - self.rest_density, 0.0).mean()
-                                           / self.rest_density) if len(rho) else 0.0
+            solve["density_error"] = (
+                float(np.maximum(rho - self.rest_density, 0.0).mean() / self.rest_density) if len(rho) else 0.0
+            )
         row["solver"] = self.scene.data["fluid"]["solver"]
         row["density_iterations"] = solve["density_iterations"]
         row["divergence_iterations"] = solve["divergence_iterations"]
@@ -386,8 +450,8 @@ class Simulation:
         self._collect_events()
         row["splits"] = self._events["splits"]
         row["merges"] = self._events["merges"]
-        row["absorbed"] = self._events["absorbed"]     # of the merges: groups given to a neighbour
-        refused = int(self.pool.refused[None])    # a running total in the pool
+        row["absorbed"] = self._events["absorbed"]  # of the merges: groups given to a neighbour
+        refused = int(self.pool.refused[None])  # a running total in the pool
         row["refused"] = refused - self._refused_reported
         self._refused_reported = refused
         for k in self._events:
@@ -398,13 +462,23 @@ class Simulation:
         parts = self.particles()
         s = self.scene.data
         return Snapshot(
-            dim=self.dim, levels=self.levels, time=self.time, frame=self.frame,
-            x=parts["x"], v=parts["v"],       # the simulation's precision: dumps keep f64
-            m=parts["m"], rho=parts["rho"], level=parts["level"], kind=parts["kind"],
+            dim=self.dim,
+            levels=self.levels,
+            time=self.time,
+            frame=self.frame,
+            x=parts["x"],
+            v=parts["v"],  # the simulation's precision: dumps keep f64
+            m=parts["m"],
+            rho=parts["rho"],
+            level=parts["level"],
+            kind=parts["kind"],
             radius=np.array([0.5 * self.s0 * 2**l for l in range(self.levels)]),
-            domain_min=np.asarray(s["domain"]["min"], float), domain_max=np.asarray(s["domain"]["max"], float),
+            domain_min=np.asarray(s["domain"]["min"], float),
+            domain_max=np.asarray(s["domain"]["max"], float),
             obstacles=[dict(o) for o in s["obstacles"]],
-            stats=self.stats(parts) if stats else {}, p=parts["p"])
+            stats=self.stats(parts) if stats else {},
+            p=parts["p"],
+        )
 
     def save_state(self) -> dict:
         """The simulation's state in memory (numpy copies): every particle attribute, the
@@ -414,17 +488,24 @@ class Simulation:
         it. ``bench`` uses it to time an adaptive run and its uniform twin turn about
         from the same warm state."""
         p = self.pool.p
-        return {"attributes": {a.name: getattr(p, a.name).to_numpy() for a in ATTRIBUTES},
-                "children": self.pool.children.to_numpy(), "n": self.pool.count(),
-                "refused": int(self.pool.refused[None]),
-                "clock": (self.time, self.frame, self.steps, self.dt, self.integrator.chosen_dt()),
-                "emitters": list(self.emitters.progress), "capacity": self.capacity, "dim": self.dim}
+        return {
+            "attributes": {a.name: getattr(p, a.name).to_numpy() for a in ATTRIBUTES},
+            "children": self.pool.children.to_numpy(),
+            "n": self.pool.count(),
+            "refused": int(self.pool.refused[None]),
+            "clock": (self.time, self.frame, self.steps, self.dt, self.integrator.chosen_dt()),
+            "emitters": list(self.emitters.progress),
+            "capacity": self.capacity,
+            "dim": self.dim,
+        }
 
     def restore_state(self, state: dict) -> None:
         """Put back a :meth:`save_state` of a Simulation of the same scene."""
         if (state["dim"], state["capacity"]) != (self.dim, self.capacity):
-            raise ValueError(f"restore_state: a {state['dim']}D state of capacity {state['capacity']} "
-                             f"does not fit this {self.dim}D pool of capacity {self.capacity}")
+            raise ValueError(
+                f"restore_state: a {state['dim']}D state of capacity {state['capacity']} "
+                f"does not fit this {self.dim}D pool of capacity {self.capacity}"
+            )
         for name, values in state["attributes"].items():
             getattr(self.pool.p, name).from_numpy(values)
         self.pool.children.from_numpy(state["children"])
@@ -453,12 +534,14 @@ class Simulation:
     def set_param(self, key: str, value) -> None:
         """Change a parameter while running (validated like the scene file)."""
         if key == "adaptivity.enabled":
-            raise ValueError("adaptivity.enabled: changes the particle levels; rebuild the "
-                             "Simulation with scene.with_overrides({...}) instead")
+            raise ValueError(
+                "adaptivity.enabled: changes the particle levels; rebuild the "
+                "Simulation with scene.with_overrides({...}) instead"
+            )
         live = self._live()
         if key not in live:
             raise ValueError(f"{key}: not live-tunable (expected one of {', '.join(live)})")
         self.scene = self.scene.with_overrides({key: value})
         live[key].set_param(key, self.scene.get(key))
-        if live[key] is self.pressure:      # the artificial viscosity follows the signal speed
+        if live[key] is self.pressure:  # the artificial viscosity follows the signal speed
             self.forces.update_signal_speed()

@@ -67,23 +67,21 @@ DIMS = (2, 3)
 
 
 def pytest_addoption(parser):
-    parser.addoption("--soak", action="store_true", default=False,
-                     help="also run the tests marked soak (long robustness runs)")
+    parser.addoption(
+        "--soak", action="store_true", default=False, help="also run the tests marked soak (long robustness runs)"
+    )
 
 
 def pytest_configure(config):
-    if (config.getoption("-m") or "").strip() == "not slow":     # the default run (pytest.ini)
+    if (config.getoption("-m") or "").strip() == "not slow":  # the default run (pytest.ini)
         os.environ.setdefault("TI_ADVANCED_OPTIMIZATION", "0")
+    config.addinivalue_line("markers", "slow: long validation runs, left out by default; run them with -m slow")
+    config.addinivalue_line("markers", "slow_params(*ids): mark slow only the parametrised cases with these ids")
+    config.addinivalue_line("markers", "wallclock: times the real window in wall-clock seconds; run it alone (-n 0)")
     config.addinivalue_line(
-        "markers", "slow: long validation runs, left out by default; run them with -m slow")
-    config.addinivalue_line(
-        "markers", "slow_params(*ids): mark slow only the parametrised cases with these ids")
-    config.addinivalue_line(
-        "markers", "wallclock: times the real window in wall-clock seconds; run it alone (-n 0)")
-    config.addinivalue_line(
-        "markers", "open_issue: xfail validations of an open issue's unfinished work; run with -m open_issue")
-    config.addinivalue_line(
-        "markers", "soak: robustness runs of 10^5 steps; skipped unless --soak (or -m soak)")
+        "markers", "open_issue: xfail validations of an open issue's unfinished work; run with -m open_issue"
+    )
+    config.addinivalue_line("markers", "soak: robustness runs of 10^5 steps; skipped unless --soak (or -m soak)")
 
 
 # Long DFSPH validations (all -m slow) written with the solver but not yet run to the end
@@ -114,28 +112,37 @@ UNVERIFIED_DFSPH: tuple = ()
 
 # Modules whose tests read a module fixture that is expensive to build: with the fixture's
 # case (the test id) -> one xdist group per case; None -> one group for the module.
-GROUPED = {"test_adaptive_flow.py": "case", "test_physics.py": "case",
-           "test_app_window.py": None, "test_app_render.py": None, "test_app_record.py": None,
-           "test_app_swipe.py": None, "test_app_water.py": None, "test_config.py": None,
-           "test_grid.py": None}
+GROUPED = {
+    "test_adaptive_flow.py": "case",
+    "test_physics.py": "case",
+    "test_app_window.py": None,
+    "test_app_render.py": None,
+    "test_app_record.py": None,
+    "test_app_swipe.py": None,
+    "test_app_water.py": None,
+    "test_config.py": None,
+    "test_grid.py": None,
+}
 
 
-@pytest.hookimpl(tryfirst=True)     # before -m deselects: the slow marks must be on by then
+@pytest.hookimpl(tryfirst=True)  # before -m deselects: the slow marks must be on by then
 def pytest_collection_modifyitems(config, items):
     for item in items:
         chosen = item.get_closest_marker("slow_params")
         callspec = getattr(item, "callspec", None)
         if chosen and callspec is not None and callspec.id in chosen.args:
             item.add_marker(pytest.mark.slow)
-        if callspec is not None and any(item.path.name == f and key in callspec.id
-                                        for f, key in UNVERIFIED_DFSPH):
-            item.add_marker(pytest.mark.xfail(strict=False, reason="DFSPH validation not yet run to "
-                                              "the end on this machine (conftest.UNVERIFIED_DFSPH)"))
+        if callspec is not None and any(item.path.name == f and key in callspec.id for f, key in UNVERIFIED_DFSPH):
+            item.add_marker(
+                pytest.mark.xfail(
+                    strict=False,
+                    reason="DFSPH validation not yet run to the end on this machine (conftest.UNVERIFIED_DFSPH)",
+                )
+            )
             item.add_marker(pytest.mark.open_issue)
         if item.path.name in GROUPED:
             by_case = GROUPED[item.path.name] == "case" and callspec is not None
-            item.add_marker(pytest.mark.xdist_group(
-                f"{item.path.stem}[{callspec.id}]" if by_case else item.path.stem))
+            item.add_marker(pytest.mark.xdist_group(f"{item.path.stem}[{callspec.id}]" if by_case else item.path.stem))
     if "open_issue" not in (config.getoption("-m") or ""):
         kept = [item for item in items if "open_issue" not in item.keywords]
         if len(kept) < len(items):
@@ -159,6 +166,7 @@ def dim(request) -> int:
 def taichi_f32():
     """A fresh Taichi program on the CPU in single precision, for one module."""
     from mrsph import runtime
+
     runtime.reset()
     yield runtime.ensure("cpu", "f32")
     runtime.reset()
@@ -168,6 +176,7 @@ def taichi_f32():
 def fresh_program():
     """A fresh Taichi program for one test (the Simulation initialises it)."""
     from mrsph import runtime
+
     runtime.reset()
     yield
     runtime.reset()

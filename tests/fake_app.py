@@ -6,6 +6,7 @@ surface, coarsest at the bottom), with a few virtual particles at the level
 interfaces; ``advance_frame`` moves it ballistically with damped wall bounces, enough
 to make videos move. It is not SPH and never claims to be.
 """
+
 from __future__ import annotations
 
 import time
@@ -13,7 +14,6 @@ import time
 import numpy as np
 
 from mrsph.io.snapshot import Snapshot
-
 
 # The stand-in produces the real snapshot type (Taichi-free, mrsph/io/snapshot.py).
 FakeSnapshot = Snapshot
@@ -25,21 +25,40 @@ class FakeSimulation:
 
     REST_DENSITY = 1000.0
 
-    def __init__(self, dim: int = 2, levels: int = 3, spacing: float | None = None,
-                 fps: float = 30.0, seed: int = 0, obstacles: bool = True):
+    def __init__(
+        self,
+        dim: int = 2,
+        levels: int = 3,
+        spacing: float | None = None,
+        fps: float = 30.0,
+        seed: int = 0,
+        obstacles: bool = True,
+    ):
         self.dim, self.levels, self.fps = dim, levels, fps
         self.seed = seed
         if dim == 2:
             self.domain_min, self.domain_max = np.array([0.0, 0.0]), np.array([2.0, 1.0])
             self.block = (np.array([0.05, 0.02]), np.array([0.95, 0.75]))
-            self.obstacles = [{"shape": "sphere", "center": (1.45, 0.22), "radius": 0.12},
-                              {"shape": "box", "min": (1.75, 0.0), "max": (1.85, 0.35)}] if obstacles else []
+            self.obstacles = (
+                [
+                    {"shape": "sphere", "center": (1.45, 0.22), "radius": 0.12},
+                    {"shape": "box", "min": (1.75, 0.0), "max": (1.85, 0.35)},
+                ]
+                if obstacles
+                else []
+            )
             self.spacing0 = spacing or 0.008
         else:
             self.domain_min, self.domain_max = np.array([0.0, 0.0, 0.0]), np.array([1.2, 0.7, 0.6])
             self.block = (np.array([0.03, 0.02, 0.03]), np.array([0.5, 0.5, 0.57]))
-            self.obstacles = [{"shape": "sphere", "center": (0.85, 0.12, 0.3), "radius": 0.1},
-                              {"shape": "box", "min": (1.0, 0.0, 0.1), "max": (1.1, 0.25, 0.25)}] if obstacles else []
+            self.obstacles = (
+                [
+                    {"shape": "sphere", "center": (0.85, 0.12, 0.3), "radius": 0.1},
+                    {"shape": "box", "min": (1.0, 0.0, 0.1), "max": (1.1, 0.25, 0.25)},
+                ]
+                if obstacles
+                else []
+            )
             self.spacing0 = spacing or 0.014
         self.scene = {"name": f"fake_{dim}d", "run": {"fps": fps}}
         self.gravity = np.zeros(dim)
@@ -56,7 +75,7 @@ class FakeSimulation:
         height = hi[1] - lo[1]
         xs, levels, kinds = [], [], []
         for lvl in range(self.levels):
-            s = self.spacing0 * 2 ** lvl
+            s = self.spacing0 * 2**lvl
             axes = [np.arange(lo[k] + s / 2, hi[k], s) for k in range(self.dim)]
             grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, self.dim)
             # Depth below the top of the block in "bands": band b holds level b, so the
@@ -64,13 +83,16 @@ class FakeSimulation:
             depth = (hi[1] - grid[:, 1]) / height * self.levels
             band = np.clip(depth.astype(int), 0, self.levels - 1)
             mine = band == lvl
-            xs.append(grid[mine]); levels.append(np.full(mine.sum(), lvl)); kinds.append(np.zeros(mine.sum(), int))
+            xs.append(grid[mine])
+            levels.append(np.full(mine.sum(), lvl))
+            kinds.append(np.zeros(mine.sum(), int))
             # Virtual particles of this level, one spacing deep across each interface.
             for other, code in ((lvl - 1, 4), (lvl + 1, 5)):
                 if 0 <= other < self.levels:
                     interface = max(lvl, other)
                     near = (band == other) & (np.abs(depth - interface) * height / self.levels < s)
-                    xs.append(grid[near]); levels.append(np.full(near.sum(), lvl))
+                    xs.append(grid[near])
+                    levels.append(np.full(near.sum(), lvl))
                     kinds.append(np.full(near.sum(), code))
         self.x = np.concatenate(xs).astype(np.float64)
         self.x += rng.normal(scale=0.05 * self.spacing0, size=self.x.shape)  # break the symmetry
@@ -86,7 +108,7 @@ class FakeSimulation:
     # -- Simulation API ------------------------------------------------------------------
     @property
     def radius(self) -> np.ndarray:
-        return np.array([0.5 * self.spacing0 * 2 ** l for l in range(self.levels)])
+        return np.array([0.5 * self.spacing0 * 2**l for l in range(self.levels)])
 
     def set_param(self, key: str, value) -> None:
         if key == "physics.gravity":
@@ -131,21 +153,39 @@ class FakeSimulation:
 
     def snapshot(self) -> FakeSnapshot:
         n_real = int((self.kind < 4).sum())
-        speed2 = (self.v ** 2).sum(axis=1)
+        speed2 = (self.v**2).sum(axis=1)
         m = self.REST_DENSITY * (2 * self.radius[self.level]) ** self.dim
-        stats = {"frame": self.frame, "time": self.time, "dt": 1.0 / (self.fps * self.steps_per_frame),
-                 "n_real": n_real, "n_virtual": len(self.kind) - n_real,
-                 "total_mass": float(m[self.kind < 4].sum()),
-                 "kinetic_energy": float(0.5 * (m * speed2)[self.kind < 4].sum()),
-                 "max_density_ratio": 1.01, "splits": self.splits, "merges": self.merges,
-                 "n_transient": int(((self.kind >= 1) & (self.kind <= 3)).sum())}
+        stats = {
+            "frame": self.frame,
+            "time": self.time,
+            "dt": 1.0 / (self.fps * self.steps_per_frame),
+            "n_real": n_real,
+            "n_virtual": len(self.kind) - n_real,
+            "total_mass": float(m[self.kind < 4].sum()),
+            "kinetic_energy": float(0.5 * (m * speed2)[self.kind < 4].sum()),
+            "max_density_ratio": 1.01,
+            "splits": self.splits,
+            "merges": self.merges,
+            "n_transient": int(((self.kind >= 1) & (self.kind <= 3)).sum()),
+        }
         for l in range(self.levels):
             stats[f"n_level_{l}"] = int(((self.level == l) & (self.kind < 4)).sum())
             stats[f"n_virtual_level_{l}"] = int(((self.level == l) & (self.kind >= 4)).sum())
         rho = self.REST_DENSITY * (1.0 + 0.03 * np.sin(self.x[:, 0] * 20.0))
         return FakeSnapshot(
-            dim=self.dim, levels=self.levels, time=self.time, frame=self.frame,
-            x=self.x.astype(np.float32), v=self.v.astype(np.float32), m=m.astype(np.float32),
-            rho=rho.astype(np.float32), level=self.level.copy(), kind=self.kind.copy(),
-            radius=self.radius, domain_min=self.domain_min.copy(), domain_max=self.domain_max.copy(),
-            obstacles=[dict(o) for o in self.obstacles], stats=stats)
+            dim=self.dim,
+            levels=self.levels,
+            time=self.time,
+            frame=self.frame,
+            x=self.x.astype(np.float32),
+            v=self.v.astype(np.float32),
+            m=m.astype(np.float32),
+            rho=rho.astype(np.float32),
+            level=self.level.copy(),
+            kind=self.kind.copy(),
+            radius=self.radius,
+            domain_min=self.domain_min.copy(),
+            domain_max=self.domain_max.copy(),
+            obstacles=[dict(o) for o in self.obstacles],
+            stats=stats,
+        )

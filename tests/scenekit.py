@@ -1,4 +1,5 @@
 """Helpers shared by the physics test modules: scene boxes and known failures."""
+
 import numpy as np
 import pytest
 
@@ -42,9 +43,15 @@ def dim_solver_params(slow=(), fixture: bool = False) -> list:
     """The (dim, solver) cases of a test that runs with both pressure solvers, for
     ``parametrize(("dim", "solver"), ...)``, or with ``fixture`` the params of a fixture
     (each a (dim, solver) pair); the ids in ``slow`` (see ``case_id``) are marked slow."""
-    return [pytest.param(*(((d, s),) if fixture else (d, s)), id=case_id(d, s),
-                         marks=[pytest.mark.slow] if case_id(d, s) in slow else [])
-            for s in SOLVERS for d in (2, 3)]
+    return [
+        pytest.param(
+            *(((d, s),) if fixture else (d, s)),
+            id=case_id(d, s),
+            marks=[pytest.mark.slow] if case_id(d, s) in slow else [],
+        )
+        for s in SOLVERS
+        for d in (2, 3)
+    ]
 
 
 def with_solver(scene: dict, solver: str) -> dict:
@@ -86,9 +93,11 @@ class SolveLog:
 
     def summary(self) -> str:
         k = max(self.steps, 1)
-        return (f"{self.steps} steps, density error {self.worst_error:.3g} at worst (t = {self.worst_at}), "
-                f"{self.unconverged} solves unconverged, iterations a step: density "
-                f"{self.density_iterations / k:.2f}, divergence {self.divergence_iterations / k:.2f}")
+        return (
+            f"{self.steps} steps, density error {self.worst_error:.3g} at worst (t = {self.worst_at}), "
+            f"{self.unconverged} solves unconverged, iterations a step: density "
+            f"{self.density_iterations / k:.2f}, divergence {self.divergence_iterations / k:.2f}"
+        )
 
     def check(self, what: str) -> None:
         """After every step the average density error within dfsph.density_tolerance, and
@@ -100,7 +109,8 @@ class SolveLog:
         assert self.steps > 0, f"{what}: no step was logged"
         assert self.unconverged == 0 and self.worst_error <= tol, (
             f"{what}: {self.summary()}; expected every step's density error <= dfsph.density_tolerance "
-            f"= {tol:g} and no unconverged solve")
+            f"= {tol:g} and no unconverged solve"
+        )
 
 
 def advance_logged(sim, seconds: float, log: SolveLog) -> None:
@@ -122,6 +132,7 @@ def watch_solves(sim) -> list:
     the real particles: the momentum the solve's pressure accelerations added, how hard
     they pushed, and the float32 round-off of measuring the first. A WCSPH run has no solve: the list stays empty."""
     from mrsph.sph.particles import VIRTUAL_CHILD
+
     out = []
     if not getattr(sim.pressure, "implicit", False):
         return out
@@ -130,8 +141,10 @@ def watch_solves(sim) -> list:
         n = sim.pool.count()
         kind = sim.pool.p.kind.to_numpy()[:n]
         real = (kind >= 0) & (kind < VIRTUAL_CHILD)
-        return (sim.pool.p.m.to_numpy()[:n][real].astype(np.float64),
-                sim.pool.p.v.to_numpy()[:n][real].astype(np.float64))
+        return (
+            sim.pool.p.m.to_numpy()[:n][real].astype(np.float64),
+            sim.pool.p.v.to_numpy()[:n][real].astype(np.float64),
+        )
 
     def wrap(name, label):
         inner = getattr(sim.pressure, name)
@@ -146,8 +159,15 @@ def watch_solves(sim) -> list:
             # component is exact to 2^-24 |v|, so Σ m Δv has σ = 2^-24 sqrt(Σ m² |v|²)
             moved = (v1 != v0).any(axis=1)
             big = np.maximum(np.abs(v0[moved]), np.abs(v1[moved])) * m0[moved, None]
-            out.append((label, dv.sum(axis=0), float(np.linalg.norm(dv, axis=1).sum()),
-                        2.0 ** -24 * float(np.sqrt((big ** 2).sum()))))
+            out.append(
+                (
+                    label,
+                    dv.sum(axis=0),
+                    float(np.linalg.norm(dv, axis=1).sum()),
+                    2.0**-24 * float(np.sqrt((big**2).sum())),
+                )
+            )
+
         setattr(sim.pressure, name, watched)
 
     wrap("after_density", "divergence")

@@ -16,11 +16,11 @@ import math
 import numpy as np
 import pytest
 import scipy.sparse as sparse
+from scenekit import SolveLog, advance_logged, box, case_id, dim_solver_params, known_xfail, with_solver
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from mrsph.scene.config import load_scene
-from scenekit import SolveLog, advance_logged, box, case_id, dim_solver_params, known_xfail, with_solver
 
 G = 9.81
 RHO0 = 1000.0
@@ -51,6 +51,7 @@ PEAK_BOUND = {"3d-dfsph": 0.015}
 
 def make_sim(scene: dict):
     from mrsph.simulation import Simulation
+
     return Simulation(load_scene(scene), arch="cpu")
 
 
@@ -63,6 +64,7 @@ def uniform(scene: dict) -> dict:
 def adaptive_and_uniform(dim: int, scene: dict, run) -> dict:
     """``run`` on the scene and on its uniform twin, each in a fresh Taichi program."""
     from mrsph import runtime
+
     runtime.reset()
     out = {"dim": dim, "adaptive": run(scene)}
     runtime.reset()
@@ -99,23 +101,30 @@ def refined_pool(dim: int) -> dict:
     lo, hi = box(dim, (0, 0), (POOL_H, 2 * POOL_H), (0, POOL_H))
     blo, bhi = box(dim, (0, 0), (POOL_H, POOL_H), (0, POOL_H))
     rlo, rhi = box(dim, (0.1, 0.08), (0.2, 0.18), (0.1, 0.2))
-    return {"description": "pool at rest with a refined box", "dim": dim,
-            "domain": {"min": lo, "max": hi}, "particles": {"spacing": s0},
-            "fluid": {"viscosity": 2.0, "stiffness": (10 * math.sqrt(2 * G * POOL_H)) ** 2,
-                      "blocks": [{"min": blo, "max": bhi}]},
-            "adaptivity": {"enabled": True, "levels": 2, "band": 4.0 * s0},
-            "criteria": [{"type": "region", "shape": "box", "min": rlo, "max": rhi, "level": 0}]}
+    return {
+        "description": "pool at rest with a refined box",
+        "dim": dim,
+        "domain": {"min": lo, "max": hi},
+        "particles": {"spacing": s0},
+        "fluid": {
+            "viscosity": 2.0,
+            "stiffness": (10 * math.sqrt(2 * G * POOL_H)) ** 2,
+            "blocks": [{"min": blo, "max": bhi}],
+        },
+        "adaptivity": {"enabled": True, "levels": 2, "band": 4.0 * s0},
+        "criteria": [{"type": "region", "shape": "box", "min": rlo, "max": rhi, "level": 0}],
+    }
 
 
 def measure_pool(scene: dict) -> dict:
     sim = make_sim(scene)
     rlo = np.asarray(scene["criteria"][0]["min"], float)
     rhi = np.asarray(scene["criteria"][0]["max"], float)
-    near_band = 2.0 * 2.0 * sim.h0          # one coarse support each side of the box surface
+    near_band = 2.0 * 2.0 * sim.h0  # one coarse support each side of the box surface
     log = SolveLog()
     advance_logged(sim, SETTLE_S, log)
     speeds, peaks = [], []
-    for _ in range(int(round(MEASURE_S / 0.01))):   # 20 snapshots
+    for _ in range(int(round(MEASURE_S / 0.01))):  # 20 snapshots
         advance_logged(sim, 0.01, log)
         p = sim.particles(virtual=False)
         x = p["x"].astype(np.float64)
@@ -127,8 +136,13 @@ def measure_pool(scene: dict) -> dict:
     # the largest density of each snapshot, averaged over the window: the largest single
     # value over 20 snapshots is one particle's worst moment, and with the reactions summed
     # by atomics in parallel (order-dependent rounding) it varied by ~2 % between runs
-    return {"speed": float(np.mean(speeds)), "peak": float(np.mean(peaks)), "worst": max(peaks),
-            "n_real": sim.stats()["n_real"], "log": log}
+    return {
+        "speed": float(np.mean(speeds)),
+        "peak": float(np.mean(peaks)),
+        "worst": max(peaks),
+        "n_real": sim.stats()["n_real"],
+        "log": log,
+    }
 
 
 @pytest.fixture(scope="module", params=dim_solver_params(fixture=True))
@@ -137,40 +151,47 @@ def pool_runs(request):
     out = adaptive_and_uniform(dim, with_solver(refined_pool(dim), solver), measure_pool)
     out["solver"], out["case"] = solver, case_id(dim, solver)
     a, u = out["adaptive"], out["uniform"]
-    print(f"\n{dim}D {solver} pool with a refined box after {SETTLE_S} s: mean speed {a['speed'] / math.sqrt(G * POOL_H):.4f} "
-          f"sqrt(gH) (uniform {u['speed'] / math.sqrt(G * POOL_H):.4f}); largest density next to the "
-          f"interface {a['peak']:.4f} rho0 on average over the window, {a['worst']:.4f} at worst "
-          f"(uniform {u['peak']:.4f}, {u['worst']:.4f}); {a['n_real']} real particles "
-          f"(uniform {u['n_real']})")
+    print(
+        f"\n{dim}D {solver} pool with a refined box after {SETTLE_S} s: "
+        f"mean speed {a['speed'] / math.sqrt(G * POOL_H):.4f} "
+        f"sqrt(gH) (uniform {u['speed'] / math.sqrt(G * POOL_H):.4f}); largest density next to the "
+        f"interface {a['peak']:.4f} rho0 on average over the window, {a['worst']:.4f} at worst "
+        f"(uniform {u['peak']:.4f}, {u['worst']:.4f}); {a['n_real']} real particles "
+        f"(uniform {u['n_real']})"
+    )
     return out
 
 
 @pytest.mark.slow
 def test_refined_pool_stays_at_rest(pool_runs, request):
-    dim, a = pool_runs["dim"], pool_runs["adaptive"]
+    a = pool_runs["adaptive"]
     ratio = a["speed"] / math.sqrt(G * POOL_H)
     known_xfail(request, KNOWN_FAILURES, pool_runs["case"], "rest_speed", ratio)
     a["log"].check(f"{pool_runs['case']} refined pool, adaptive run")
-    assert ratio <= 0.01, (f"{pool_runs['case']}: mean speed {a['speed']:.4f} m/s = {ratio:.4f} sqrt(gH) after "
-                           f"{SETTLE_S} s with a refined box; expected <= 0.01 sqrt(gH)")
+    assert ratio <= 0.01, (
+        f"{pool_runs['case']}: mean speed {a['speed']:.4f} m/s = {ratio:.4f} sqrt(gH) after "
+        f"{SETTLE_S} s with a refined box; expected <= 0.01 sqrt(gH)"
+    )
 
 
 @pytest.mark.slow
 def test_density_next_to_the_interface_matches_uniform(pool_runs, request):
-    dim, a, u = pool_runs["dim"], pool_runs["adaptive"], pool_runs["uniform"]
+    a, u = pool_runs["adaptive"], pool_runs["uniform"]
     err = a["peak"] / u["peak"] - 1.0
     known_xfail(request, KNOWN_FAILURES, pool_runs["case"], "rest_peak", err)
     bound = PEAK_BOUND.get(pool_runs["case"], 0.005)
-    assert abs(err) <= bound, (f"{pool_runs['case']}: largest density next to the level interface "
-                               f"{a['peak']:.4f} rho0 (time average of each snapshot's largest), uniform "
-                               f"run {u['peak']:.4f} rho0 ({100 * err:+.2f} %, expected within "
-                               f"{100 * bound:.1f} %, the issue's bound 3 %; worst snapshot "
-                               f"{a['worst']:.4f} against {u['worst']:.4f})")
+    assert abs(err) <= bound, (
+        f"{pool_runs['case']}: largest density next to the level interface "
+        f"{a['peak']:.4f} rho0 (time average of each snapshot's largest), uniform "
+        f"run {u['peak']:.4f} rho0 ({100 * err:+.2f} %, expected within "
+        f"{100 * bound:.1f} %, the issue's bound 3 %; worst snapshot "
+        f"{a['worst']:.4f} against {u['worst']:.4f})"
+    )
 
 
 # ================================================================== dam break
-DAM_A = 0.2           # column width, m (height 2a)
-DAM_L = 3.2           # tank length: the front is still running at 1 s
+DAM_A = 0.2  # column width, m (height 2a)
+DAM_L = 3.2  # tank length: the front is still running at 1 s
 DAM_T = 1.0
 # Also printed (not asserted): the front at EARLY_T, before the block, where the adaptive
 # fluid is all at the coarse level (2 cm) and runs where a uniform 2 cm run does (0.977 m
@@ -208,13 +229,20 @@ def refined_dam(dim: int) -> dict:
     lo, hi = box(dim, (0, 0), (DAM_L, 0.6), (0, 0.12))
     blo, bhi = box(dim, (0, 0), (DAM_A, 2 * DAM_A), (0, 0.12))
     olo, ohi = box(dim, (1.2, 0), (1.3, 0.06), (0, 0.12))
-    return {"description": "dam break refined near a block", "dim": dim,
-            "domain": {"min": lo, "max": hi}, "particles": {"spacing": s0},
-            "fluid": {"viscosity": 1.0, "stiffness": (10 * math.sqrt(2 * G * 2 * DAM_A)) ** 2,
-                      "blocks": [{"min": blo, "max": bhi}]},
-            "obstacles": [{"shape": "box", "min": olo, "max": ohi}],
-            "adaptivity": {"enabled": True, "levels": 2, "band": 0.03, "merge_remnants": True},
-            "criteria": [{"type": "obstacles", "distance": 0.03, "level": 0}]}
+    return {
+        "description": "dam break refined near a block",
+        "dim": dim,
+        "domain": {"min": lo, "max": hi},
+        "particles": {"spacing": s0},
+        "fluid": {
+            "viscosity": 1.0,
+            "stiffness": (10 * math.sqrt(2 * G * 2 * DAM_A)) ** 2,
+            "blocks": [{"min": blo, "max": bhi}],
+        },
+        "obstacles": [{"shape": "box", "min": olo, "max": ohi}],
+        "adaptivity": {"enabled": True, "levels": 2, "band": 0.03, "merge_remnants": True},
+        "criteria": [{"type": "obstacles", "distance": 0.03, "level": 0}],
+    }
 
 
 # A body holding at least this share of the fluid's mass counts for the front.
@@ -238,8 +266,7 @@ def body_front(p: dict, h0: float) -> float:
     pairs = cKDTree(x).query_pairs(r=float(reach.max()), output_type="ndarray")
     d = np.linalg.norm(x[pairs[:, 0]] - x[pairs[:, 1]], axis=1)
     keep = d < np.maximum(reach[pairs[:, 0]], reach[pairs[:, 1]])
-    graph = sparse.coo_matrix((np.ones(int(keep.sum())), (pairs[keep, 0], pairs[keep, 1])),
-                              shape=(len(x), len(x)))
+    graph = sparse.coo_matrix((np.ones(int(keep.sum())), (pairs[keep, 0], pairs[keep, 1])), shape=(len(x), len(x)))
     _, label = connected_components(graph, directed=False)
     mass = np.bincount(label, weights=p["m"].astype(np.float64))
     body = mass >= BODY_SHARE * mass.sum()
@@ -253,9 +280,8 @@ def test_body_front_counts_every_body_of_5_percent_and_no_spray():
     pool = np.stack([np.linspace(0.0, 0.5, 60), np.zeros(60)], axis=1)
     surge = np.stack([np.linspace(1.0, 1.38, 39), np.zeros(39)], axis=1)
     droplet = np.array([[2.0, 0.0]])
-    p = {"x": np.concatenate([pool, surge, droplet]), "m": np.ones(100),
-         "level": np.zeros(100, np.int32)}
-    front = body_front(p, h0=0.02)     # links reach 0.03 m; spacing 0.0085 and 0.01 m
+    p = {"x": np.concatenate([pool, surge, droplet]), "m": np.ones(100), "level": np.zeros(100, np.int32)}
+    front = body_front(p, h0=0.02)  # links reach 0.03 m; spacing 0.0085 and 0.01 m
     assert front == pytest.approx(1.38), f"front {front:.3f} m; expected the surge's, 1.38 m"
 
 
@@ -265,7 +291,7 @@ def run_dam(scene: dict) -> dict:
     out = {"splits": 0, "merges": 0, "transient": False, "virtual": False, "counts": [], "log": log}
     while sim.time < DAM_T - 1e-9:
         before = (log.splits, log.merges)
-        advance_logged(sim, 0.05, log)       # a stats row after every DFSPH step
+        advance_logged(sim, 0.05, log)  # a stats row after every DFSPH step
         st = sim.stats()
         out["splits"] += st["splits"] + log.splits - before[0]
         out["merges"] += st["merges"] + log.merges - before[1]
@@ -292,11 +318,13 @@ def dam_runs(request):
     out["solver"], out["case"] = solver, case_id(dim, solver)
     a, u = out["adaptive"], out["uniform"]
     out["saving"] = float(np.mean(u["counts"]) / np.mean(a["counts"]))
-    print(f"\n{dim}D {solver} dam break refined near a block, t = {DAM_T} s: front {a['front']:.3f} m (uniform "
-          f"{u['front']:.3f} m); real particles {np.mean(a['counts']):.0f} on average, "
-          f"{a['counts'][-1]} at the end (uniform {u['counts'][-1]}): {out['saving']:.2f}x fewer; "
-          f"{a['splits']} splits, {a['merges']} merges; {a['merges_late']} merges by {MERGE_T} s; "
-          f"front at {EARLY_T} s {a['front_early']:.3f} m (uniform {u['front_early']:.3f} m)")
+    print(
+        f"\n{dim}D {solver} dam break refined near a block, t = {DAM_T} s: front {a['front']:.3f} m (uniform "
+        f"{u['front']:.3f} m); real particles {np.mean(a['counts']):.0f} on average, "
+        f"{a['counts'][-1]} at the end (uniform {u['counts'][-1]}): {out['saving']:.2f}x fewer; "
+        f"{a['splits']} splits, {a['merges']} merges; {a['merges_late']} merges by {MERGE_T} s; "
+        f"front at {EARLY_T} s {a['front_early']:.3f} m (uniform {u['front_early']:.3f} m)"
+    )
     return out
 
 
@@ -312,8 +340,9 @@ def test_adaptive_dam_break_splits_and_couples(dam_runs):
 def test_adaptive_dam_break_merges(dam_runs, request):
     dim, a = dam_runs["dim"], dam_runs["adaptive"]
     known_xfail(request, KNOWN_FAILURES, dam_runs["case"], "dam_merges", a["merges_late"])
-    assert a["merges_late"] > 0, (f"{dim}D: {a['splits']} splits by {DAM_T} s but no merge by {MERGE_T} s "
-                                  f"in the adaptive dam break")
+    assert a["merges_late"] > 0, (
+        f"{dim}D: {a['splits']} splits by {DAM_T} s but no merge by {MERGE_T} s in the adaptive dam break"
+    )
 
 
 @pytest.mark.slow
@@ -321,8 +350,10 @@ def test_adaptive_dam_break_holds_fewer_particles(dam_runs, request):
     dim, saving = dam_runs["dim"], dam_runs["saving"]
     want = 3.0 if dim == 2 else 5.0
     known_xfail(request, KNOWN_FAILURES, dam_runs["case"], "dam_saving", saving)
-    assert saving >= want, (f"{dim}D: the adaptive run holds {saving:.2f}x fewer real particles than the "
-                            f"uniform one on average; expected >= {want}x")
+    assert saving >= want, (
+        f"{dim}D: the adaptive run holds {saving:.2f}x fewer real particles than the "
+        f"uniform one on average; expected >= {want}x"
+    )
 
 
 @pytest.mark.slow
@@ -331,17 +362,21 @@ def test_adaptive_dam_break_front_is_not_far_off(dam_runs):
     (an expected failure passes whatever it measures)."""
     dim, a, u = dam_runs["dim"], dam_runs["adaptive"], dam_runs["uniform"]
     err = a["front"] / u["front"] - 1.0
-    assert abs(err) <= 0.10, (f"{dim}D: front of the adaptive run at {a['front']:.3f} m, uniform "
-                              f"{u['front']:.3f} m at {DAM_T} s ({100 * err:+.1f} %, expected within 10 %)")
+    assert abs(err) <= 0.10, (
+        f"{dim}D: front of the adaptive run at {a['front']:.3f} m, uniform "
+        f"{u['front']:.3f} m at {DAM_T} s ({100 * err:+.1f} %, expected within 10 %)"
+    )
 
 
 @pytest.mark.slow
 def test_adaptive_dam_break_front_matches_uniform(dam_runs, request):
-    dim, a, u = dam_runs["dim"], dam_runs["adaptive"], dam_runs["uniform"]
+    a, u = dam_runs["adaptive"], dam_runs["uniform"]
     err = a["front"] / u["front"] - 1.0
     known_xfail(request, KNOWN_FAILURES, dam_runs["case"], "dam_front", err)
-    assert abs(err) <= 0.05, (f"{dam_runs['case']}: front of the adaptive run at {a['front']:.3f} m, uniform "
-                              f"{u['front']:.3f} m at {DAM_T} s ({100 * err:+.1f} %, expected within 5 %)")
+    assert abs(err) <= 0.05, (
+        f"{dam_runs['case']}: front of the adaptive run at {a['front']:.3f} m, uniform "
+        f"{u['front']:.3f} m at {DAM_T} s ({100 * err:+.1f} %, expected within 5 %)"
+    )
 
 
 @pytest.mark.slow
@@ -393,6 +428,7 @@ def test_first_splits_add_no_energy(dim):
     sheet; with ``"density"`` by 0.2 % and not at all, at 4.4 and 4.1 m/s at most
     (measured 2026-11-26)."""
     from mrsph import runtime
+
     runtime.reset()
     rows = measure_first_splits(dim, "density")["rows"]
     first = next((k for k, r in enumerate(rows) if r[3] > 0), None)
@@ -400,8 +436,12 @@ def test_first_splits_add_no_energy(dim):
     e0 = rows[first - 1][1]
     top = max(rows[first:], key=lambda r: r[1])
     rise = (top[1] - e0) / e0
-    print(f"\n{dim}D first splits from {rows[first][0]:.3f} s: mechanical energy {e0:.3f} J before, "
-          f"{top[1]:.3f} J at most after ({100 * rise:+.2f} %, at {top[0]:.3f} s); fastest particle "
-          f"{rows[first - 1][2]:.2f} m/s before, {max(r[2] for r in rows[first:]):.2f} m/s after")
-    assert rise <= 0.01, (f"{dim}D: the splits raised the fluid's mechanical energy from {e0:.3f} to "
-                          f"{top[1]:.3f} J ({100 * rise:+.2f} %, at {top[0]:.3f} s; expected at most +1 %)")
+    print(
+        f"\n{dim}D first splits from {rows[first][0]:.3f} s: mechanical energy {e0:.3f} J before, "
+        f"{top[1]:.3f} J at most after ({100 * rise:+.2f} %, at {top[0]:.3f} s); fastest particle "
+        f"{rows[first - 1][2]:.2f} m/s before, {max(r[2] for r in rows[first:]):.2f} m/s after"
+    )
+    assert rise <= 0.01, (
+        f"{dim}D: the splits raised the fluid's mechanical energy from {e0:.3f} to "
+        f"{top[1]:.3f} J ({100 * rise:+.2f} %, at {top[0]:.3f} s; expected at most +1 %)"
+    )

@@ -1,4 +1,5 @@
 """Mouse gestures -> Disturbance, and 3D picking (pure logic, no window)."""
+
 from __future__ import annotations
 
 import math
@@ -46,9 +47,9 @@ def test_left_drag_pushes_along_the_drag(dim):
     # v = step / DT * (1 - exp(-19 DT / TAU)) (0.9982 of it at 60 fps). Twice the time
     # constant would give 0.958 of it, another law another value: pinned to 1e-6.
     expected = step / DT * (1.0 - math.exp(-19 * DT / TAU))
-    np.testing.assert_allclose(v, expected, rtol=1e-6,
-                               err_msg=f"{dim}D: smoothed velocity {v} vs {expected} "
-                                       f"(time constant {TAU} s)")
+    np.testing.assert_allclose(
+        v, expected, rtol=1e-6, err_msg=f"{dim}D: smoothed velocity {v} vs {expected} (time constant {TAU} s)"
+    )
     np.testing.assert_allclose(ds[-1].center, np.full(dim, 0.5) + 19 * step)
     assert ds[-1].radius == pytest.approx(0.1) and ds[-1].strength == m.strength
 
@@ -60,10 +61,11 @@ def test_first_frame_of_a_drag_is_at_rest_and_jitter_is_smoothed():
     d1 = m.update((0.51, 0.5), {"left"}, DT)
     raw = 0.01 / DT
     # one frame of the exponential smoothing: a fraction 1 - exp(-DT / TAU) of the jump
-    expected = raw * (1.0 - math.exp(-DT / TAU))   # 0.28 of the raw 0.6 m/s
+    expected = raw * (1.0 - math.exp(-DT / TAU))  # 0.28 of the raw 0.6 m/s
     assert d1.velocity[0] == pytest.approx(expected, rel=1e-6), (
         f"one-frame jump smoothed to {d1.velocity[0]:.6g} m/s; expected {expected:.6g} "
-        f"(raw {raw:.6g}, time constant {TAU} s)")
+        f"(raw {raw:.6g}, time constant {TAU} s)"
+    )
     assert d1.velocity[1] == 0.0, f"no sideways velocity from a jump along x: {d1.velocity}"
 
 
@@ -133,12 +135,10 @@ def test_pick_point_misses_box_uses_plane_facing_camera():
 
 
 def test_pick_point_from_inside_or_pointing_away_falls_back():
-    p = pick_point((0.5, 0.5, 0.5), (0, 0, 1), (0, 0, 0), (1, 1, 1), (0.5, 0.5, 0.2),
-                   plane_normal=(0, 0, 1))
+    p = pick_point((0.5, 0.5, 0.5), (0, 0, 1), (0, 0, 0), (1, 1, 1), (0.5, 0.5, 0.2), plane_normal=(0, 0, 1))
     # from inside the box the ray's entry (t_near = -0.5, behind the eye) does not count,
     # and the fallback plane z = 0.2 lies behind the ray too: the plane point itself
-    np.testing.assert_allclose(p, (0.5, 0.5, 0.2), atol=1e-12,
-                               err_msg=f"picked {p}; expected the fallback plane point")
+    np.testing.assert_allclose(p, (0.5, 0.5, 0.2), atol=1e-12, err_msg=f"picked {p}; expected the fallback plane point")
     far = pick_point((0.5, 0.5, 5.0), (0, 0, 1), (0, 0, 0), (1, 1, 1), (0.5, 0.5, 0.5))
     np.testing.assert_allclose(far, (0.5, 0.5, 0.5))
 
@@ -151,6 +151,7 @@ def test_ray_helpers():
 
 def test_safe_speed_is_mach_0_1_and_the_pull_is_capped_too():
     from mrsph.app.mouse import safe_speed
+
     # c0 = sqrt(400) = 20 m/s -> 2 m/s; no stiffness: 8 domain sizes per second
     assert safe_speed(400.0, (0, 0), (1, 0.5)) == pytest.approx(2.0)
     assert safe_speed(None, (0, 0), (1, 0.5)) == pytest.approx(8.0)
@@ -159,5 +160,6 @@ def test_safe_speed_is_mach_0_1_and_the_pull_is_capped_too():
     m.strength, m.radius = 100.0, 0.4
     d = m.update((0.5, 0.25), {"right"}, DT)
     # the pull's target speed is strength x distance, at most strength x radius at the rim
-    assert d.mode == "pull" and d.strength * d.radius == pytest.approx(2.0), \
+    assert d.mode == "pull" and d.strength * d.radius == pytest.approx(2.0), (
         f"pull strength {d.strength} x radius {d.radius} = {d.strength * d.radius} m/s, cap 2 m/s"
+    )

@@ -3,14 +3,16 @@
 The raster backend always runs; the GGUI backend runs where ``vulkan_available()``
 says yes and skips with its reason elsewhere.
 """
+
 from __future__ import annotations
 
 import imageio.v3 as iio
 import numpy as np
 import pytest
-
-from mrsph.app import palette, record as rec
 from fake_app import FakeSimulation
+
+from mrsph.app import palette
+from mrsph.app import record as rec
 
 FRAMES = 10
 W, H = 320, 180
@@ -21,6 +23,7 @@ def taichi_cpu(taichi_f32):
     """Taichi on the CPU (f32) for this module, reset afterwards: conftest's
     ``taichi_f32`` does ti.init / ti.reset through mrsph.runtime."""
     import taichi as ti
+
     return ti
 
 
@@ -41,8 +44,7 @@ def read_frames(path) -> np.ndarray:
 def test_record_reads_back_with_requested_size(dim, fmt, backend, tmp_path, taichi_cpu):
     backend_or_skip(backend)
     sim = FakeSimulation(dim=dim)
-    out = rec.record(sim, tmp_path / f"clip.{fmt}", FRAMES, W, H, fps=20, backend=backend,
-                     progress=False)
+    out = rec.record(sim, tmp_path / f"clip.{fmt}", FRAMES, W, H, fps=20, backend=backend, progress=False)
     assert out.exists()
     frames = read_frames(out)
     assert frames.shape[:3] == (FRAMES, H, W), frames.shape
@@ -52,14 +54,12 @@ def test_record_reads_back_with_requested_size(dim, fmt, backend, tmp_path, taic
 
 
 def test_gif_loops_forever(tmp_path):
-    out = rec.record(FakeSimulation(dim=2), tmp_path / "clip.gif", 3, W, H, backend="raster",
-                     progress=False)
+    out = rec.record(FakeSimulation(dim=2), tmp_path / "clip.gif", 3, W, H, backend="raster", progress=False)
     assert iio.immeta(out, index=None).get("loop") == 0
 
 
 def test_png_sequence(tmp_path):
-    out = rec.record(FakeSimulation(dim=2), tmp_path / "frames", 4, W, H, backend="raster",
-                     progress=False)
+    out = rec.record(FakeSimulation(dim=2), tmp_path / "frames", 4, W, H, backend="raster", progress=False)
     names = sorted(p.name for p in out.iterdir())
     assert names == [f"frame_{i:05d}.png" for i in range(4)]
     assert iio.imread(out / names[0]).shape == (H, W, 3)
@@ -70,14 +70,12 @@ def test_png_sequence_replaces_a_longer_one(tmp_path):
     how many were removed."""
     rec.record(FakeSimulation(dim=2), tmp_path / "frames", 4, W, H, backend="raster", progress=False)
     with pytest.warns(RuntimeWarning, match="removed 4 frame file"):
-        out = rec.record(FakeSimulation(dim=2), tmp_path / "frames", 2, W, H, backend="raster",
-                         progress=False)
+        out = rec.record(FakeSimulation(dim=2), tmp_path / "frames", 2, W, H, backend="raster", progress=False)
     assert sorted(p.name for p in out.iterdir()) == [f"frame_{i:05d}.png" for i in range(2)]
 
 
 def test_mp4_odd_size_becomes_even(tmp_path, capsys):
-    out = rec.record(FakeSimulation(dim=2), tmp_path / "odd.mp4", 2, 321, 181, backend="raster",
-                     progress=False)
+    out = rec.record(FakeSimulation(dim=2), tmp_path / "odd.mp4", 2, 321, 181, backend="raster", progress=False)
     assert read_frames(out).shape[1:3] == (182, 322)
     assert "even" in capsys.readouterr().err
 
@@ -124,6 +122,7 @@ def test_vulkan_probe_is_cached(monkeypatch):
     def probe(*args, **kwargs):
         calls.append(args)
         return False, "no Vulkan in this test"
+
     monkeypatch.delenv(rec.NO_VULKAN_ENV, raising=False)
     monkeypatch.setattr(rec, "_probe_cache", {})
     monkeypatch.setattr(rec, "run_probe", probe)

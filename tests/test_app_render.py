@@ -3,15 +3,16 @@
 GGUI tests skip with the reason when ``vulkan_available()`` says no. Every drawing test
 runs in 2D and 3D on the stand-in simulation of ``fake_app``.
 """
+
 from __future__ import annotations
 
 import math
 
 import numpy as np
 import pytest
+from fake_app import FakeSimulation
 
 from mrsph.app import palette
-from fake_app import FakeSimulation
 from mrsph.app.raster import Rasterizer, rasterize
 from mrsph.app.view import OrbitCamera, View2D
 
@@ -27,12 +28,14 @@ def taichi_cpu(taichi_f32):
     """Taichi on the CPU (f32) for this module, reset afterwards: conftest's
     ``taichi_f32`` does ti.init / ti.reset through mrsph.runtime."""
     import taichi as ti
+
     return ti
 
 
 @pytest.fixture(scope="module")
 def vulkan():
     from mrsph.app.record import vulkan_available
+
     ok, why = vulkan_available()
     if not ok:
         pytest.skip(f"GGUI offscreen rendering unavailable: {why}")
@@ -58,8 +61,7 @@ def test_colours_every_mode(dim, mode):
     snap = fake_snapshot(dim, frames=1)
     rgb = palette.colours(snap, mode)
     assert rgb.shape == (len(snap.x), 3) and rgb.dtype == np.float32
-    assert np.all((rgb >= 0) & (rgb <= 1)), (
-        f"{mode}: colours outside [0, 1]: min {rgb.min():.4f}, max {rgb.max():.4f}")
+    assert np.all((rgb >= 0) & (rgb <= 1)), f"{mode}: colours outside [0, 1]: min {rgb.min():.4f}, max {rgb.max():.4f}"
     # The continuous modes must map their input: three real particles (virtual ones
     # are greyed out) get chosen values, and their colours are read off the colormaps.
     a, b, c = np.nonzero(~palette.is_virtual(snap.kind))[0][:3]
@@ -67,12 +69,16 @@ def test_colours_every_mode(dim, mode):
         scale = palette.default_speed_scale(snap.domain_min, snap.domain_max)
         snap.v[a] = 0.0
         snap.v[b] = 0.0
-        snap.v[b][0] = scale              # |v| = the top of the colormap
+        snap.v[b][0] = scale  # |v| = the top of the colormap
         rgb = palette.colours(snap, mode)
         want = palette.speed_colormap(np.array([0.0, 1.0]))
-        np.testing.assert_allclose(rgb[[a, b]], want, atol=1e-5,
-                                   err_msg=f"{dim}D: |v| = 0 and |v| = {scale:.3f} m/s coloured "
-                                           f"{rgb[[a, b]].tolist()}; expected {want.tolist()}")
+        np.testing.assert_allclose(
+            rgb[[a, b]],
+            want,
+            atol=1e-5,
+            err_msg=f"{dim}D: |v| = 0 and |v| = {scale:.3f} m/s coloured "
+            f"{rgb[[a, b]].tolist()}; expected {want.tolist()}",
+        )
         gap = float(np.linalg.norm(rgb[b] - rgb[a]))
         assert gap > 0.5, f"{dim}D: slowest and fastest colours only {gap:.3f} apart"
     elif mode == "density":
@@ -82,12 +88,17 @@ def test_colours_every_mode(dim, mode):
         rgb = palette.colours(snap, mode, rest_density=rho0)
         # rest density at the midpoint (grey), -/+ 60 % of the half range at 0.2 / 0.8
         want = palette.density_colormap(np.array([0.5, 0.2, 0.8]))
-        np.testing.assert_allclose(rgb[[a, b, c]], want, atol=1e-5,
-                                   err_msg=f"{dim}D: rho / rho0 = 1, {1 - 0.6 * half}, {1 + 0.6 * half} "
-                                           f"coloured {rgb[[a, b, c]].tolist()}; expected {want.tolist()}")
+        np.testing.assert_allclose(
+            rgb[[a, b, c]],
+            want,
+            atol=1e-5,
+            err_msg=f"{dim}D: rho / rho0 = 1, {1 - 0.6 * half}, {1 + 0.6 * half} "
+            f"coloured {rgb[[a, b, c]].tolist()}; expected {want.tolist()}",
+        )
         lo, hi = rgb[b], rgb[c]
         assert lo[2] > lo[0] + 0.2 and hi[0] > hi[2] + 0.2, (
-            f"{dim}D: too light should be blue, compressed red: got {lo} and {hi}")
+            f"{dim}D: too light should be blue, compressed red: got {lo} and {hi}"
+        )
 
 
 def test_level_colours_distinct_and_finest_warm():
@@ -173,7 +184,8 @@ def test_3d_camera_frames_the_box_left_of_the_panel(given):
     px, depth = cam.project(corners, w, h)
     assert (depth > 0).all(), f"box corners behind the camera: depths {np.round(depth, 3).tolist()}"
     assert px[:, 0].min() >= 0 and px[:, 0].max() <= 0.7 * w, (
-        f"box drawn over x = {px[:, 0].min():.0f} .. {px[:, 0].max():.0f} px; the viewport ends at {0.7 * w:.0f}")
+        f"box drawn over x = {px[:, 0].min():.0f} .. {px[:, 0].max():.0f} px; the viewport ends at {0.7 * w:.0f}"
+    )
     # the pivot (the box centre, or the scene's look-at point) stays at the viewport's
     # centre through orbit and zoom
     for move in ("start", "orbit", "zoom"):
@@ -183,7 +195,8 @@ def test_3d_camera_frames_the_box_left_of_the_panel(given):
             cam.zoom(0.5)
         pivot, depth = cam.project(cam.target[None], w, h)
         assert depth[0] > 0 and pivot[0, 0] == pytest.approx(0.35 * w, abs=1.0), (
-            f"after {move}: the pivot at x = {pivot[0, 0]:.0f} px, the viewport's centre at {0.35 * w:.0f}")
+            f"after {move}: the pivot at x = {pivot[0, 0]:.0f} px, the viewport's centre at {0.35 * w:.0f}"
+        )
 
 
 # ----------------------------------------------------------------------------- raster
@@ -232,6 +245,7 @@ def test_raster_30k_particles_960x540_smoke(dim):
 @pytest.fixture(scope="module")
 def offscreen(taichi_cpu, vulkan):
     from mrsph.app.render import ImguiIniGuard
+
     guard = ImguiIniGuard()  # ImGui writes ./imgui.ini when the window goes
     window = taichi_cpu.ui.Window("mrsph test", (W, H), show_window=False)
     yield window
@@ -241,6 +255,7 @@ def offscreen(taichi_cpu, vulkan):
 
 def ggui_frame(window, snap, renderer=None):
     from mrsph.app.render import Renderer, image_from_window
+
     renderer = renderer or Renderer(window)
     renderer.draw(snap)
     image_from_window(window)  # ImGui lays out its panels on the first frame
@@ -272,6 +287,7 @@ def test_ggui_and_raster_draw_the_same_picture(dim, offscreen):
 def test_ggui_orientation_up_is_up(offscreen):
     """The buffer-to-image conversion keeps up up and left left."""
     from mrsph.app.render import image_from_window
+
     offscreen.get_canvas().set_background_color((0, 0, 0))
     ti = pytest.importorskip("taichi")
     pts = ti.Vector.field(2, ti.f32, 1)
@@ -285,6 +301,7 @@ def test_ggui_orientation_up_is_up(offscreen):
 
 def test_renderer_reallocates_only_when_growing(offscreen):
     from mrsph.app.render import Renderer
+
     r = Renderer(offscreen)
     big = fake_snapshot(2, frames=0)
     small = fake_snapshot(2, frames=0, spacing=0.03)

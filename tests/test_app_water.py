@@ -4,13 +4,14 @@ Rendered frames of the stand-in simulation, by the rasteriser and (where Vulkan 
 by the GGUI renderer the window and recordings share: the mouse's reach (white) and a
 stirrer (magenta) show their colours on their circles; the water view fills the fluid.
 """
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from fake_app import FakeSimulation
 
 from mrsph.app import palette
-from fake_app import FakeSimulation
 from mrsph.app.geometry import Mark
 from mrsph.app.view import OrbitCamera, View2D
 
@@ -27,21 +28,25 @@ def render(request):
     """render(snap, marks, surface) -> (H, W, 3) image, by one backend."""
     if request.param == "raster":
         from mrsph.app.raster import rasterize
+
         yield lambda snap, marks, surface: rasterize(snap, W, H, legend=False, marks=marks, surface=surface)
         return
     from mrsph.app.record import vulkan_available
+
     ok, why = vulkan_available()
     if not ok:
         pytest.skip(f"no Vulkan for GGUI: {why}")
     from mrsph import runtime
     from mrsph.app.palette import Style
     from mrsph.app.record import _GguiFrames
+
     runtime.reset()
     runtime.ensure("cpu")
     frames = _GguiFrames(W, H, Style(), None)
 
     def draw(snap, marks, surface):
         return frames.render(snap, "level", False, None, marks, surface)
+
     draw.renderer = frames.renderer
     yield draw
     frames.close()
@@ -68,7 +73,7 @@ def _project(snap, p):
 
 def _colour_near(img, col_row, colour, reach=40, tol=0.12):
     c, r = col_row
-    patch = img[max(r - reach, 0):r + reach, max(c - reach, 0):c + reach].astype(float) / 255.0
+    patch = img[max(r - reach, 0) : r + reach, max(c - reach, 0) : c + reach].astype(float) / 255.0
     return int((np.abs(patch - np.asarray(colour)).max(axis=-1) < tol).sum())
 
 
@@ -85,8 +90,10 @@ def test_mouse_circle_and_stirrer_are_drawn_where_they_act(render, dim):
         colour = palette.MARK_COLOURS[kind]
         at = _project(snap, point)
         found, before = _colour_near(img, at, colour), _colour_near(bare, at, colour)
-        assert found > 40 + before, (f"{dim}D: {found} pixels of the {kind} colour {colour} within "
-                                     f"40 px of its centre {at} ({before} without the marks)")
+        assert found > 40 + before, (
+            f"{dim}D: {found} pixels of the {kind} colour {colour} within "
+            f"40 px of its centre {at} ({before} without the marks)"
+        )
     # the mouse's circle is around its centre, not on it
     c, r = _project(snap, mouse)
     assert _colour_near(img, (c, r), palette.MARK_COLOURS["mouse"], reach=2) == 0
@@ -101,7 +108,7 @@ def test_water_view_fills_the_fluid(render, dim):
     lo, hi = x.min(axis=0), x.max(axis=0)
     if dim == 2:
         (c0, r1), (c1, r0) = _project(snap, lo + 0.2 * (hi - lo)), _project(snap, hi - 0.2 * (hi - lo))
-    else:   # around the middle of the top face, which the default camera sees from above
+    else:  # around the middle of the top face, which the default camera sees from above
         c, r = _project(snap, np.array([(lo[0] + hi[0]) / 2, hi[1], (lo[2] + hi[2]) / 2]))
         c0, c1, r0, r1 = c - 8, c + 8, r + 2, r + 12
     bg = np.asarray(palette.Style().background) * 255.0
@@ -122,12 +129,18 @@ def test_obj_dump_reads_back_with_the_fluid_volume(tmp_path):
     meshio = pytest.importorskip("meshio")
     from mrsph.io.output import write_frame
     from mrsph.io.surface import mesh_volume, polygon_area
+
     for dim, s, size in ((3, 0.02, (0.4, 0.2, 0.3)), (2, 0.01, (0.4, 0.2))):
-        x = np.stack(np.meshgrid(*[np.arange(s / 2, h, s) for h in size], indexing="ij"),
-                     -1).reshape(-1, dim)
+        x = np.stack(np.meshgrid(*[np.arange(s / 2, h, s) for h in size], indexing="ij"), -1).reshape(-1, dim)
         n = len(x)
-        parts = dict(x=x, v=np.zeros_like(x), m=np.full(n, 1000.0 * s ** dim),
-                     rho=np.full(n, 1000.0), level=np.zeros(n), kind=np.zeros(n))
+        parts = dict(
+            x=x,
+            v=np.zeros_like(x),
+            m=np.full(n, 1000.0 * s**dim),
+            rho=np.full(n, 1000.0),
+            level=np.zeros(n),
+            kind=np.zeros(n),
+        )
         path = write_frame(tmp_path / f"{dim}d", 0, parts, dim, "obj")
         assert path.name == "frame_00000.obj"
         mesh = meshio.read(path)
@@ -149,7 +162,7 @@ def _filled_top(render, snap) -> float:
     x = np.asarray(snap.x)[~palette.is_virtual(snap.kind)]
     lo, hi = x.min(axis=0), x.max(axis=0)
     c, r = _project(snap, np.array([(lo[0] + hi[0]) / 2, hi[1], (lo[2] + hi[2]) / 2]))
-    patch = render(snap, [], True).astype(float)[r + 2:r + 12, c - 8:c + 8]
+    patch = render(snap, [], True).astype(float)[r + 2 : r + 12, c - 8 : c + 8]
     bg = np.asarray(palette.Style().background) * 255.0
     return float((np.abs(patch - bg).max(axis=-1) > 20).mean())
 
@@ -160,6 +173,7 @@ def test_a_3d_water_mesh_of_200k_vertices_is_drawn(render, monkeypatch):
     in parts of 65 535 vertices. The fake pool's own mesh, repeated to 200 000 vertices,
     covers the top face as the mesh once does (drawn whole: 13 %)."""
     from mrsph.app import geometry
+
     _ggui(render)
     snap = _snap(3)
     once = geometry.water(snap, palette.colours(snap, "level"))
@@ -175,6 +189,7 @@ def test_water_view_is_not_recomputed_for_the_same_snapshot(render, monkeypatch,
     """Paused (the window draws the same snapshot again), the surface is reused; a new
     snapshot, or other colours, computes it again."""
     from mrsph.app import geometry
+
     renderer = _ggui(render)
     calls = []
     real = geometry.water

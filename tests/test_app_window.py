@@ -9,6 +9,7 @@ exit code 0.
 Skips, with the reason, without Xvfb or xdotool or a working GGUI/Vulkan. Slow (the
 real solver compiles its kernels on first use): marked ``slow``.
 """
+
 from __future__ import annotations
 
 import json
@@ -41,7 +42,7 @@ STIR_EFFICIENCY = 0.003
 EXIT_TIMEOUT_S = 60
 # Parts of the window covered by panels (legend top-left, HUD on the right), whose
 # coloured text must not be taken for fluid.
-LEGEND_PX = (140, 250)       # rows, columns
+LEGEND_PX = (140, 250)  # rows, columns
 HUD_PX_FROM_RIGHT = 350
 
 
@@ -51,15 +52,25 @@ def xdisplay():
         if shutil.which(tool) is None:
             pytest.skip(f"{tool} is not installed (apt-get install xvfb xdotool)")
     from mrsph.app.record import vulkan_available
+
     ok, why = vulkan_available()
     if not ok:
         pytest.skip(f"no Vulkan for GGUI: {why}")
-    n = next((n for n in range(90, 200) if not Path(f"/tmp/.X{n}-lock").exists()
-              and not Path(f"/tmp/.X11-unix/X{n}").exists()), None)
+    n = next(
+        (
+            n
+            for n in range(90, 200)
+            if not Path(f"/tmp/.X{n}-lock").exists() and not Path(f"/tmp/.X11-unix/X{n}").exists()
+        ),
+        None,
+    )
     if n is None:
         pytest.skip("no free X display number in :90-:199")
-    proc = subprocess.Popen(["Xvfb", f":{n}", "-screen", "0", "1280x800x24", "-nolisten", "tcp"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        ["Xvfb", f":{n}", "-screen", "0", "1280x800x24", "-nolisten", "tcp"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     deadline = time.time() + 30
 
     def ready() -> bool:
@@ -69,8 +80,12 @@ def xdisplay():
             return False
         if shutil.which("xdpyinfo") is None:
             return True
-        return subprocess.run(["xdpyinfo", "-display", f":{n}"], stdout=subprocess.DEVNULL,
-                              stderr=subprocess.DEVNULL).returncode == 0
+        return (
+            subprocess.run(
+                ["xdpyinfo", "-display", f":{n}"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+            ).returncode
+            == 0
+        )
 
     while not ready():
         if proc.poll() is not None or time.time() > deadline:
@@ -92,18 +107,28 @@ class App:
         self.display, self.tmp = display, tmp
         self.stats_path = tmp / "stats.jsonl"
         self.shot_path = tmp / "shot.png"
-        env = dict(os.environ, DISPLAY=display, MRSPH_WINDOW_STATS=str(self.stats_path),
-                   MRSPH_WINDOW_SCREENSHOT=str(self.shot_path),
-                   PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]))
+        env = dict(
+            os.environ,
+            DISPLAY=display,
+            MRSPH_WINDOW_STATS=str(self.stats_path),
+            MRSPH_WINDOW_SCREENSHOT=str(self.shot_path),
+            PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]),
+        )
         self.log = open(tmp / "app.log", "w")
         # cwd = tmp: whatever the app or ImGui writes next to it stays out of the repo
-        self.proc = subprocess.Popen([sys.executable, *map(str, args)], cwd=tmp, env=env,
-                                     stdout=self.log, stderr=subprocess.STDOUT)
+        self.proc = subprocess.Popen(
+            [sys.executable, *map(str, args)], cwd=tmp, env=env, stdout=self.log, stderr=subprocess.STDOUT
+        )
         self.wid = None
 
     def xdo(self, *args, check=True) -> str:
-        r = subprocess.run(["xdotool", *map(str, args)], capture_output=True, text=True,
-                           env=dict(os.environ, DISPLAY=self.display), timeout=30)
+        r = subprocess.run(
+            ["xdotool", *map(str, args)],
+            capture_output=True,
+            text=True,
+            env=dict(os.environ, DISPLAY=self.display),
+            timeout=30,
+        )
         if check and r.returncode != 0:
             raise AssertionError(f"xdotool {args}: {r.stderr.strip()}")
         return r.stdout
@@ -122,8 +147,7 @@ class App:
             ids = self.xdo("search", "--name", "^mrsph - ", check=False).split()
             if ids:
                 self.wid = ids[0]
-                geo = dict(line.split("=") for line in self.xdo("getwindowgeometry", "--shell",
-                                                                 self.wid).split())
+                geo = dict(line.split("=") for line in self.xdo("getwindowgeometry", "--shell", self.wid).split())
                 self.x, self.y = int(geo["X"]), int(geo["Y"])
                 self.w, self.h = int(geo["WIDTH"]), int(geo["HEIGHT"])
                 self.xdo("windowfocus", "--sync", self.wid, check=False)
@@ -188,7 +212,7 @@ class App:
             return self.proc.wait(EXIT_TIMEOUT_S)
         except subprocess.TimeoutExpired:
             self.proc.kill()
-            raise AssertionError(f"no exit within {EXIT_TIMEOUT_S} s after Escape:\n{self.output()}")
+            raise AssertionError(f"no exit within {EXIT_TIMEOUT_S} s after Escape:\n{self.output()}") from None
 
     def close(self):
         if self.proc.poll() is None:
@@ -204,7 +228,7 @@ def fluid_box(img: np.ndarray, levels: int):
     for lvl in range(levels):
         mask |= palette.level_mask(img[..., :3], lvl, 0.15)
     mask[: LEGEND_PX[0], : LEGEND_PX[1]] = False
-    mask[:, img.shape[1] - HUD_PX_FROM_RIGHT:] = False
+    mask[:, img.shape[1] - HUD_PX_FROM_RIGHT :] = False
     rows, cols = np.nonzero(mask)
     if len(rows) < 50:
         return None
@@ -214,9 +238,10 @@ def fluid_box(img: np.ndarray, levels: int):
 def loading_text_pixels(img: np.ndarray) -> int:
     """Pixels of the loading message's colour inside its panel (mrsph.app.loading)."""
     from mrsph.app import loading
+
     h, w = img.shape[:2]
     x0, y0 = int(loading.PANEL_POS[0] * w), int(loading.PANEL_POS[1] * h)
-    patch = img[y0:y0 + loading.PANEL_SIZE_PX[1], x0:x0 + loading.PANEL_SIZE_PX[0], :3] / 255.0
+    patch = img[y0 : y0 + loading.PANEL_SIZE_PX[1], x0 : x0 + loading.PANEL_SIZE_PX[0], :3] / 255.0
     return int((np.abs(patch - np.asarray(loading.TEXT_COLOUR)).max(axis=-1) < 0.1).sum())
 
 
@@ -240,26 +265,30 @@ def stir_and_check(app: App, levels: int, first_timeout: float, min_frames: int 
     for _ in range(3):
         app.next_frame()
     after = app.stats()
-    new = after[len(before):]
+    new = after[len(before) :]
     active = [r for r in new if r["disturbance_active"]]
     assert active, f"dragging the mouse made no disturbance ({len(new)} frames during the drag)"
     assert after[-1]["time"] > before[-1]["time"], "the simulation did not advance"
     ke_before = float(np.median([r["kinetic_energy"] for r in before[-5:]]))
-    ke_stirred = max(r["kinetic_energy"] for r in active + new[len(new) // 2:])
+    ke_stirred = max(r["kinetic_energy"] for r in active + new[len(new) // 2 :])
     hand_speed = max(r.get("disturbance_speed", 0.0) for r in active)
     return ke_before, ke_stirred, rows, hand_speed
 
 
 def test_window_fake_sim_stir_and_quit(xdisplay, tmp_path):
     """Window machinery on the stand-in simulation: fast, independent of the solver."""
-    app = App(["-m", "mrsph.app", "--fake", "2", "--width", WIDTH, "--height", HEIGHT,
-               "--frame-budget", "0"], xdisplay, tmp_path)   # whole frames: no timing in it
+    app = App(
+        ["-m", "mrsph.app", "--fake", "2", "--width", WIDTH, "--height", HEIGHT, "--frame-budget", "0"],
+        xdisplay,
+        tmp_path,
+    )  # whole frames: no timing in it
     try:
         app.wait_window(120)
         app.wait_frames(120, 120)  # the stand-in fluid has fallen and settled by then
         ke_before, ke_stirred, _, _ = stir_and_check(app, 3, 120)
-        assert ke_stirred > 1.5 * ke_before + 1e-6, \
+        assert ke_stirred > 1.5 * ke_before + 1e-6, (
             f"stirring did not move the fluid: KE {ke_before:.3g} -> {ke_stirred:.3g} J"
+        )
         assert app.quit() == 0, app.output()
     finally:
         app.close()
@@ -271,19 +300,23 @@ def test_window_frame_budget_cuts_frames_into_slow_motion(xdisplay, tmp_path):
     simulation by exactly one of its steps (a quarter of a frame): the window draws
     what is done instead of waiting for whole frames."""
     from fake_app import FakeSimulation
+
     fake = FakeSimulation(dim=2)
     step = 1.0 / (fake.fps * fake.steps_per_frame)
-    app = App(["-m", "mrsph.app", "--fake", "2", "--width", WIDTH, "--height", HEIGHT,
-               "--frame-budget", "1e-6"], xdisplay, tmp_path)
+    app = App(
+        ["-m", "mrsph.app", "--fake", "2", "--width", WIDTH, "--height", HEIGHT, "--frame-budget", "1e-6"],
+        xdisplay,
+        tmp_path,
+    )
     try:
         rows = [r for r in app.wait_frames(24, 120) if not r["loading"]]  # loading: no advance
         advances = np.diff([r["time"] for r in rows[:20]])
         assert np.allclose(advances, step, rtol=1e-6), (
             f"frames advanced the stand-in by {np.unique(advances.round(6))} s; one step is "
-            f"{step:.6f} s, a whole frame {1.0 / fake.fps:.6f} s")
+            f"{step:.6f} s, a whole frame {1.0 / fake.fps:.6f} s"
+        )
         speed = rows[19]["speed"]
-        assert 0.0 < speed < 1.0, (f"HUD speed {speed} x real time: expected slow motion, "
-                                   f"above 0 and below 1")
+        assert 0.0 < speed < 1.0, f"HUD speed {speed} x real time: expected slow motion, above 0 and below 1"
         assert app.quit() == 0, app.output()
     finally:
         app.close()
@@ -302,26 +335,31 @@ def test_window_real_scene_stir_and_quit(xdisplay, tmp_path):
     diameter a frame and pushes each parcel for one frame only)."""
     from mrsph.app.mouse import RADIUS_FRACTION
     from mrsph.scene.config import load_scene
+
     scene = "pool_2d"
     config = load_scene(scene)
     # whole frames: on this CPU a frame cut to the default budget is ~0.01 s of simulated
     # time, and a drag of a few frames in slow motion hardly shows; the budget has its own test
-    app = App([str(REPO / "main.py"), scene, "--width", WIDTH, "--height", HEIGHT,
-               "--frame-budget", "0"], xdisplay, tmp_path)
+    app = App(
+        [str(REPO / "main.py"), scene, "--width", WIDTH, "--height", HEIGHT, "--frame-budget", "0"], xdisplay, tmp_path
+    )
     try:
         ke_before, ke_stirred, rows, hand = stir_and_check(
-            app, int(config.get("adaptivity.levels")), FIRST_FRAMES_TIMEOUT_S, points=4)
+            app, int(config.get("adaptivity.levels")), FIRST_FRAMES_TIMEOUT_S, points=4
+        )
         assert all(r["n_real"] > 0 for r in rows), "no fluid particles"
-        assert hand > MIN_HAND_SPEED, (f"the drag's hand speed was {hand:.3g} m/s (expected > "
-                                       f"{MIN_HAND_SPEED} m/s: four points across the pool)")
+        assert hand > MIN_HAND_SPEED, (
+            f"the drag's hand speed was {hand:.3g} m/s (expected > {MIN_HAND_SPEED} m/s: four points across the pool)"
+        )
         size = max(hi - lo for lo, hi in zip(config.get("domain.min"), config.get("domain.max")))
         disc_mass = float(config.get("fluid.rest_density")) * np.pi * (RADIUS_FRACTION * size) ** 2
-        asked = 0.5 * disc_mass * hand ** 2
+        asked = 0.5 * disc_mass * hand**2
         gained = ke_stirred - ke_before
         assert gained > STIR_EFFICIENCY * asked and ke_stirred > 5.0 * ke_before, (
             f"stirring did not move the fluid: KE {ke_before:.3g} -> {ke_stirred:.3g} J at a hand "
             f"speed of {hand:.3g} m/s; gained {gained:.3g} J = {gained / asked:.3g} of the disc's "
-            f"{asked:.3g} J (expected > {STIR_EFFICIENCY}, and KE > 5x)")
+            f"{asked:.3g} J (expected > {STIR_EFFICIENCY}, and KE > 5x)"
+        )
         assert app.quit() == 0, app.output()
     finally:
         app.close()
@@ -334,13 +372,29 @@ def test_window_switches_to_a_scene_that_auto_runs_on_more_threads(xdisplay, tmp
     segmentation fault."""
     from mrsph import runtime
     from mrsph.scene.config import load_scene
-    assert (runtime.auto_threads(load_scene("pool_2d")), runtime.auto_threads(load_scene("pool_3d"))) \
-        == (1, None), "the two scenes no longer differ in their automatic thread count"
+
+    assert (runtime.auto_threads(load_scene("pool_2d")), runtime.auto_threads(load_scene("pool_3d"))) == (1, None), (
+        "the two scenes no longer differ in their automatic thread count"
+    )
     # --frames and --dump, which the window does not honour, are said to be ignored (and
     # still are: no dump folder is made)
     no_dump = tmp_path / "no_dump"
-    app = App([str(REPO / "main.py"), "pool_2d", "--width", WIDTH, "--height", HEIGHT,
-               "--frames", "2", "--dump", str(no_dump)], xdisplay, tmp_path)
+    app = App(
+        [
+            str(REPO / "main.py"),
+            "pool_2d",
+            "--width",
+            WIDTH,
+            "--height",
+            HEIGHT,
+            "--frames",
+            "2",
+            "--dump",
+            str(no_dump),
+        ],
+        xdisplay,
+        tmp_path,
+    )
     try:
         app.wait_window(FIRST_FRAMES_TIMEOUT_S)
         app.wait_frames(3, FIRST_FRAMES_TIMEOUT_S)
@@ -373,8 +427,11 @@ def test_window_blow_up_pauses_and_prints_one_line(xdisplay, tmp_path):
     """A blow-up in the window (here a speed limit the falling column passes at once)
     pauses the simulation and prints the reason as one line, as a headless run does; the
     window stays open and quits normally."""
-    app = App([str(REPO / "main.py"), "dam_break_2d", "--set", "physics.max_speed=0.5",
-               "--width", WIDTH, "--height", HEIGHT], xdisplay, tmp_path)
+    app = App(
+        [str(REPO / "main.py"), "dam_break_2d", "--set", "physics.max_speed=0.5", "--width", WIDTH, "--height", HEIGHT],
+        xdisplay,
+        tmp_path,
+    )
     try:
         app.wait_window(FIRST_FRAMES_TIMEOUT_S)
         deadline = time.time() + FIRST_FRAMES_TIMEOUT_S
@@ -396,8 +453,11 @@ def test_window_draws_the_loading_message(xdisplay, tmp_path):
     loading, and the screenshot of the last of them, just before the step compiles, has
     the message's colour in the message's panel); a later frame does not. With one such
     frame the message never showed: ImGui draws a new panel from its second frame."""
-    app = App(["-m", "mrsph.app", "--fake", "2", "--width", WIDTH, "--height", HEIGHT,
-               "--frame-budget", "0"], xdisplay, tmp_path)
+    app = App(
+        ["-m", "mrsph.app", "--fake", "2", "--width", WIDTH, "--height", HEIGHT, "--frame-budget", "0"],
+        xdisplay,
+        tmp_path,
+    )
     try:
         app.wait_window(120)
         rows = app.wait_frames(12, 120)
@@ -405,9 +465,10 @@ def test_window_draws_the_loading_message(xdisplay, tmp_path):
         shots = sorted(tmp_path.glob("shot_loading_*.png"))
         assert shots, f"no loading frame saved: {sorted(p.name for p in tmp_path.iterdir())}"
         # the last before the step compiles (ImGui draws a new panel from its second frame)
-        loading, later = iio.imread(shots[-1]), iio.imread(app.shot_path)   # frame 10's
-        assert loading_text_pixels(loading) > 100, \
+        loading, later = iio.imread(shots[-1]), iio.imread(app.shot_path)  # frame 10's
+        assert loading_text_pixels(loading) > 100, (
             f"{loading_text_pixels(loading)} pixels of the loading message in its panel"
+        )
         assert loading_text_pixels(later) < 10, "the message is still drawn after loading"
         assert app.quit() == 0, app.output()
     finally:
@@ -420,8 +481,11 @@ def test_window_latches_a_tapped_key_and_toggles_the_water_view(xdisplay, tmp_pa
     time (at most 0.1 s) when the release lands after the next frame began; w turns the
     water view on. Without the latch, the held-key check never sees a tap's key down, or
     sees it down for one frame only (at most 0.1 s: too little zoom)."""
-    app = App(["-m", "mrsph.app", "--fake", "3", "--width", WIDTH, "--height", HEIGHT,
-               "--frame-budget", "0"], xdisplay, tmp_path)
+    app = App(
+        ["-m", "mrsph.app", "--fake", "3", "--width", WIDTH, "--height", HEIGHT, "--frame-budget", "0"],
+        xdisplay,
+        tmp_path,
+    )
     try:
         app.wait_window(120)
         rows = app.wait_frames(5, 120)
@@ -438,8 +502,9 @@ def test_window_latches_a_tapped_key_and_toggles_the_water_view(xdisplay, tmp_pa
             assert time.time() < deadline, f"camera {before} -> {last['camera_distance']}, water view {last['surface']}"
             time.sleep(0.3)
         held_s = np.log(before / last["camera_distance"]) / 1.2
-        assert 0.15 - 2e-3 <= held_s <= 0.25 + 2e-3, \
+        assert 0.15 - 2e-3 <= held_s <= 0.25 + 2e-3, (
             f"camera {before} -> {last['camera_distance']}: z acted {held_s:.4f} s, a tap acts 0.15 s"
+        )
         assert app.quit() == 0, app.output()
     finally:
         app.close()
@@ -450,8 +515,7 @@ def test_window_s_switches_the_solver_and_frames_keep_coming(xdisplay, tmp_path)
     turns from wcsph to dfsph, the switch's first frames say loading (the new step
     compiles), and then dfsph frames keep coming with simulated time advancing and the
     density solve iterating."""
-    app = App([str(REPO / "main.py"), "pool_2d", "--width", WIDTH, "--height", HEIGHT],
-              xdisplay, tmp_path)
+    app = App([str(REPO / "main.py"), "pool_2d", "--width", WIDTH, "--height", HEIGHT], xdisplay, tmp_path)
     try:
         app.wait_window(FIRST_FRAMES_TIMEOUT_S)
         rows = app.wait_frames(3, FIRST_FRAMES_TIMEOUT_S)
@@ -460,12 +524,13 @@ def test_window_s_switches_the_solver_and_frames_keep_coming(xdisplay, tmp_path)
         deadline = time.time() + FIRST_FRAMES_TIMEOUT_S
         while True:
             app.alive()
-            new = [r for r in app.stats()[len(rows):] if r["solver"] == "dfsph"]
+            new = [r for r in app.stats()[len(rows) :] if r["solver"] == "dfsph"]
             running = [r for r in new if not r["loading"]]
             if len(running) >= 5:
                 break
-            assert time.time() < deadline, \
+            assert time.time() < deadline, (
                 f"{len(new)} dfsph frames ({len(running)} past loading) after s:\n{app.output()}"
+            )
             time.sleep(0.5)
         assert new[0]["loading"], f"the switch's first frame did not say loading: {new[0]}"
         assert new[0]["message"] == "solver dfsph", new[0]["message"]

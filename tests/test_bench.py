@@ -5,6 +5,7 @@ The pair arithmetic, the table and the case sizes are checked on hand-made numbe
 documented JSON keys, not what the timings are: the rendered demo in the quick run, every
 kind of case (a run, a pair, the demo) in -m slow.
 """
+
 import json
 import math
 import os
@@ -13,58 +14,138 @@ import sys
 from pathlib import Path
 
 import pytest
-
-from mrsph.cli.bench import (MULTIRES_PHASES, UNIFORM_OVERRIDE, _cases, _table, advanced_optimization,
-                         fluid_volume, gpu_name, pair_summary, solve_iterations)
-from mrsph.scene.config import load_scene
 from toolload import load_tool
+
+from mrsph.cli.bench import (
+    MULTIRES_PHASES,
+    UNIFORM_OVERRIDE,
+    _cases,
+    _table,
+    advanced_optimization,
+    fluid_volume,
+    gpu_name,
+    pair_summary,
+    solve_iterations,
+)
+from mrsph.scene.config import load_scene
 
 REPO = Path(__file__).resolve().parent.parent
 TIMEOUT_S = 600
 
-ROW_KEYS = {"case", "kind", "scene", "overrides", "dim", "adaptive", "levels", "arch",
-            "finest_spacing", "uniform_equivalent", "warm", "interval", "n_real", "n_virtual",
-            "per_level", "per_level_virtual", "steps", "wall_s", "steps_per_s",
-            "particle_steps_per_s", "sim_s_per_wall_s", "compile_s", "phase_share", "rss_mb",
-            "peak_mb", "repeats", "walls"}
-PAIR_KEYS = {"pair", "adaptive_case", "uniform_case", "dim", "finest_spacing", "levels", "warm",
-             "interval", "speedup", "particle_ratio", "step_ratio", "multires_share"}
-DEMO_KEYS = {"renderer", "width", "height", "frames", "frames_per_s", "render_ms", "render_share",
-             "render_compile_s", "fluid_volume", "reference_particles", "reference_spacing",
-             "spacing_ratio", "surface_ms", "window_frame_ms", "surface_share", "surface_net_ms"}
+ROW_KEYS = {
+    "case",
+    "kind",
+    "scene",
+    "overrides",
+    "dim",
+    "adaptive",
+    "levels",
+    "arch",
+    "finest_spacing",
+    "uniform_equivalent",
+    "warm",
+    "interval",
+    "n_real",
+    "n_virtual",
+    "per_level",
+    "per_level_virtual",
+    "steps",
+    "wall_s",
+    "steps_per_s",
+    "particle_steps_per_s",
+    "sim_s_per_wall_s",
+    "compile_s",
+    "phase_share",
+    "rss_mb",
+    "peak_mb",
+    "repeats",
+    "walls",
+}
+PAIR_KEYS = {
+    "pair",
+    "adaptive_case",
+    "uniform_case",
+    "dim",
+    "finest_spacing",
+    "levels",
+    "warm",
+    "interval",
+    "speedup",
+    "particle_ratio",
+    "step_ratio",
+    "multires_share",
+}
+DEMO_KEYS = {
+    "renderer",
+    "width",
+    "height",
+    "frames",
+    "frames_per_s",
+    "render_ms",
+    "render_share",
+    "render_compile_s",
+    "fluid_volume",
+    "reference_particles",
+    "reference_spacing",
+    "spacing_ratio",
+    "surface_ms",
+    "window_frame_ms",
+    "surface_share",
+    "surface_net_ms",
+}
 
 
 def _row(case, adaptive, wall, n_real, steps, shares, **kw):
-    row = {"case": case, "kind": "pair", "pair": "p", "dim": 2, "adaptive": adaptive,
-           "levels": 2 if adaptive else 1, "finest_spacing": 0.0035, "warm": 0.24,
-           "interval": 0.01, "wall_s": wall, "n_real": n_real, "n_virtual": 10 if adaptive else 0,
-           "steps": steps, "steps_per_s": steps / wall, "particle_steps_per_s": n_real * steps / wall,
-           "sim_s_per_wall_s": 0.01 / wall, "compile_s": 1.0, "phase_share": shares,
-           "per_level": [100, n_real - 100] if adaptive else [n_real], "rss_mb": 100.0,
-           "peak_mb": 200.0}
+    row = {
+        "case": case,
+        "kind": "pair",
+        "pair": "p",
+        "dim": 2,
+        "adaptive": adaptive,
+        "levels": 2 if adaptive else 1,
+        "finest_spacing": 0.0035,
+        "warm": 0.24,
+        "interval": 0.01,
+        "wall_s": wall,
+        "n_real": n_real,
+        "n_virtual": 10 if adaptive else 0,
+        "steps": steps,
+        "steps_per_s": steps / wall,
+        "particle_steps_per_s": n_real * steps / wall,
+        "sim_s_per_wall_s": 0.01 / wall,
+        "compile_s": 1.0,
+        "phase_share": shares,
+        "per_level": [100, n_real - 100] if adaptive else [n_real],
+        "rss_mb": 100.0,
+        "peak_mb": 200.0,
+    }
     row.update(kw)
     return row
 
 
-ADAPTIVE = _row("p adaptive", True, 2.0, 3000, 600,
-                {"forces": 0.5, "adapt": 0.1, "virtual_coupling": 0.15, "virtual_advect": 0.05,
-                 "density": 0.2})
+ADAPTIVE = _row(
+    "p adaptive",
+    True,
+    2.0,
+    3000,
+    600,
+    {"forces": 0.5, "adapt": 0.1, "virtual_coupling": 0.15, "virtual_advect": 0.05, "density": 0.2},
+)
 UNIFORM = _row("p uniform", False, 8.0, 12000, 400, {"forces": 0.6, "density": 0.4})
 
 
 def test_pair_ratios_on_hand_made_rows():
     p = pair_summary(ADAPTIVE, UNIFORM)
-    assert p["speedup"] == pytest.approx(4.0)          # 8 s uniform / 2 s adaptive
-    assert p["particle_ratio"] == pytest.approx(4.0)   # 12000 / 3000
-    assert p["step_ratio"] == pytest.approx(1.5)       # 600 / 400
-    assert p["multires_share"] == pytest.approx(0.3)   # adapt + virtual_coupling + virtual_advect
+    assert p["speedup"] == pytest.approx(4.0)  # 8 s uniform / 2 s adaptive
+    assert p["particle_ratio"] == pytest.approx(4.0)  # 12000 / 3000
+    assert p["step_ratio"] == pytest.approx(1.5)  # 600 / 400
+    assert p["multires_share"] == pytest.approx(0.3)  # adapt + virtual_coupling + virtual_advect
     assert set(MULTIRES_PHASES) == {"adapt", "virtual_coupling", "virtual_advect"}
     assert p["pair"] == "p" and p["adaptive_case"] == "p adaptive" and p["uniform_case"] == "p uniform"
     assert set(p) == PAIR_KEYS
 
 
-@pytest.mark.parametrize("key, value", [("interval", 0.02), ("warm", 0.1), ("finest_spacing", 0.005),
-                                        ("dim", 3)])
+@pytest.mark.parametrize("key, value", [("interval", 0.02), ("warm", 0.1), ("finest_spacing", 0.005), ("dim", 3)])
 def test_a_pair_must_cover_the_same_interval_and_resolution(key, value):
     with pytest.raises(ValueError, match=key):
         pair_summary(ADAPTIVE, {**UNIFORM, key: value})
@@ -79,8 +160,13 @@ def test_table_has_a_pair_line_under_the_uniform_run():
     text = _table([ADAPTIVE, UNIFORM], [pair_summary(ADAPTIVE, UNIFORM)])
     lines = text.splitlines()
     uniform = next(i for i, line in enumerate(lines) if line.startswith("p uniform"))
-    assert lines[uniform + 2].strip().startswith("=> adaptive vs uniform: 4.00x faster, 4.00x fewer "
-                                                 "real particles, 1.50x the steps; multires phases 30%")
+    assert (
+        lines[uniform + 2]
+        .strip()
+        .startswith(
+            "=> adaptive vs uniform: 4.00x faster, 4.00x fewer real particles, 1.50x the steps; multires phases 30%"
+        )
+    )
     assert "levels [100, 2900]" in text and "peak memory: 200 MB" in text
 
 
@@ -95,7 +181,7 @@ def test_case_names_match_their_particle_counts():
         if case.kind == "pair":
             assert scene.data["adaptivity"]["enabled"], case.name
             assert load_scene(case.scene, list(case.overrides) + [UNIFORM_OVERRIDE]).estimate_particles() == n
-            assert 2_000 <= n <= 200_000, (case.name, n)     # the 3D 5 mm twin: 166k
+            assert 2_000 <= n <= 200_000, (case.name, n)  # the 3D 5 mm twin: 166k
     kinds = {c.kind for c in _cases(full=False)}
     assert kinds == {"run", "pair", "demo"}
     quick_pairs = {load_scene(c.scene).data["dim"] for c in _cases(full=False) if c.kind == "pair"}
@@ -105,16 +191,19 @@ def test_case_names_match_their_particle_counts():
 def test_demo_iterations_are_the_step_weighted_mean_of_its_frames():
     """The demo row's iterations come from its frames' snapshots, each of which takes the
     solver's counters (a row read after them said 0.00 iterations a step)."""
-    frames = [(10, {"density_iterations": 2.0, "divergence_iterations": 1.0}),
-              (30, {"density_iterations": 6.0, "divergence_iterations": 0.0})]
+    frames = [
+        (10, {"density_iterations": 2.0, "divergence_iterations": 1.0}),
+        (30, {"density_iterations": 6.0, "divergence_iterations": 0.0}),
+    ]
     got = solve_iterations(frames)
     assert got == pytest.approx({"density_iterations": 5.0, "divergence_iterations": 0.25}), got
     wcsph = [(10, {"density_iterations": None, "divergence_iterations": None})]
     assert solve_iterations(wcsph) == {} and solve_iterations([]) == {}
 
 
-@pytest.mark.parametrize("flag, expected", [(None, True), ("0", False), (" 0 ", False), ("-0", False),
-                                            ("1", True), ("", True), ("2", True)])
+@pytest.mark.parametrize(
+    "flag, expected", [(None, True), ("0", False), (" 0 ", False), ("-0", False), ("1", True), ("", True), ("2", True)]
+)
 def test_advanced_optimization_reads_the_flag_as_taichi_does(monkeypatch, flag, expected):
     if flag is None:
         monkeypatch.delenv("TI_ADVANCED_OPTIMIZATION", raising=False)
@@ -157,9 +246,25 @@ def _bench_smoke(tmp_path, cases: list) -> tuple:
     out = tmp_path / "bench.json"
     case_args = [arg for case in cases for arg in ("--case", case)]
     proc = subprocess.run(
-        [sys.executable, "main.py", "bench", *case_args, "--repeats", "1",
-         "--interval-scale", "0.05", "--json", str(out), "--set", SMOKE_SET],
-        cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S)
+        [
+            sys.executable,
+            "main.py",
+            "bench",
+            *case_args,
+            "--repeats",
+            "1",
+            "--interval-scale",
+            "0.05",
+            "--json",
+            str(out),
+            "--set",
+            SMOKE_SET,
+        ],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=TIMEOUT_S,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     result = json.loads(out.read_text())
     rows = {r["case"]: r for r in result["cases"]}
@@ -168,7 +273,7 @@ def _bench_smoke(tmp_path, cases: list) -> tuple:
     assert result["advanced_optimization"] is optimised
     assert ("TI_ADVANCED_OPTIMIZATION=0" in proc.stderr) is not optimised, proc.stderr[-2000:]
     assert result["overrides"] == [SMOKE_SET]
-    assert result["gpu"] is None, result["gpu"]      # this suite runs on the CPU
+    assert result["gpu"] is None, result["gpu"]  # this suite runs on the CPU
     for r in rows.values():
         assert ROW_KEYS <= set(r), ROW_KEYS - set(r)
         assert SMOKE_SET in r["overrides"], r["overrides"]
@@ -207,10 +312,15 @@ def test_bench_smoke_the_rendered_demo(tmp_path):
 def test_bench_smoke_writes_json_with_every_key(tmp_path):
     """Every kind of case (a run, a pair, the rendered demo) in one bench run: the pair's
     summary joins its two rows, and the table prints them all."""
-    rows, result, proc = _bench_smoke(tmp_path, ["dam_break_2d uniform ~10k", "dam_break_obstacle_2d s=3.5mm",
-                                                 "demo_2d"])
-    assert list(rows) == ["dam_break_2d uniform ~10k", "dam_break_obstacle_2d s=3.5mm adaptive",
-                          "dam_break_obstacle_2d s=3.5mm uniform", "demo_2d rendered"]
+    rows, result, proc = _bench_smoke(
+        tmp_path, ["dam_break_2d uniform ~10k", "dam_break_obstacle_2d s=3.5mm", "demo_2d"]
+    )
+    assert list(rows) == [
+        "dam_break_2d uniform ~10k",
+        "dam_break_obstacle_2d s=3.5mm adaptive",
+        "dam_break_obstacle_2d s=3.5mm uniform",
+        "demo_2d rendered",
+    ]
     assert rows["dam_break_2d uniform ~10k"]["n_real"] == 10082
     adaptive, uniform = rows["dam_break_obstacle_2d s=3.5mm adaptive"], rows["dam_break_obstacle_2d s=3.5mm uniform"]
     assert adaptive["adaptive"] and not uniform["adaptive"] and uniform["levels"] == 1
@@ -223,21 +333,30 @@ def test_bench_smoke_writes_json_with_every_key(tmp_path):
 
 
 def test_bench_rejects_an_unknown_case():
-    proc = subprocess.run([sys.executable, "main.py", "bench", "--case", "no such case"],
-                          cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S)
+    proc = subprocess.run(
+        [sys.executable, "main.py", "bench", "--case", "no such case"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=TIMEOUT_S,
+    )
     assert proc.returncode == 2 and "no case matches" in proc.stderr and "Traceback" not in proc.stderr
 
 
 def test_bench_refuses_a_bad_override_before_running():
     """A bad --set is one line per problem and exit 2 before any case compiles, said once
     even though it is wrong in both chosen cases."""
-    proc = subprocess.run([sys.executable, "main.py", "bench", "--case", "demo",
-                           "--set", 'fluid.solver="implicit"'],
-                          cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S)
+    proc = subprocess.run(
+        [sys.executable, "main.py", "bench", "--case", "demo", "--set", 'fluid.solver="implicit"'],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=TIMEOUT_S,
+    )
     assert proc.returncode == 2, proc.stderr
     assert proc.stderr.strip().splitlines() == [
-        'python3 main.py bench: --set fluid.solver: unknown choice (got "implicit"; '
-        'expected one of "wcsph", "dfsph")'], proc.stderr
+        'python3 main.py bench: --set fluid.solver: unknown choice (got "implicit"; expected one of "wcsph", "dfsph")'
+    ], proc.stderr
 
 
 def test_bench_refuses_an_unwritable_json_before_running(tmp_path):
@@ -245,11 +364,17 @@ def test_bench_refuses_an_unwritable_json_before_running(tmp_path):
     used to end the whole benchmark in a FileNotFoundError traceback)."""
     a_file = tmp_path / "a_file"
     a_file.write_text("x")
-    proc = subprocess.run([sys.executable, "main.py", "bench", "--json", str(a_file / "r.json"),
-                           "--case", "10k"], cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S)
+    proc = subprocess.run(
+        [sys.executable, "main.py", "bench", "--json", str(a_file / "r.json"), "--case", "10k"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=TIMEOUT_S,
+    )
     assert proc.returncode == 2, proc.stderr
     assert proc.stderr.strip().splitlines() == [
-        f"python3 main.py bench: error: --json {a_file}: exists and is not a directory"], proc.stderr
+        f"python3 main.py bench: error: --json {a_file}: exists and is not a directory"
+    ], proc.stderr
 
 
 # ----------------------------------------------------------------------------- the plot
@@ -261,12 +386,30 @@ def _sweep_result():
     rows = []
     for dim, spacings in ((2, (0.005, 0.0035, 0.0025)), (3, (0.02, 0.015, 0.012))):
         for s in spacings:
-            n = round(0.15 / s ** dim) if dim == 2 else round(0.02 / s ** dim)
+            n = round(0.15 / s**dim) if dim == 2 else round(0.02 / s**dim)
             for adaptive, wall in ((True, n * 1e-4), (False, n * 4e-4)):
-                rows.append({"kind": "pair", "dim": dim, "adaptive": adaptive, "finest_spacing": s,
-                             "uniform_equivalent": n, "wall_s": wall, "interval": 0.01})
-    rows.append({"kind": "run", "dim": 2, "adaptive": False, "finest_spacing": 0.0035,
-                 "uniform_equivalent": 10082, "wall_s": 1.0, "interval": 0.02})
+                rows.append(
+                    {
+                        "kind": "pair",
+                        "dim": dim,
+                        "adaptive": adaptive,
+                        "finest_spacing": s,
+                        "uniform_equivalent": n,
+                        "wall_s": wall,
+                        "interval": 0.01,
+                    }
+                )
+    rows.append(
+        {
+            "kind": "run",
+            "dim": 2,
+            "adaptive": False,
+            "finest_spacing": 0.0035,
+            "uniform_equivalent": 10082,
+            "wall_s": 1.0,
+            "interval": 0.02,
+        }
+    )
     return {"cases": rows, "pairs": [], "repeats": 1, "arch": "cpu"}
 
 
@@ -277,7 +420,7 @@ def test_plot_curves_take_pair_rows_by_dimension_and_mode():
         for adaptive, factor in ((True, 1e-4), (False, 4e-4)):
             pts = curves[dim][adaptive]
             assert len(pts) == 3
-            assert [p[0] for p in pts] == sorted(p[0] for p in pts)   # by resolution
+            assert [p[0] for p in pts] == sorted(p[0] for p in pts)  # by resolution
             for n, seconds_per_s, _s in pts:
                 assert seconds_per_s == pytest.approx(n * factor / 0.01)
 
@@ -285,6 +428,7 @@ def test_plot_curves_take_pair_rows_by_dimension_and_mode():
 def test_plot_writes_a_png(tmp_path):
     pytest.importorskip("matplotlib")
     import imageio.v3 as iio
+
     path = _plot_tool().plot(_sweep_result(), tmp_path / "bench.png")
     img = iio.imread(path)
     assert img.ndim == 3 and img.shape[1] > img.shape[0] > 300

@@ -5,6 +5,7 @@ was expected), never a traceback; a tiny headless run must write the documented 
 Only three runs build a simulation (one Taichi compile, then the offline cache); the
 rest stop before Taichi is imported.
 """
+
 import csv
 import os
 import subprocess
@@ -16,8 +17,8 @@ import numpy as np
 import pytest
 
 from mrsph.cli.commands import NO_END, _show_warning
-from mrsph.scene.config import list_scenes
 from mrsph.io.output import read_ply, stats_columns
+from mrsph.scene.config import list_scenes
 
 REPO = Path(__file__).resolve().parent.parent
 TIMEOUT_S = 300
@@ -48,16 +49,21 @@ FRAMES = 3
 
 def run(*args, cwd=REPO):
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
-    env["MRSPH_NO_VULKAN"] = "1"   # never probe GGUI from these tests
-    return subprocess.run([sys.executable, str(REPO / "main.py"), *map(str, args)], cwd=cwd,
-                          env=env, capture_output=True, text=True, timeout=TIMEOUT_S)
+    env["MRSPH_NO_VULKAN"] = "1"  # never probe GGUI from these tests
+    return subprocess.run(
+        [sys.executable, str(REPO / "main.py"), *map(str, args)],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=TIMEOUT_S,
+    )
 
 
 def scene_file(tmp_path, extra: str = "", name: str = "tiny.toml") -> Path:
     """TINY plus ``extra``; lines of ``extra`` starting with "particles." go into
     TINY's [particles] table."""
-    inside = "".join(ln[len("particles."):] + "\n" for ln in extra.splitlines()
-                     if ln.startswith("particles."))
+    inside = "".join(ln[len("particles.") :] + "\n" for ln in extra.splitlines() if ln.startswith("particles."))
     after = "".join(ln + "\n" for ln in extra.splitlines() if not ln.startswith("particles."))
     path = tmp_path / name
     path.write_text(TINY.replace("[fluid]\n", inside + "\n[fluid]\n") + after, encoding="utf-8")
@@ -74,24 +80,39 @@ def assert_usage_error(proc, *needles):
 
 # ----------------------------------------------------------------------- scene errors
 SCENE_ERRORS = {
-    "unknown key": ('[run]\nfram = 3\n', [],
-                    ["run.fram: unknown key (did you mean 'frames'?)"]),
-    "bad type": ('[physics]\ncfl = "fast"\n', [],
-                 ['physics.cfl: wrong type (got "fast" (string)']),
-    "out of range": ('[render]\nwidth = 10\n', [],
-                     ["render.width: out of range (got 10; expected an integer in [64, 8192])"]),
-    "block outside domain": ('[[fluid.blocks]]\nmin = [0.5, 0.5]\nmax = [2.0, 0.9]\n', [],
-                             ["fluid.blocks.1: outside the domain"]),
-    "block inside obstacle": ('[[obstacles]]\nshape = "sphere"\ncenter = [0.1, 0.1]\nradius = 0.05\n',
-                              [], ["fluid.blocks.0: overlaps obstacles.0"]),
-    "capacity too small": ("particles.capacity = 10", [],
-                           ["particles.capacity: too small for the fluid blocks (got 10; expected >= 5000"]),
-    "block thinner than the spacing": ('[[fluid.blocks]]\nmin = [0.5, 0.0]\nmax = [0.503, 0.3]\n', [],
-                                       ["fluid.blocks.1: holds no particle", "not on axis 0"]),
-    "bad --set syntax": ("", ["--set", "fluid.viscosity"],
-                         ["--set fluid.viscosity: not KEY=VALUE"]),
-    "unknown --set key": ("", ["--set", "fluid.viscosty=2"],
-                          ["--set fluid.viscosty: unknown key (did you mean 'viscosity'?)"]),
+    "unknown key": ('[run]\nfram = 3\n', [], ["run.fram: unknown key (did you mean 'frames'?)"]),
+    "bad type": ('[physics]\ncfl = "fast"\n', [], ['physics.cfl: wrong type (got "fast" (string)']),
+    "out of range": (
+        '[render]\nwidth = 10\n',
+        [],
+        ["render.width: out of range (got 10; expected an integer in [64, 8192])"],
+    ),
+    "block outside domain": (
+        '[[fluid.blocks]]\nmin = [0.5, 0.5]\nmax = [2.0, 0.9]\n',
+        [],
+        ["fluid.blocks.1: outside the domain"],
+    ),
+    "block inside obstacle": (
+        '[[obstacles]]\nshape = "sphere"\ncenter = [0.1, 0.1]\nradius = 0.05\n',
+        [],
+        ["fluid.blocks.0: overlaps obstacles.0"],
+    ),
+    "capacity too small": (
+        "particles.capacity = 10",
+        [],
+        ["particles.capacity: too small for the fluid blocks (got 10; expected >= 5000"],
+    ),
+    "block thinner than the spacing": (
+        '[[fluid.blocks]]\nmin = [0.5, 0.0]\nmax = [0.503, 0.3]\n',
+        [],
+        ["fluid.blocks.1: holds no particle", "not on axis 0"],
+    ),
+    "bad --set syntax": ("", ["--set", "fluid.viscosity"], ["--set fluid.viscosity: not KEY=VALUE"]),
+    "unknown --set key": (
+        "",
+        ["--set", "fluid.viscosty=2"],
+        ["--set fluid.viscosty: unknown key (did you mean 'viscosity'?)"],
+    ),
 }
 
 
@@ -107,8 +128,7 @@ def test_scene_error_exits_2_with_file_and_key(tmp_path, case):
 def test_every_problem_is_reported_at_once(tmp_path):
     path = scene_file(tmp_path, '[run]\nfram = 3\n[physics]\ncfl = "fast"\n')
     proc = run(path, "--headless", "--set", "fluid.viscosty=2", cwd=tmp_path)
-    assert_usage_error(proc, "run.fram: unknown key", "physics.cfl: wrong type",
-                       "--set fluid.viscosty: unknown key")
+    assert_usage_error(proc, "run.fram: unknown key", "physics.cfl: wrong type", "--set fluid.viscosty: unknown key")
     assert len(proc.stderr.strip().splitlines()) == 3
 
 
@@ -126,7 +146,7 @@ def test_invalid_toml(tmp_path):
 
 
 def test_headless_without_an_end_is_refused(tmp_path):
-    path = scene_file(tmp_path)                 # run.frames defaults to 0
+    path = scene_file(tmp_path)  # run.frames defaults to 0
     proc = run(path, "--headless", cwd=tmp_path)
     assert_usage_error(proc, NO_END)
     assert proc.stderr.strip() == NO_END
@@ -149,12 +169,12 @@ def test_bad_option_values(tmp_path):
     assert_usage_error(run(path, "--dump-format", "csv"), "--dump-format")
     assert_usage_error(run(path, "--frame-budget", "-5"), "--frame-budget", "milliseconds >= 0")
     assert_usage_error(run(path, "--frame-budget", "inf"), "--frame-budget", "finite")
-    for fps in ("inf", "0.001", "nan"):    # inf and 1e-3 used to end in encoder tracebacks
-        assert_usage_error(run(path, "--frames", 2, "--fps", fps, "--out", tmp_path / "x.gif"),
-                           "--fps", "[0.1, 1000]")
+    for fps in ("inf", "0.001", "nan"):  # inf and 1e-3 used to end in encoder tracebacks
+        assert_usage_error(run(path, "--frames", 2, "--fps", fps, "--out", tmp_path / "x.gif"), "--fps", "[0.1, 1000]")
     assert_usage_error(run(path, "--frames", 2, "--out", tmp_path / "x.avi"), "--out", ".mp4")
-    assert_usage_error(run(path, "--frames", 2, "--out", tmp_path / "x.gif", "--width", 100000),
-                       "--width", "[64, 8192]")
+    assert_usage_error(
+        run(path, "--frames", 2, "--out", tmp_path / "x.gif", "--width", 100000), "--width", "[64, 8192]"
+    )
     # argparse's own errors in one line too, not after its usage block
     for args in (("--bogus",), ("--frames", "abc"), ("--arch", "tpu")):
         proc = run(path, *args)
@@ -168,10 +188,11 @@ def test_unwritable_outputs_are_refused_before_anything_runs(tmp_path):
     path = scene_file(tmp_path)
     a_file = tmp_path / "a_file"
     a_file.write_text("not a directory", encoding="utf-8")
-    cases = [(("--headless", "--frames", 1, "--dump", a_file), "--dump", "not a directory"),
-             (("--frames", 1, "--out", a_file / "x.gif"), "--out", "not a directory"),
-             (("--frames", 1, "--out", a_file / "frames"), "--out", "cannot make the directory"),
-             ]
+    cases = [
+        (("--headless", "--frames", 1, "--dump", a_file), "--dump", "not a directory"),
+        (("--frames", 1, "--out", a_file / "x.gif"), "--out", "not a directory"),
+        (("--frames", 1, "--out", a_file / "frames"), "--out", "cannot make the directory"),
+    ]
     for args, flag, why in cases:
         proc = run(path, *args, cwd=tmp_path)
         assert_usage_error(proc, f"error: {flag} ", why)
@@ -182,16 +203,15 @@ def test_unwritable_outputs_are_refused_before_anything_runs(tmp_path):
 def test_a_set_that_breaks_another_key_is_named(tmp_path):
     """A --set whose value is fine but leaves another key wrong (a spacing wider than a
     fluid block) is named next to the scene file."""
-    proc = run(scene_file(tmp_path), "--headless", "--frames", 1, "--set", "particles.spacing=0.3",
-               cwd=tmp_path)
+    proc = run(scene_file(tmp_path), "--headless", "--frames", 1, "--set", "particles.spacing=0.3", cwd=tmp_path)
     assert_usage_error(proc, "tiny.toml with --set particles.spacing: fluid.blocks.0: holds no particle")
 
 
 def test_frame_budget_is_read_in_milliseconds_and_zero_means_whole_frames():
     from mrsph.cli.commands import build_parser
+
     parse = build_parser().parse_args
-    budgets = {args: parse(list(args)).frame_budget for args in
-               [(), ("--frame-budget", "25"), ("--frame-budget", "0")]}
+    budgets = {args: parse(list(args)).frame_budget for args in [(), ("--frame-budget", "25"), ("--frame-budget", "0")]}
     assert budgets == {(): 0.04, ("--frame-budget", "25"): 0.025, ("--frame-budget", "0"): None}, budgets
 
 
@@ -199,31 +219,56 @@ def test_frame_budget_is_read_in_milliseconds_and_zero_means_whole_frames():
 def test_help_lists_every_option_and_its_default():
     proc = run("--help")
     assert proc.returncode == 0, proc.stderr
-    out = " ".join(proc.stdout.split())     # undo argparse's line wrapping
-    options = ["--arch", "--threads", "--headless", "--frames", "--out", "--width", "--height",
-               "--fps", "--frame-budget", "--set", "--dump", "--dump-format", "--quiet", "SCENE"]
+    out = " ".join(proc.stdout.split())  # undo argparse's line wrapping
+    options = [
+        "--arch",
+        "--threads",
+        "--headless",
+        "--frames",
+        "--out",
+        "--width",
+        "--height",
+        "--fps",
+        "--frame-budget",
+        "--set",
+        "--dump",
+        "--dump-format",
+        "--quiet",
+        "SCENE",
+    ]
     for option in options:
         assert option in out, option
-    for default in ["(default: auto)", "under 12k particles", "(default: off)",
-                    "(default: the scene's run.frames", "(default: no recording)",
-                    "(default: the scene's render.width", "(default: the scene's render.height",
-                    "(default: the scene's run.fps)", "(default: 40)", "(default: none)", "(default: no dump)",
-                    "(default: npz)", "(default: dam_break_2d)" if not (REPO / "scenes/demo_2d.toml").exists()
-                    else "(default: demo_2d)"]:
+    for default in [
+        "(default: auto)",
+        "under 12k particles",
+        "(default: off)",
+        "(default: the scene's run.frames",
+        "(default: no recording)",
+        "(default: the scene's render.width",
+        "(default: the scene's render.height",
+        "(default: the scene's run.fps)",
+        "(default: 40)",
+        "(default: none)",
+        "(default: no dump)",
+        "(default: npz)",
+        "(default: dam_break_2d)" if not (REPO / "scenes/demo_2d.toml").exists() else "(default: demo_2d)",
+    ]:
         assert default in out, default
-    assert out.count("(default:") >= len(options) - 1   # --help itself has none
+    assert out.count("(default:") >= len(options) - 1  # --help itself has none
     assert "python3 main.py list" in out and "python3 main.py bench" in out
 
 
 def test_list_takes_no_arguments_and_commands_come_first():
     proc = run("list", "extra")
     assert proc.returncode == 2 and proc.stderr.strip() == (
-        "python3 main.py list: error: unrecognized arguments: extra (list takes none)"), proc.stderr
+        "python3 main.py list: error: unrecognized arguments: extra (list takes none)"
+    ), proc.stderr
     for command in ("list", "bench"):
         proc = run("--quiet", command)
         assert proc.returncode == 2 and proc.stderr.strip() == (
             f"python3 main.py: error: '{command}' is a command: it comes first "
-            f"(python3 main.py {command} ...), before any option"), proc.stderr
+            f"(python3 main.py {command} ...), before any option"
+        ), proc.stderr
 
 
 def test_list_shows_every_scene_with_its_description():
@@ -248,8 +293,9 @@ def test_runtime_warnings_print_as_one_line(capsys):
 def test_headless_dump_npz(tmp_path):
     path = scene_file(tmp_path)
     out = tmp_path / "dump"
-    proc = run(path, "--headless", "--frames", FRAMES, "--set", TINY_SPACING, "--dump", out,
-               "--arch", "cpu", cwd=tmp_path)
+    proc = run(
+        path, "--headless", "--frames", FRAMES, "--set", TINY_SPACING, "--dump", out, "--arch", "cpu", cwd=tmp_path
+    )
     assert proc.returncode == 0, proc.stderr
     assert "Traceback" not in proc.stderr
     assert f"{FRAMES} frames" in proc.stdout and "total mass" in proc.stdout
@@ -274,7 +320,7 @@ def test_headless_dump_npz(tmp_path):
         assert extra in header
     body = [dict(zip(header, r)) for r in rows[1:]]
     assert [int(r["frame"]) for r in body] == list(range(FRAMES + 1))
-    assert len({r["total_mass"] for r in body}) == 1          # exactly constant
+    assert len({r["total_mass"] for r in body}) == 1  # exactly constant
     assert float(body[-1]["time"]) == pytest.approx(FRAMES / 30.0)
 
 
@@ -284,14 +330,14 @@ def test_a_shorter_dump_leaves_no_frames_of_the_longer_one(tmp_path):
     in one line. Stale frames used to stay, read by ParaView as part of the series."""
     path = scene_file(tmp_path)
     out = tmp_path / "dump"
-    first = run(path, "--headless", "--frames", 3, "--set", TINY_SPACING, "--dump", out,
-                "--dump-format", "vtk", cwd=tmp_path)
+    first = run(
+        path, "--headless", "--frames", 3, "--set", TINY_SPACING, "--dump", out, "--dump-format", "vtk", cwd=tmp_path
+    )
     assert first.returncode == 0, first.stderr
     (out / "notes.txt").write_text("mine")
     proc = run(path, "--headless", "--frames", 1, "--set", TINY_SPACING, "--dump", out, cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
-    assert sorted(p.name for p in out.iterdir()) == ["frame_00000.npz", "frame_00001.npz",
-                                                    "notes.txt", "stats.csv"]
+    assert sorted(p.name for p in out.iterdir()) == ["frame_00000.npz", "frame_00001.npz", "notes.txt", "stats.csv"]
     said = [line for line in proc.stderr.splitlines() if "removed" in line]
     assert said == [f"warning: {out}: removed 4 frame file(s) of an earlier run"], proc.stderr
 
@@ -300,8 +346,22 @@ def test_a_shorter_dump_leaves_no_frames_of_the_longer_one(tmp_path):
 def test_headless_dump_ply_and_vtk(tmp_path, fmt):
     path = scene_file(tmp_path)
     out = tmp_path / "dump"
-    proc = run(path, "--headless", "--frames", 1, "--set", TINY_SPACING, "--dump", out,
-               "--dump-format", fmt, "--arch", "cpu", "--quiet", cwd=tmp_path)
+    proc = run(
+        path,
+        "--headless",
+        "--frames",
+        1,
+        "--set",
+        TINY_SPACING,
+        "--dump",
+        out,
+        "--dump-format",
+        fmt,
+        "--arch",
+        "cpu",
+        "--quiet",
+        cwd=tmp_path,
+    )
     assert proc.returncode == 0, proc.stderr
     suffix = "ply" if fmt == "ply" else "vtu"
     files = sorted(out.glob(f"frame_*.{suffix}"))
@@ -321,8 +381,20 @@ def test_simulation_error_exits_1(tmp_path):
     """A time step below dt_min on the first step: one 'error:' line, exit status 1, that
     names the bound which set it (at rest, the sound speed)."""
     path = scene_file(tmp_path)
-    proc = run(path, "--headless", "--frames", 1, "--set", TINY_SPACING,
-               "--set", "physics.dt_min=0.0019", "--arch", "cpu", "--quiet", cwd=tmp_path)
+    proc = run(
+        path,
+        "--headless",
+        "--frames",
+        1,
+        "--set",
+        TINY_SPACING,
+        "--set",
+        "physics.dt_min=0.0019",
+        "--arch",
+        "cpu",
+        "--quiet",
+        cwd=tmp_path,
+    )
     assert proc.returncode == 1, proc.stderr
     assert "Traceback" not in proc.stderr
     errors = [line for line in proc.stderr.splitlines() if line.startswith("error: ")]
@@ -333,6 +405,7 @@ def test_simulation_error_exits_1(tmp_path):
 def _imported_modules(path: Path) -> set[str]:
     """Every module ``path`` imports, at the top or inside a function, as absolute names."""
     import ast
+
     package = ".".join(path.relative_to(REPO).with_suffix("").parts[:-1])
     names = set()
     for node in ast.walk(ast.parse(path.read_text())):
@@ -342,7 +415,7 @@ def _imported_modules(path: Path) -> set[str]:
             base = package.rsplit(".", node.level - 1)[0] if node.level else ""
             mod = ".".join(p for p in (base, node.module) if p)
             names.add(mod)
-            names.update(f"{mod}.{a.name}" for a in node.names)   # from . import bench
+            names.update(f"{mod}.{a.name}" for a in node.names)  # from . import bench
     return names
 
 
@@ -353,7 +426,9 @@ def test_command_line_helpers_form_no_import_circle():
     for path in [REPO / "mrsph" / "cli" / "bench.py", *sorted((REPO / "mrsph" / "app").glob("*.py"))]:
         assert "mrsph.cli.commands" not in _imported_modules(path), f"{path.name} imports mrsph.cli.commands"
     assert not floor & _imported_modules(REPO / "mrsph" / "cli" / "options.py")
-    code = "import sys, mrsph.cli.options; print(sorted({'mrsph.cli.commands', 'mrsph.cli.bench', 'taichi'} & set(sys.modules)))"
-    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True,
-                          timeout=TIMEOUT_S)
+    code = (
+        "import sys, mrsph.cli.options; "
+        "print(sorted({'mrsph.cli.commands', 'mrsph.cli.bench', 'taichi'} & set(sys.modules)))"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S)
     assert proc.returncode == 0 and proc.stdout.strip() == "[]", proc.stdout + proc.stderr

@@ -18,7 +18,7 @@ pytestmark = pytest.mark.usefixtures("taichi_f32")
 
 LEVELS = 2
 H0 = 0.1
-DOMAIN_MIN = -0.3           # not at the origin, so that a missing origin shift shows
+DOMAIN_MIN = -0.3  # not at the origin, so that a missing origin shift shows
 DOMAIN_MAX = 0.7
 MAX_NEIGHBOURS = 160
 # Pairs whose distance is within this fraction of h of the cut-off may be decided
@@ -32,16 +32,16 @@ BORDERLINE = 1e-5
 # must find any contents anyway: a Simulation sorts the same pool every step. Each entry
 # holds the Taichi program it was built in, and is built again in another.
 _BUILT: dict = {}
-REUSED_CAPACITY = {2: 2048, 3: 5120}     # slots: every reused test's particles fit
+REUSED_CAPACITY = {2: 2048, 3: 5120}  # slots: every reused test's particles fit
 
 
 def _program():
     import taichi as ti
+
     return ti.lang.impl.get_runtime().prog
 
 
-def build(dim, xs, levels, kinds=None, extra_capacity=8, cells_per_support=1, parallel=False,
-          reuse=False):
+def build(dim, xs, levels, kinds=None, extra_capacity=8, cells_per_support=1, parallel=False, reuse=False):
     """A ParticlePool and LevelGrids holding the given particles (ids stored in ``slot``);
     ``parallel``: the sort's GPU form (atomic ranks, three-tier prefix sum), run here on
     the CPU. ``reuse``: refill the pool and grids that an earlier test of this module
@@ -51,8 +51,13 @@ def build(dim, xs, levels, kinds=None, extra_capacity=8, cells_per_support=1, pa
 
     def new(capacity):
         pool = ParticlePool(dim, capacity)
-        return pool, LevelGrids(dim, LEVELS, [DOMAIN_MIN] * dim, [DOMAIN_MAX] * dim, H0, pool.capacity,
-                                cells_per_support, parallel), _program()
+        return (
+            pool,
+            LevelGrids(
+                dim, LEVELS, [DOMAIN_MIN] * dim, [DOMAIN_MAX] * dim, H0, pool.capacity, cells_per_support, parallel
+            ),
+            _program(),
+        )
 
     n = len(xs)
     if not reuse:
@@ -62,8 +67,8 @@ def build(dim, xs, levels, kinds=None, extra_capacity=8, cells_per_support=1, pa
         if key not in _BUILT or _BUILT[key][2] is not _program() or _BUILT[key][0].capacity < n + extra_capacity:
             _BUILT[key] = new(max(n + extra_capacity, REUSED_CAPACITY[dim]))
         pool, grids, _ = _BUILT[key]
-        grids.sorted_n[None] = -1        # as a new grid: no sort to skip
-    cap = pool.capacity          # rounded up to an odd multiple of 16 (storage_slots)
+        grids.sorted_n[None] = -1  # as a new grid: no sort to skip
+    cap = pool.capacity  # rounded up to an odd multiple of 16 (storage_slots)
     pad = lambda a, fill: np.concatenate([a, np.full((cap - n,) + a.shape[1:], fill, a.dtype)])  # noqa: E731
     pool.p.x.from_numpy(pad(xs.astype(np.float32), 0.0))
     pool.p.v.from_numpy(pad((xs * 3.0 + 1.0).astype(np.float32), 0.0))
@@ -77,7 +82,7 @@ def build(dim, xs, levels, kinds=None, extra_capacity=8, cells_per_support=1, pa
     return pool, grids
 
 
-_SEARCHES: dict = {}     # id(grids) -> (grids, its program, search kernel, the kernel's fields)
+_SEARCHES: dict = {}  # id(grids) -> (grids, its program, search kernel, the kernel's fields)
 
 
 def _search_of(pool, grids):
@@ -129,8 +134,9 @@ def grid_neighbours(pool, grids, n):
     wrong_level[None] = 0
     search(pool, grids, n)
     assert overflow[None] == 0, f"test kernel: more than {MAX_NEIGHBOURS} neighbours ({overflow[None]} dropped)"
-    assert wrong_level[None] == 0, \
+    assert wrong_level[None] == 0, (
         f"{wrong_level[None]} candidates of another level found in the cells of a level's grid"
+    )
     ids = pool.p.slot.to_numpy()[:n]
     counts = cnt.to_numpy()
     lists = nb.to_numpy()
@@ -139,7 +145,7 @@ def grid_neighbours(pool, grids, n):
 
 def brute_force(xs, levels):
     """Same-level pairs closer than h_l, and the pairs too close to the cut-off to call."""
-    xs = xs.astype(np.float32).astype(np.float64)   # what the pool holds
+    xs = xs.astype(np.float32).astype(np.float64)  # what the pool holds
     sets = {i: set() for i in range(len(xs))}
     borderline = set()
     for l in range(LEVELS):
@@ -164,8 +170,7 @@ def compare(found, expected, borderline, label):
         fi = {j for j in found[i] if (i, j) not in borderline}
         if fi != expected[i]:
             bad.append((i, sorted(expected[i] - fi), sorted(fi - expected[i])))
-    assert not bad, (f"{label}: {len(bad)} particle(s) with wrong neighbour sets; first "
-                     f"(id, missed, extra): {bad[:3]}")
+    assert not bad, f"{label}: {len(bad)} particle(s) with wrong neighbour sets; first (id, missed, extra): {bad[:3]}"
     total = sum(len(s) for s in expected.values())
     assert total > 4 * len(expected), f"{label}: only {total} neighbour pairs; the test would prove little"
     assert len(borderline) <= 0.001 * total, f"{label}: {len(borderline)} borderline pairs of {total}"
@@ -207,13 +212,12 @@ def test_grid_neighbours_equal_brute_force(dim, layout, cells, parallel):
     levels = (rng.uniform(size=len(xs)) < 0.35).astype(np.int32)
     # put the particles at the domain edges and corners too (clamped cells, padding)
     xs[:dim, :] = DOMAIN_MIN
-    xs[dim: 2 * dim, :] = DOMAIN_MAX
+    xs[dim : 2 * dim, :] = DOMAIN_MAX
     pool, grids = build(dim, xs, levels, cells_per_support=per_axis(cells, dim), parallel=parallel, reuse=True)
     n = grids.sort(pool)
     assert n == len(xs), f"sort returned {n} particles; expected {len(xs)} (none is DEAD)"
     expected, borderline = brute_force(xs, levels)
     compare(grid_neighbours(pool, grids, n), expected, borderline, f"{dim}D {layout}, {cells} cell(s) per h")
-
 
 
 @SORTS
@@ -234,8 +238,7 @@ def test_a_sort_after_the_particles_moved_finds_their_new_neighbours(dim, cells,
     pool.p.x.from_numpy(x)
     n = grids.sort(pool)
     expected, borderline = brute_force(moved, levels)
-    compare(grid_neighbours(pool, grids, n), expected, borderline,
-            f"{dim}D, second sort, {cells} cell(s) per h")
+    compare(grid_neighbours(pool, grids, n), expected, borderline, f"{dim}D, second sort, {cells} cell(s) per h")
 
 
 @CELLS
@@ -251,10 +254,12 @@ def test_a_sort_with_nothing_moved_skips_and_any_change_resorts(dim, cells):
     n = grids.sort(pool)
     before = pool.p.slot.to_numpy().copy()
     starts = grids.start.to_numpy().copy()
-    assert grids.sort(pool) == n and grids.moved[None] == 0, \
+    assert grids.sort(pool) == n and grids.moved[None] == 0, (
         f"{dim}D: a second sort with nothing moved did the full sort (moved = {grids.moved[None]})"
-    assert np.array_equal(pool.p.slot.to_numpy(), before) and np.array_equal(grids.start.to_numpy(), starts), \
+    )
+    assert np.array_equal(pool.p.slot.to_numpy(), before) and np.array_equal(grids.start.to_numpy(), starts), (
         f"{dim}D: a sort with nothing moved changed the pool or the cell starts"
+    )
 
     # one particle to the place of another far away (another cell)
     x = pool.p.x.to_numpy()
@@ -266,16 +271,21 @@ def test_a_sort_with_nothing_moved_skips_and_any_change_resorts(dim, cells):
     by_id = np.empty((len(xs), dim))
     by_id[ids] = pool.p.x.to_numpy()[:n]
     expected, borderline = brute_force(by_id, levels)
-    compare(grid_neighbours(pool, grids, n), expected, borderline,
-            f"{dim}D, one particle moved after a skipped sort, {cells} cell(s) per h")
+    compare(
+        grid_neighbours(pool, grids, n),
+        expected,
+        borderline,
+        f"{dim}D, one particle moved after a skipped sort, {cells} cell(s) per h",
+    )
 
     # one particle killed in place: n shrinks, no DEAD slot stays inside [0, n)
     kind = pool.p.kind.to_numpy()
     kind[n // 2] = DEAD
     pool.p.kind.from_numpy(kind)
     m = grids.sort(pool)
-    assert m == n - 1 and not np.any(pool.p.kind.to_numpy()[:m] == DEAD), \
+    assert m == n - 1 and not np.any(pool.p.kind.to_numpy()[:m] == DEAD), (
         f"{dim}D: after killing one of {n} particles the sort left n = {m}"
+    )
 
     # one particle appended past n, in the cell of slot 0: n grows and the grid lists it
     x, kind, slot = pool.p.x.to_numpy(), pool.p.kind.to_numpy(), pool.p.slot.to_numpy()
@@ -285,8 +295,9 @@ def test_a_sort_with_nothing_moved_skips_and_any_change_resorts(dim, cells):
     pool.p.slot.from_numpy(slot)
     pool.n[None] = m + 1
     k = grids.sort(pool)
-    assert k == m + 1 and 10_000 in pool.p.slot.to_numpy()[:k].tolist(), \
+    assert k == m + 1 and 10_000 in pool.p.slot.to_numpy()[:k].tolist(), (
         f"{dim}D: a particle appended past n was not sorted in (n = {k}, expected {m + 1})"
+    )
 
 
 @SORTS
@@ -301,12 +312,14 @@ def test_sort_orders_by_cell_and_carries_every_attribute(dim, cells, parallel):
     assert sorted(ids.tolist()) == list(range(len(xs))), "the sort is not a permutation"
     x = pool.p.x.to_numpy()[:n]
     assert np.array_equal(x, xs[ids].astype(np.float32)), "positions not carried with their particle"
-    assert np.array_equal(pool.p.v.to_numpy()[:n], (xs[ids] * 3.0 + 1.0).astype(np.float32)), \
+    assert np.array_equal(pool.p.v.to_numpy()[:n], (xs[ids] * 3.0 + 1.0).astype(np.float32)), (
         "velocities not carried with their particle"
+    )
     assert np.array_equal(pool.p.m.to_numpy()[:n], ids.astype(np.float32) + 0.5), "masses not carried"
     assert np.array_equal(pool.p.level.to_numpy()[:n], levels[ids]), "levels not carried"
     # keys: offset of the level + linear cell index, non-decreasing along the pool
     from mrsph.sph.grid import PAD_SUPPORTS
+
     keys = []
     offset = 0
     offsets = []
@@ -320,8 +333,9 @@ def test_sort_orders_by_cell_and_carries_every_attribute(dim, cells, parallel):
         c = np.clip(np.floor((xi - (DOMAIN_MIN - PAD_SUPPORTS * k * size)) / size).astype(int), 0, res - 1)
         keys.append(offsets[l] + int(np.ravel_multi_index(tuple(c), tuple(res))))
     keys = np.array(keys)
-    assert np.all(np.diff(keys) >= 0), \
+    assert np.all(np.diff(keys) >= 0), (
         f"pool not in cell order after the sort: {int((np.diff(keys) < 0).sum())} descents"
+    )
     # the serial sort is stable within a cell (ids ascending), so it is deterministic;
     # the parallel one ranks by atomic counts, in whatever order the threads come
     same = np.diff(keys) == 0
@@ -367,11 +381,12 @@ def test_sort_compacts_dead_slots_and_remaps_links(dim, parallel):
 
     n = grids.sort(pool)
     alive = len(xs) - len(dead)
-    assert n == alive and pool.count() == alive, \
+    assert n == alive and pool.count() == alive, (
         f"after the sort n = {n}, pool.count() = {pool.count()}; expected {alive} alive particles"
+    )
     kind_after = pool.p.kind.to_numpy()
     assert not np.any(kind_after[:n] == DEAD), f"{int((kind_after[:n] == DEAD).sum())} DEAD slots left inside [0, n)"
-    assert np.all(kind_after[n: len(xs)] == DEAD), "slots past n are not all DEAD"
+    assert np.all(kind_after[n : len(xs)] == DEAD), "slots past n are not all DEAD"
     ids = pool.p.slot.to_numpy()[:n]
     assert set(ids.tolist()) == set(range(len(xs))) - set(dead.tolist()), "the alive set changed"
     slot_of = {int(i): s for s, i in enumerate(ids)}
@@ -380,13 +395,16 @@ def test_sort_compacts_dead_slots_and_remaps_links(dim, parallel):
     ch_after = pool.children.to_numpy()[:n]
     for s, i in enumerate(ids):
         if parent[i] >= 0:
-            assert par_after[s] == slot_of[int(parent[i])], \
+            assert par_after[s] == slot_of[int(parent[i])], (
                 f"particle {i}: parent slot {par_after[s]}, expected {slot_of[int(parent[i])]}"
+            )
         else:
             assert par_after[s] == -1, f"particle {i} gained a parent ({par_after[s]})"
         assert nch_after[s] == nchild[i], f"particle {i}: nchild {nch_after[s]}, expected {nchild[i]}"
         want = [slot_of[int(c)] for c in children[i, : nchild[i]]]
-        assert ch_after[s, : nchild[i]].tolist() == want, f"particle {i}: children slots {ch_after[s].tolist()}, expected {want}"
+        assert ch_after[s, : nchild[i]].tolist() == want, (
+            f"particle {i}: children slots {ch_after[s].tolist()}, expected {want}"
+        )
     # every child's parent lists it (the invariant of METHOD.md §8)
     for s in np.flatnonzero(par_after >= 0):
         par = par_after[s]
@@ -401,17 +419,18 @@ def test_pool_arrays_are_sized_so_that_they_do_not_alias(asked):
     same index of every attribute falls in one L1 set, and the sort's copy took 3.7x
     as long (particles.storage_slots)."""
     from mrsph.sph.particles import ParticlePool, storage_slots
+
     pool = ParticlePool(3, asked)
     slots = pool.capacity
-    assert slots == storage_slots(asked) and asked <= slots < asked + 32, \
+    assert slots == storage_slots(asked) and asked <= slots < asked + 32, (
         f"asked {asked} slots, the pool has {slots}; expected {asked} ... {asked + 31}"
-    assert slots % 32 == 16 and (4 * slots) % 4096 != 0, \
+    )
+    assert slots % 32 == 16 and (4 * slots) % 4096 != 0, (
         f"{slots} slots: 4 * slots = {4 * slots} = {4 * slots % 4096} mod 4096; expected an odd multiple of 16 slots"
+    )
     sizes = {name: getattr(pool.p, name).shape[0] for name in ("x", "v", "m", "kind", "parent")}
-    sizes.update(tmp_x=pool.tmp.x.shape[0], children=pool.children.shape[0],
-                 tmp_children=pool.tmp_children.shape[0])
+    sizes.update(tmp_x=pool.tmp.x.shape[0], children=pool.children.shape[0], tmp_children=pool.tmp_children.shape[0])
     assert set(sizes.values()) == {slots}, f"arrays of other lengths than the pool's {slots} slots: {sizes}"
-
 
 
 def test_a_claim_leaves_its_reserve_free_for_claims_without_one():
@@ -422,6 +441,7 @@ def test_a_claim_leaves_its_reserve_free_for_claims_without_one():
     import taichi as ti
 
     from mrsph.sph.particles import ParticlePool
+
     pool = ParticlePool(2, 16)
     cap = pool.capacity
 
@@ -432,13 +452,16 @@ def test_a_claim_leaves_its_reserve_free_for_claims_without_one():
     got = [claim(4, 8) for _ in range(cap // 4)]
     fitted = [b for b in got if b >= 0]
     assert fitted == list(range(0, cap - 8, 4)), (
-        f"capacity {cap}, claims of 4 with a reserve of 8 got {got}; expected slots up to {cap - 8} only")
+        f"capacity {cap}, claims of 4 with a reserve of 8 got {got}; expected slots up to {cap - 8} only"
+    )
     refused = int(pool.refused[None])
     assert refused == len(got) - len(fitted), f"{refused} refusals counted for {got}"
     last = [claim(1, 0) for _ in range(10)]
     assert last[:8] == list(range(cap - 8, cap)) and last[8:] == [-1, -1], (
         f"claims of 1 without a reserve after those got {last}; expected the reserve's slots "
-        f"{cap - 8} ... {cap - 1}, then refusals")
+        f"{cap - 8} ... {cap - 1}, then refusals"
+    )
+
 
 # ------------------------------------------------------------------ the density pass
 DENSITY_RUNS = {  # scene, overrides, simulated seconds before the check (the fluid moves)
@@ -449,7 +472,7 @@ DENSITY_RUNS = {  # scene, overrides, simulated seconds before the check (the fl
 }
 
 
-@pytest.mark.slow_params("2d-uniform", "3d-adaptive")   # the quick run: 2D adaptive, 3D uniform
+@pytest.mark.slow_params("2d-uniform", "3d-adaptive")  # the quick run: 2D adaptive, 3D uniform
 @pytest.mark.parametrize("adaptive", [False, True], ids=["uniform", "adaptive"])
 def test_density_pass_equals_brute_force_sums_and_lists(dim, adaptive):
     """The solver's density pass (``_density``: runs of consecutive particles in a column
@@ -459,9 +482,9 @@ def test_density_pass_equals_brute_force_sums_and_lists(dim, adaptive):
     its level, and its neighbour list must be the brute-force set."""
 
     from mrsph.scene.config import load_scene
+    from mrsph.simulation import Simulation
     from mrsph.sph.kernels import constants
     from mrsph.sph.particles import VIRTUAL_CHILD
-    from mrsph.simulation import Simulation
 
     name, sets, warm = DENSITY_RUNS[(dim, adaptive)]
     sim = Simulation(load_scene(name, sets), threads=2)
@@ -480,7 +503,7 @@ def test_density_pass_equals_brute_force_sums_and_lists(dim, adaptive):
         assert len(set(level[summed].tolist())) >= 2, "the adaptive run should hold two levels or more"
         assert (~summed).any(), "the adaptive run should hold virtual particles"
     lo, hi = np.array(sim.scene.data["domain"]["min"]), np.array(sim.scene.data["domain"]["max"])
-    h = sim.h0 * 2.0 ** level
+    h = sim.h0 * 2.0**level
     inside = np.all((x - lo > h[:, None]) & (hi - x > h[:, None]), axis=1)
     worst, checked, bad_lists = 0.0, 0, []
     for l in np.unique(level):
@@ -501,7 +524,11 @@ def test_density_pass_equals_brute_force_sums_and_lists(dim, adaptive):
                 if not set(sure.tolist()) <= got or len(got - set(near.tolist())):
                     bad_lists.append(i)
     assert checked > 0.3 * summed.sum(), f"only {checked} of {summed.sum()} particles away from the walls"
-    assert worst < 2e-5, (f"{dim}D {name}: density pass off a brute-force sum by {worst:.2e} "
-                          f"(relative, worst of {checked} particles; expected single-precision rounding)")
-    assert not bad_lists, (f"{dim}D {name}: {len(bad_lists)} of {checked} neighbour lists differ from "
-                           f"the brute-force sets, first at slot {bad_lists[0]}")
+    assert worst < 2e-5, (
+        f"{dim}D {name}: density pass off a brute-force sum by {worst:.2e} "
+        f"(relative, worst of {checked} particles; expected single-precision rounding)"
+    )
+    assert not bad_lists, (
+        f"{dim}D {name}: {len(bad_lists)} of {checked} neighbour lists differ from "
+        f"the brute-force sets, first at slot {bad_lists[0]}"
+    )

@@ -14,10 +14,17 @@ import pytest
 from scipy import integrate
 from scipy.spatial import cKDTree
 
-from mrsph.sph.kernels import (constants, lattice_density_sum, poly6_np, spiky_grad_np, spiky_np,
-                           visc_lap_np, viscosity_np)
+from mrsph.sph.kernels import (
+    constants,
+    lattice_density_sum,
+    poly6_np,
+    spiky_grad_np,
+    spiky_np,
+    visc_lap_np,
+    viscosity_np,
+)
 
-H = 0.7          # an arbitrary support radius: nothing may silently assume h = 1
+H = 0.7  # an arbitrary support radius: nothing may silently assume h = 1
 RHO0 = 1000.0
 
 
@@ -34,17 +41,18 @@ def random_offsets(rng, count, dim, lo, hi, h=H):
 
 
 # ------------------------------------------------------------------ normalisation
-@pytest.mark.parametrize("kernel", [poly6_np, spiky_np, viscosity_np],
-                         ids=["poly6", "spiky", "viscosity"])
+@pytest.mark.parametrize("kernel", [poly6_np, spiky_np, viscosity_np], ids=["poly6", "spiky", "viscosity"])
 def test_kernel_integrates_to_one(dim, kernel):
     # Adaptive quadrature of the radial integral ∫_0^h W(r) |S^{d-1}| r^{d-1} dr; the
     # viscosity kernel is singular at r = 0 (log r in 2D, 1/r in 3D) but integrable.
-    total, err = integrate.quad(lambda r: float(kernel(r, H, dim)) * sphere_area(r, dim),
-                                0.0, H, limit=400, epsabs=1e-12, epsrel=1e-12)
+    total, err = integrate.quad(
+        lambda r: float(kernel(r, H, dim)) * sphere_area(r, dim), 0.0, H, limit=400, epsabs=1e-12, epsrel=1e-12
+    )
     assert err < 1e-8, f"quadrature did not converge (error estimate {err:.2e})"
     # the quadrature is good to ~1e-15; 1e-9 catches a constant written with pi = 3.1416
-    assert abs(total - 1.0) <= 1e-9, \
+    assert abs(total - 1.0) <= 1e-9, (
         f"{kernel.__name__} in {dim}D integrates to 1 {total - 1.0:+.3e}; expected 1 within 1e-9"
+    )
 
 
 @pytest.mark.parametrize("kernel", [poly6_np, spiky_np], ids=["poly6", "spiky"])
@@ -56,8 +64,9 @@ def test_bounded_kernel_integrates_to_one_on_a_cartesian_grid(dim, kernel):
     grids = np.meshgrid(*([ax] * dim), indexing="ij", sparse=True)
     r = np.sqrt(sum(g * g for g in grids))
     total = float(kernel(r, H, dim).sum()) * (2.0 * H / n) ** dim
-    assert abs(total - 1.0) <= 1e-3, \
+    assert abs(total - 1.0) <= 1e-3, (
         f"{kernel.__name__} in {dim}D sums to {total:.6f} on a {n}^{dim} grid; expected 1 within 1e-3"
+    )
 
 
 # ------------------------------------------------------------------ derivatives
@@ -69,21 +78,24 @@ def test_spiky_gradient_matches_finite_differences(dim):
     for k in range(dim):
         e = np.zeros(dim)
         e[k] = eps
-        fd[:, k] = (spiky_np(np.linalg.norm(x + e, axis=1), H, dim)
-                    - spiky_np(np.linalg.norm(x - e, axis=1), H, dim)) / (2.0 * eps)
+        fd[:, k] = (
+            spiky_np(np.linalg.norm(x + e, axis=1), H, dim) - spiky_np(np.linalg.norm(x - e, axis=1), H, dim)
+        ) / (2.0 * eps)
     grad = spiky_grad_np(x, H, dim)
     rel = np.linalg.norm(grad - fd, axis=1) / np.linalg.norm(fd, axis=1)
     worst = int(np.argmax(rel))
     assert rel[worst] <= 1e-4, (
         f"spiky gradient at |r| = {np.linalg.norm(x[worst]) / H:.3f} h differs from the central "
-        f"difference by {rel[worst]:.2e} (relative); expected <= 1e-4")
+        f"difference by {rel[worst]:.2e} (relative); expected <= 1e-4"
+    )
     # with respect to the first particle, the gradient points from it towards the second
     # (against r = x_i - x_j), since the spiky kernel decreases outwards
     radial = np.einsum("ij,ij->i", grad, x)
     assert (radial < 0).all(), (
         f"spiky gradient must point against r = x_i - x_j (kernel decreasing in r): "
         f"{int((radial >= 0).sum())} of {len(radial)} do not, largest grad . r = {radial.max():.3e} "
-        f"at |r| = {np.linalg.norm(x[int(np.argmax(radial))]) / H:.3f} h")
+        f"at |r| = {np.linalg.norm(x[int(np.argmax(radial))]) / H:.3f} h"
+    )
 
 
 def test_viscosity_laplacian_matches_finite_differences(dim):
@@ -99,7 +111,8 @@ def test_viscosity_laplacian_matches_finite_differences(dim):
     worst = int(np.argmax(rel))
     assert rel[worst] <= 1e-4, (
         f"visc_lap_np at r = {r[worst] / H:.3f} h is {lap[worst]:.6g}, the finite-difference "
-        f"Laplacian of viscosity_np is {lap_fd[worst]:.6g} (relative {rel[worst]:.2e}; expected <= 1e-4)")
+        f"Laplacian of viscosity_np is {lap_fd[worst]:.6g} (relative {rel[worst]:.2e}; expected <= 1e-4)"
+    )
 
 
 def test_viscosity_laplacian_on_a_cartesian_stencil(dim):
@@ -117,8 +130,9 @@ def test_viscosity_laplacian_on_a_cartesian_stencil(dim):
     lap_fd /= eps * eps
     lap = visc_lap_np(norm(x), H, dim)
     rel = np.abs(lap_fd - lap) / np.abs(lap)
-    assert rel.max() <= 1e-3, \
+    assert rel.max() <= 1e-3, (
         f"Cartesian Laplacian of viscosity_np differs from visc_lap_np by {rel.max():.2e}; expected <= 1e-3"
+    )
 
 
 # ------------------------------------------------------------------ compact support
@@ -136,8 +150,9 @@ def test_kernels_vanish_at_and_beyond_h(dim):
     for kernel in (poly6_np, spiky_np, viscosity_np):
         scale = float(kernel(0.5 * H, H, dim))
         edge = float(kernel(just_inside, H, dim))
-        assert abs(edge) <= 1e-6 * abs(scale), \
+        assert abs(edge) <= 1e-6 * abs(scale), (
             f"{kernel.__name__} jumps at r = h: {edge:.3g} just inside (scale {scale:.3g})"
+        )
 
 
 # ------------------------------------------------------------------ Taichi functions
@@ -150,8 +165,16 @@ def _taichi_kernel_values(rvecs: np.ndarray, h: float, dim: int):
     c = constants(h, dim)
 
     @ti.kernel
-    def evaluate(r: ti.types.ndarray(), w: ti.types.ndarray(), grad: ti.types.ndarray(),
-                 lap: ti.types.ndarray(), h: float, c6: float, cs: float, cv: float):
+    def evaluate(
+        r: ti.types.ndarray(),
+        w: ti.types.ndarray(),
+        grad: ti.types.ndarray(),
+        lap: ti.types.ndarray(),
+        h: float,
+        c6: float,
+        cs: float,
+        cv: float,
+    ):
         for i in range(r.shape[0]):
             rv = ti.Vector([r[i, k] for k in ti.static(range(dim))], dt=float)
             rn = rv.norm()
@@ -196,8 +219,9 @@ def test_taichi_functions_vanish_at_h(dim, taichi_f32):
     rvecs = np.zeros((dim, dim))
     rvecs[np.arange(dim), np.arange(dim)] = H
     _r, w, grad, lap = _taichi_kernel_values(rvecs, H, dim)
-    assert np.all(w == 0.0) and np.all(grad == 0.0) and np.all(lap == 0.0), \
+    assert np.all(w == 0.0) and np.all(grad == 0.0) and np.all(lap == 0.0), (
         f"at |r| = h: poly6 {w}, spiky_grad {grad}, visc_lap {lap}; expected all 0"
+    )
 
 
 # ------------------------------------------------------------------ lattice rest mass
@@ -218,7 +242,8 @@ def test_lattice_density_sum_gives_rest_density(dim, support):
     rho = math.fsum(m0 * poly6_np(r, h, dim))
     assert abs(rho / RHO0 - 1.0) <= 1e-6, (
         f"lattice particle density {rho:.9g} with m0 = rho0 / lattice_density_sum; expected "
-        f"{RHO0} within 1e-6 relative (support {support}, {len(near)} neighbours)")
+        f"{RHO0} within 1e-6 relative (support {support}, {len(near)} neighbours)"
+    )
     # and the sum is not trivially dominated by the self term: at least the nearest shell
     self_share = float(poly6_np(0.0, h, dim)) / total
     assert self_share < 0.9, f"self term is {self_share:.2f} of the lattice sum"

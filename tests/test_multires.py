@@ -16,20 +16,35 @@ import math
 
 import numpy as np
 import pytest
+from scenekit import DIMS_3D_SLOW, dim_solver_params, watch_solves, with_solver, worst_leak
 from scipy.spatial import cKDTree
 
 from mrsph.scene.config import load_scene
-from mrsph.sph.particles import (DEAD, REGULAR, TRANSIENT_BOTH as T_BOTH, TRANSIENT_CHILD as T_CHILD,
-                             TRANSIENT_PARENT as T_PARENT, VIRTUAL_CHILD as V_CHILD,
-                             VIRTUAL_PARENT as V_PARENT)
-
-from scenekit import DIMS_3D_SLOW, dim_solver_params, watch_solves, with_solver, worst_leak
+from mrsph.sph.particles import (
+    DEAD,
+    REGULAR,
+)
+from mrsph.sph.particles import (
+    TRANSIENT_BOTH as T_BOTH,
+)
+from mrsph.sph.particles import (
+    TRANSIENT_CHILD as T_CHILD,
+)
+from mrsph.sph.particles import (
+    TRANSIENT_PARENT as T_PARENT,
+)
+from mrsph.sph.particles import (
+    VIRTUAL_CHILD as V_CHILD,
+)
+from mrsph.sph.particles import (
+    VIRTUAL_PARENT as V_PARENT,
+)
 
 pytestmark = pytest.mark.usefixtures("fresh_program")
 
 REAL_KINDS = (REGULAR, T_PARENT, T_CHILD, T_BOTH)
-PARENT_ROLE = (T_PARENT, T_BOTH)      # real kinds carrying virtual children
-CHILD_ROLE = (T_CHILD, T_BOTH)        # real kinds linked to a virtual parent
+PARENT_ROLE = (T_PARENT, T_BOTH)  # real kinds carrying virtual children
+CHILD_ROLE = (T_CHILD, T_BOTH)  # real kinds linked to a virtual parent
 # rule (e) compares regular particles only: right after a pass a transient particle may
 # still see one two levels away for a step (see the test's docstring)
 RULE_E_KINDS = (REGULAR,)
@@ -37,6 +52,7 @@ RULE_E_KINDS = (REGULAR,)
 
 def make_sim(scene: dict, threads: int | None = None):
     from mrsph.simulation import Simulation
+
     return Simulation(load_scene(scene), arch="cpu", threads=threads)
 
 
@@ -97,15 +113,17 @@ def real_mass(pool: dict) -> float:
 def describe(pool: dict, i: int) -> str:
     if not 0 <= i < pool["n"]:
         return f"slot {i} (outside [0, {pool['n']}))"
-    return (f"slot {i} (kind {pool['kind'][i]}, level {pool['level'][i]}, parent {pool['parent'][i]}, "
-            f"nchild {pool['nchild'][i]}, children {pool['children'][i][: max(pool['nchild'][i], 0)].tolist()})")
+    return (
+        f"slot {i} (kind {pool['kind'][i]}, level {pool['level'][i]}, parent {pool['parent'][i]}, "
+        f"nchild {pool['nchild'][i]}, children {pool['children'][i][: max(pool['nchild'][i], 0)].tolist()})"
+    )
 
 
 def link_violations(sim, pool: dict) -> list[str]:
     """The broken invariants of METHOD.md §3 and §8, first ones first (at most a few per rule)."""
     kind, level, parent = pool["kind"], pool["level"], pool["parent"]
     nchild, children, n = pool["nchild"], pool["children"], pool["n"]
-    nmax = 2 ** sim.dim
+    nmax = 2**sim.dim
     out = []
 
     def listed(par: int, ch: int) -> bool:
@@ -117,8 +135,7 @@ def link_violations(sim, pool: dict) -> list[str]:
         if not 0 <= par < n:
             return f"{what} {describe(pool, j)} has no owner: parent {par}"
         if kind[par] not in want_kinds:
-            return (f"{what} {describe(pool, j)}: its owner {describe(pool, par)} is not of kind "
-                    f"{want_kinds}")
+            return f"{what} {describe(pool, j)}: its owner {describe(pool, par)} is not of kind {want_kinds}"
         if level[par] != level[j] + 1:
             return f"{what} {describe(pool, j)}: its owner {describe(pool, par)} is not one level coarser"
         if not listed(par, j):
@@ -144,11 +161,16 @@ def link_violations(sim, pool: dict) -> list[str]:
             out.append(f"(c) virtual parent {describe(pool, i)} has {k} children; expected 1..{nmax}")
             break
         chs = children[i, :k]
-        bad = [int(c) for c in chs if not (0 <= c < n and kind[c] in CHILD_ROLE
-                                          and level[c] == level[i] - 1 and parent[c] == i)]
+        bad = [
+            int(c)
+            for c in chs
+            if not (0 <= c < n and kind[c] in CHILD_ROLE and level[c] == level[i] - 1 and parent[c] == i)
+        ]
         if bad or len(set(chs.tolist())) != k:
-            out.append(f"(c) virtual parent {describe(pool, i)}: child {describe(pool, bad[0]) if bad else 'listed twice'}"
-                       f" is not an alive transient child one level finer pointing back")
+            out.append(
+                f"(c) virtual parent {describe(pool, i)}: child {describe(pool, bad[0]) if bad else 'listed twice'}"
+                f" is not an alive transient child one level finer pointing back"
+            )
             break
     # (c') a virtual parent weighs its group: a child's mass changed (a light group
     # absorbed by it, ``Absorption.run``) changes its virtual parent's with it
@@ -156,19 +178,28 @@ def link_violations(sim, pool: dict) -> list[str]:
         k = int(nchild[i])
         group = math.fsum(pool["m"][children[i, :k]].astype(np.float64)) if 1 <= k <= nmax else 0.0
         if abs(float(pool["m"][i]) - group) > 1e-6 * group:
-            out.append(f"(c') virtual parent {describe(pool, i)} has mass {float(pool['m'][i])!r}, its "
-                       f"children {group!r}")
+            out.append(
+                f"(c') virtual parent {describe(pool, i)} has mass {float(pool['m'][i])!r}, its children {group!r}"
+            )
             break
     # the transient parents' side of (a): their children are their own virtual children
     for i in np.flatnonzero(np.isin(kind, PARENT_ROLE)):
         k = int(nchild[i])
         chs = children[i, :k] if 0 <= k <= nmax else []
-        bad = [int(c) for c in chs if not (0 <= c < n and kind[c] == V_CHILD and parent[c] == i
-                                          and level[c] == level[i] - 1)]
+        bad = [
+            int(c)
+            for c in chs
+            if not (0 <= c < n and kind[c] == V_CHILD and parent[c] == i and level[c] == level[i] - 1)
+        ]
         if not 1 <= k <= nmax or bad:
-            out.append(f"(a') transient parent {describe(pool, i)}: "
-                       + (f"child {describe(pool, bad[0])} is not its virtual child" if bad
-                          else f"{k} children, expected 1..{nmax}"))
+            out.append(
+                f"(a') transient parent {describe(pool, i)}: "
+                + (
+                    f"child {describe(pool, bad[0])} is not its virtual child"
+                    if bad
+                    else f"{k} children, expected 1..{nmax}"
+                )
+            )
             break
     # (d) no particle has more than 2^d children
     over = np.flatnonzero((kind != DEAD) & (nchild > nmax))
@@ -187,15 +218,17 @@ def link_violations(sim, pool: dict) -> list[str]:
         close = np.flatnonzero(d < h)
         if len(close):
             c, f = int(coarse[close[0]]), int(fine[k[close[0]]])
-            out.append(f"(e) regular {describe(pool, c)} at {np.round(x[c], 4).tolist()} has regular "
-                       f"{describe(pool, f)} at {np.round(x[f], 4).tolist()} {d[close[0]]:.4g} m away, "
-                       f"inside h_{lc} = {h:.4g} m ({len(close)} such coarse particles)")
+            out.append(
+                f"(e) regular {describe(pool, c)} at {np.round(x[c], 4).tolist()} has regular "
+                f"{describe(pool, f)} at {np.round(x[f], 4).tolist()} {d[close[0]]:.4g} m away, "
+                f"inside h_{lc} = {h:.4g} m ({len(close)} such coarse particles)"
+            )
     return out
 
 
 # ================================================================== scenes
-S0 = {2: 0.01, 3: 0.02}          # level-0 spacing
-BAND = {2: 0.04, 3: 0.03}        # adaptivity.band
+S0 = {2: 0.01, 3: 0.02}  # level-0 spacing
+BAND = {2: 0.04, 3: 0.03}  # adaptivity.band
 
 
 def moving_region_scene(dim: int, half_period_steps: int = 30, levels: int = 3) -> dict:
@@ -205,12 +238,13 @@ def moving_region_scene(dim: int, half_period_steps: int = 30, levels: int = 3) 
     the transition layers fit inside the small slab."""
     s0 = S0[dim]
     c = [0.5] * dim
-    half = 0.07 if dim == 2 else 0.08              # half width of the refined box
+    half = 0.07 if dim == 2 else 0.08  # half width of the refined box
     lo = [0.2] + [0.34] * (dim - 1)
     hi = [0.8] + [0.66] * (dim - 1)
     x0, x1 = lo[0] + half, hi[0] - half
     scene = {
-        "description": "slab swept by a moving refinement box", "dim": dim,
+        "description": "slab swept by a moving refinement box",
+        "dim": dim,
         "domain": {"min": [0.0] * dim, "max": [1.0] * dim},
         "particles": {"spacing": s0},
         "fluid": {"viscosity": 1.0, "stiffness": 1000.0, "blocks": [{"min": lo, "max": hi}]},
@@ -219,10 +253,17 @@ def moving_region_scene(dim: int, half_period_steps: int = 30, levels: int = 3) 
         "criteria": [],
     }
     t = half_period_steps * sound_step(scene)
-    scene["criteria"].append({
-        "type": "region", "shape": "box", "level": 0,
-        "min": [x0 - half] + [v - half for v in c[1:]], "max": [x0 + half] + [v + half for v in c[1:]],
-        "path": [[0.0, x0] + c[1:], [t, x1] + c[1:], [2 * t, x0] + c[1:]], "loop": True})
+    scene["criteria"].append(
+        {
+            "type": "region",
+            "shape": "box",
+            "level": 0,
+            "min": [x0 - half] + [v - half for v in c[1:]],
+            "max": [x0 + half] + [v + half for v in c[1:]],
+            "path": [[0.0, x0] + c[1:], [t, x1] + c[1:], [2 * t, x0] + c[1:]],
+            "loop": True,
+        }
+    )
     return scene
 
 
@@ -265,14 +306,19 @@ def test_links_hold_at_every_step_of_a_moving_refinement(dim, solver):
         if len(x0) and len(x2):
             two_apart += bool(cKDTree(x0).query(x2, k=1)[0].min() < 2.5 * h2)
         bad = link_violations(sim, pool)
-        assert not bad, (f"{case}, step {step} (t = {sim.time:.4g} s, {splits} splits and {merges} "
-                         f"merges so far): " + "; ".join(bad))
-    print(f"\n{case} links: {steps} steps, {splits} splits, {merges} merges, kinds seen {sorted(kinds_seen)}, "
-          f"{pool['n']} slots at the end; rule (e) had regular levels 0 and 2 within 2.5 h_2 at {two_apart} steps")
-    assert two_apart > 0, (f"{case}: rule (e) was never exercised (at no step were regular levels "
-                           f"0 and 2 within 2.5 h_2 of each other)")
+        assert not bad, (
+            f"{case}, step {step} (t = {sim.time:.4g} s, {splits} splits and {merges} merges so far): " + "; ".join(bad)
+        )
+    print(
+        f"\n{case} links: {steps} steps, {splits} splits, {merges} merges, kinds seen {sorted(kinds_seen)}, "
+        f"{pool['n']} slots at the end; rule (e) had regular levels 0 and 2 within 2.5 h_2 at {two_apart} steps"
+    )
+    assert two_apart > 0, (
+        f"{case}: rule (e) was never exercised (at no step were regular levels 0 and 2 within 2.5 h_2 of each other)"
+    )
     assert splits > 0 and merges > 0, (
-        f"{case}: the run did not exercise the scheme: {splits} splits, {merges} merges in {steps} steps")
+        f"{case}: the run did not exercise the scheme: {splits} splits, {merges} merges in {steps} steps"
+    )
     missing = {T_PARENT, T_CHILD, V_CHILD, V_PARENT} - kinds_seen
     assert not missing, f"{case}: kinds {sorted(missing)} never appeared (seen {sorted(kinds_seen)})"
 
@@ -308,22 +354,26 @@ def test_mass_is_bit_identical_through_splits_and_merges(dim, solver):
     for steps, splits, merges, ev in event_steps(sim):
         assert ev["total_mass"] == m_start, (
             f"{case}, step {steps}: total real mass {ev['total_mass']!r} != {m_start!r} at the start "
-            f"(difference {ev['total_mass'] - m_start:.3e} kg after {splits} splits, {merges} merges)")
+            f"(difference {ev['total_mass'] - m_start:.3e} kg after {splits} splits, {merges} merges)"
+        )
     pool = raw_pool(sim)
     m_end = real_mass(pool)
     print(f"\n{case} mass: {steps} steps, {splits} splits, {merges} merges; total {m_start!r} -> {m_end!r}")
     assert splits >= 100 and merges >= 100, (
-        f"{case}: too few events to test: {splits} splits, {merges} merges in {steps} steps")
+        f"{case}: too few events to test: {splits} splits, {merges} merges in {steps} steps"
+    )
     assert m_end == m_start, f"{case}: total real mass {m_end!r} != {m_start!r} (Δ = {m_end - m_start:.3e} kg)"
     real = np.isin(pool["kind"], REAL_KINDS)
     off = real & (pool["m"] != nominal[np.clip(pool["level"], 0, len(nominal) - 1)])
     if off.any():
         i = int(np.flatnonzero(off)[0])
-        pytest.fail(f"{case}: {int(off.sum())} real particles do not have their level's nominal mass; "
-                    f"first {describe(pool, i)}: m = {pool['m'][i]!r}, nominal {nominal[pool['level'][i]]!r}")
+        pytest.fail(
+            f"{case}: {int(off.sum())} real particles do not have their level's nominal mass; "
+            f"first {describe(pool, i)}: m = {pool['m'][i]!r}, nominal {nominal[pool['level'][i]]!r}"
+        )
 
 
-@pytest.mark.slow_params("3d")   # the quick run keeps 2D (conftest.py, "two tiers")
+@pytest.mark.slow_params("3d")  # the quick run keeps 2D (conftest.py, "two tiers")
 def test_mass_is_kept_to_round_off_with_partial_groups(dim):
     """METHOD.md §6 ("a group need not be full"): with groups of any size allowed to merge
     once they can gather no more (merge_min_children = 1) merged particles carry
@@ -337,7 +387,7 @@ def test_mass_is_kept_to_round_off_with_partial_groups(dim):
     sim = make_sim(scene)
     nominal = sim.lev.m.to_numpy()
     m_start = real_mass(raw_pool(sim))
-    partial = 0          # steps after which some real particle had a non-nominal mass
+    partial = 0  # steps after which some real particle had a non-nominal mass
     worst = 0.0
     for steps, splits, merges, _ev in event_steps(sim):
         pool = raw_pool(sim)
@@ -346,17 +396,23 @@ def test_mass_is_kept_to_round_off_with_partial_groups(dim):
         partial += bool((pool["m"][real] != nominal[pool["level"][real]]).any())
         rel = abs(real_mass(pool) - m_start) / m_start
         worst = max(worst, rel)
-        assert rel <= 1e-12, (f"{case}, step {steps}: total real mass {real_mass(pool)!r} against "
-                              f"{m_start!r} at the start ({rel:.2e} relative, expected <= 1e-12) "
-                              f"after {splits} splits, {merges} merges")
-    print(f"\n{case} mass, partial groups: {steps} steps, {splits} splits, {merges} merges, "
-          f"non-nominal masses after {partial} steps; worst relative drift {worst:.2e}")
+        assert rel <= 1e-12, (
+            f"{case}, step {steps}: total real mass {real_mass(pool)!r} against "
+            f"{m_start!r} at the start ({rel:.2e} relative, expected <= 1e-12) "
+            f"after {splits} splits, {merges} merges"
+        )
+    print(
+        f"\n{case} mass, partial groups: {steps} steps, {splits} splits, {merges} merges, "
+        f"non-nominal masses after {partial} steps; worst relative drift {worst:.2e}"
+    )
     assert splits >= 100 and merges >= 100, (
-        f"{case}: too few events to test: {splits} splits, {merges} merges in {steps} steps")
+        f"{case}: too few events to test: {splits} splits, {merges} merges in {steps} steps"
+    )
     assert partial > 0, f"{case}: no partial group merged in {steps} steps ({merges} merges)"
-    snap = sim.snapshot(stats=False)       # what --dump writes: the run's own precision
+    snap = sim.snapshot(stats=False)  # what --dump writes: the run's own precision
     assert snap.x.dtype == snap.v.dtype == np.float64, (
-        f"{case}: an f64 run's snapshot holds {snap.x.dtype} positions, {snap.v.dtype} velocities")
+        f"{case}: an f64 run's snapshot holds {snap.x.dtype} positions, {snap.v.dtype} velocities"
+    )
 
 
 # ================================================================== 3. momentum through a pass
@@ -371,7 +427,7 @@ def test_adaptivity_pass_keeps_momentum(dim, solver):
     only merges keeps Σ m x of the real particles (splits spread their children, which
     moves it)."""
     scene = moving_region_scene(dim, half_period_steps=30)
-    scene["adaptivity"]["interval"] = 1000          # only the direct calls below adapt
+    scene["adaptivity"]["interval"] = 1000  # only the direct calls below adapt
     # one thread: the same passes every run (see the profiled test)
     sim = make_sim(for_solver(scene, solver), threads=1)
     n = sim.pool.count()
@@ -379,7 +435,7 @@ def test_adaptivity_pass_keeps_momentum(dim, solver):
     v = sim.pool.p.v.to_numpy()
     rng = np.random.default_rng(4321 + dim)
     real = np.isin(kind, REAL_KINDS)
-    v[:n][real] = rng.normal(0.0, 0.5, size=(int(real.sum()), dim)) + 0.3   # a net drift too
+    v[:n][real] = rng.normal(0.0, 0.5, size=(int(real.sum()), dim)) + 0.3  # a net drift too
     sim.pool.p.v.from_numpy(v)
     case = case_label(dim, solver)
     worst, worst_at = 0.0, None
@@ -388,7 +444,7 @@ def test_adaptivity_pass_keeps_momentum(dim, solver):
     merge_only = []
     for step in range(1, 41):
         sim.step()
-        sim.multires.take_counters()     # the step's own pass (the first step has one)
+        sim.multires.take_counters()  # the step's own pass (the first step has one)
         before = raw_pool(sim)
         p0, scale0 = real_momentum(before)
         sim.multires.adapt(sim.time)
@@ -401,10 +457,11 @@ def test_adaptivity_pass_keeps_momentum(dim, solver):
             (q0, xscale), (q1, _) = real_first_moment(before), real_first_moment(after)
             moved = float(np.linalg.norm(q1 - q0)) / xscale
             merge_only.append(moved)
-            assert moved <= 1e-8, (   # measured: 4e-10 (2D), 1e-10 (3D)
+            assert moved <= 1e-8, (  # measured: 4e-10 (2D), 1e-10 (3D)
                 f"{case}, pass after step {step} ({ev['merges']} merges, no split): Σ m x of the real "
                 f"particles moved by {np.linalg.norm(q1 - q0):.3e} kg m ({moved:.2e} of Σ m|x|); a merged "
-                f"particle belongs at its group's centre of mass")
+                f"particle belongs at its group's centre of mass"
+            )
         passes += 1
         total["splits"] += ev["splits"]
         total["merges"] += ev["merges"]
@@ -414,14 +471,20 @@ def test_adaptivity_pass_keeps_momentum(dim, solver):
         assert rel <= 1e-6, (
             f"{case}, pass after step {step} ({ev['splits']} splits, {ev['merges']} merges): total real "
             f"momentum {p0.tolist()} -> {p1.tolist()}, |ΔP| = {np.linalg.norm(p1 - p0):.3e}; expected "
-            f"<= 1e-6 · Σ m|v| = {1e-6 * scale0:.3e} (ratio {rel:.2e})")
-    print(f"\n{case} momentum through passes: {passes} passes with events, {total['splits']} splits, "
-          f"{total['merges']} merges; worst |ΔP|/Σ m|v| = {worst:.2e}"
-          + (f" (after step {worst_at[0]}: {worst_at[1]} splits, {worst_at[2]} merges)" if worst_at else ""))
+            f"<= 1e-6 · Σ m|v| = {1e-6 * scale0:.3e} (ratio {rel:.2e})"
+        )
+    print(
+        f"\n{case} momentum through passes: {passes} passes with events, {total['splits']} splits, "
+        f"{total['merges']} merges; worst |ΔP|/Σ m|v| = {worst:.2e}"
+        + (f" (after step {worst_at[0]}: {worst_at[1]} splits, {worst_at[2]} merges)" if worst_at else "")
+    )
     assert total["splits"] > 0 and total["merges"] > 0, (
-        f"{case}: the passes did not split and merge ({total['splits']} splits, {total['merges']} merges)")
-    print(f"{case}: {len(merge_only)} passes merged without splitting; Σ m x moved by at most "
-          f"{max(merge_only, default=0):.2e} of Σ m|x|")
+        f"{case}: the passes did not split and merge ({total['splits']} splits, {total['merges']} merges)"
+    )
+    print(
+        f"{case}: {len(merge_only)} passes merged without splitting; Σ m x moved by at most "
+        f"{max(merge_only, default=0):.2e} of Σ m|x|"
+    )
     if solver == "wcsph":
         # the centre-of-mass check is the topology's, whatever the solver; its flow is the
         # one that gives merge-only passes (the dfsph run of this slab gave none, 2D)
@@ -434,24 +497,27 @@ def refined_blob_scene(dim: int) -> dict:
     inside it and level 1 around: every kind of particle is present at the interface."""
     s0 = S0[dim]
     return {
-        "description": "free blob with a refined core, gravity off", "dim": dim,
+        "description": "free blob with a refined core, gravity off",
+        "dim": dim,
         "domain": {"min": [0.0] * dim, "max": [1.0] * dim},
         "particles": {"spacing": s0},
-        "fluid": {"viscosity": 1.0, "stiffness": 1000.0,
-                  "blocks": [{"min": [0.32] * dim, "max": [0.68] * dim}]},
+        "fluid": {"viscosity": 1.0, "stiffness": 1000.0, "blocks": [{"min": [0.32] * dim, "max": [0.68] * dim}]},
         "physics": {"gravity": [0.0] * dim, "cfl": 0.2},
         "adaptivity": {"enabled": True, "levels": 2, "interval": 1000, "band": BAND[dim]},
-        "criteria": [{"type": "region", "shape": "box", "level": 0,
-                      "min": [0.44] * dim, "max": [0.56] * dim}],
+        "criteria": [{"type": "region", "shape": "box", "level": 0, "min": [0.44] * dim, "max": [0.56] * dim}],
     }
 
 
 # the quick run: the symmetric coupling under wcsph, the variational one under dfsph
 @pytest.mark.slow_params("2d-variational", "3d-symmetric", "3d-variational", "3d-variational-dfsph")
-@pytest.mark.parametrize(("coupling", "solver"), [
-    pytest.param("variational", "wcsph", id="variational"),
-    pytest.param("symmetric", "wcsph", id="symmetric"),
-    pytest.param("variational", "dfsph", id="variational-dfsph")])
+@pytest.mark.parametrize(
+    ("coupling", "solver"),
+    [
+        pytest.param("variational", "wcsph", id="variational"),
+        pytest.param("symmetric", "wcsph", id="symmetric"),
+        pytest.param("variational", "dfsph", id="variational-dfsph"),
+    ],
+)
 def test_virtual_coupling_conserves_momentum(dim, coupling, solver):
     """METHOD.md §4, §8: the reaction of every force between a real and a virtual particle
     goes back to the real particle(s) the virtual one stands for, so internal forces across
@@ -474,16 +540,17 @@ def test_virtual_coupling_conserves_momentum(dim, coupling, solver):
     kind = sim.pool.p.kind.to_numpy()[:n]
     counts = {k: int((kind == k).sum()) for k in (REGULAR, T_PARENT, T_CHILD, T_BOTH, V_CHILD, V_PARENT)}
     assert counts[T_PARENT] > 0 and counts[T_CHILD] > 0 and counts[V_CHILD] > 0 and counts[V_PARENT] > 0, (
-        f"{case}: no level interface in the blob (kind counts {counts})")
+        f"{case}: no level interface in the blob (kind counts {counts})"
+    )
     v = sim.pool.p.v.to_numpy()
     rng = np.random.default_rng(1234 + dim)
     real = np.isin(kind, REAL_KINDS)
     v[:n][real] = rng.normal(0.0, 0.5, size=(int(real.sum()), dim))
     sim.pool.p.v.from_numpy(v)
     p0, scale = real_momentum(raw_pool(sim))
-    impulse = 0.0                                   # Σ_steps dt Σ_real m |a|
+    impulse = 0.0  # Σ_steps dt Σ_real m |a|
     events = {"splits": 0, "merges": 0}
-    for step in range(100):
+    for _ in range(100):
         dt = sim.step()
         pool = raw_pool(sim)
         r = np.isin(pool["kind"], REAL_KINDS)
@@ -497,32 +564,41 @@ def test_virtual_coupling_conserves_momentum(dim, coupling, solver):
     p1, _ = real_momentum(pool)
     r = np.isin(pool["kind"], REAL_KINDS)
     x, lv = pool["x"][r].astype(np.float64), pool["level"][r]
-    gap = np.minimum(x.min(axis=1), (1.0 - x).min(axis=1)) - sim.h0 * 2.0 ** lv
-    assert gap.min() > 0, f"{case}: a particle came within its h of a wall (margin {gap.min():.3g} m); the test proves nothing"
+    gap = np.minimum(x.min(axis=1), (1.0 - x).min(axis=1)) - sim.h0 * 2.0**lv
+    assert gap.min() > 0, (
+        f"{case}: a particle came within its h of a wall (margin {gap.min():.3g} m); the test proves nothing"
+    )
     kind_end = pool["kind"]
     assert (kind_end == V_CHILD).any() and (kind_end == V_PARENT).any(), f"{case}: the interface vanished"
     dp = float(np.linalg.norm(p1 - p0))
-    print(f"\n{case} {coupling} coupling: kinds at start {counts}; events after construction {events}; "
-          f"|ΔP| = {dp:.3e}, Σ m|v| = {scale:.3e}, ratio {dp / scale:.2e}, Σ dt Σ m|a| = {impulse:.3e}")
+    print(
+        f"\n{case} {coupling} coupling: kinds at start {counts}; events after construction {events}; "
+        f"|ΔP| = {dp:.3e}, Σ m|v| = {scale:.3e}, ratio {dp / scale:.2e}, Σ dt Σ m|a| = {impulse:.3e}"
+    )
     assert impulse > 1e3 * 1e-5 * scale, f"{case}: internal forces too weak to test (impulse {impulse:.3e})"
     assert dp <= 1e-5 * scale, (
         f"{case}: internal forces across the level interface changed the total real momentum by "
         f"|ΔP| = {dp:.3e} kg m/s in 100 steps (P {p0.tolist()} -> {p1.tolist()}); expected <= 1e-5 · Σ m|v| "
-        f"= {1e-5 * scale:.3e} (ratio {dp / scale:.2e})")
+        f"= {1e-5 * scale:.3e} (ratio {dp / scale:.2e})"
+    )
     if solver == "dfsph":
         # each solve on its own: Σ m Δv over the real particles (what the solve's pressure
         # accelerations add up to) against Σ m |Δv| (how hard it pushed)
         which, leak, push, floor, ratio = worst_leak(solves)
         pushed = sum(s[2] for s in solves)
-        print(f"{case}: {len(solves)} pressure solves, Σ m|Δv| = {pushed:.3e} in all; worst (|Σ m Δv| - "
-              f"round-off {floor:.2e}) / Σ m|Δv| = {ratio:.2e} ({which} solve)")
+        print(
+            f"{case}: {len(solves)} pressure solves, Σ m|Δv| = {pushed:.3e} in all; worst (|Σ m Δv| - "
+            f"round-off {floor:.2e}) / Σ m|Δv| = {ratio:.2e} ({which} solve)"
+        )
         assert len(solves) == 200 and pushed > 1e3 * 1e-5 * scale, (
-            f"{case}: {len(solves)} solves pushed Σ m|Δv| = {pushed:.3e} in all; too little to test")
+            f"{case}: {len(solves)} solves pushed Σ m|Δv| = {pushed:.3e} in all; too little to test"
+        )
         assert ratio <= 1e-4, (
             f"{case}: a {which} solve changed the real particles' momentum by |Σ m Δv| = "
             f"{leak:.3e} kg m/s while pushing Σ m|Δv| = {push:.3e}; expected <= 1e-4 of it beyond "
             f"the float32 round-off {floor:.2e} (ratio {ratio:.2e}): a pressure reaction is not "
-            f"handed back in full")
+            f"handed back in full"
+        )
 
 
 def test_symmetric_coupling_is_refused_with_dfsph(dim):
@@ -530,18 +606,23 @@ def test_symmetric_coupling_is_refused_with_dfsph(dim):
     iteration; the symmetric coupling's own reaction pass cannot: the scene is refused,
     in one line naming the key, its value and what to use (issue 31 §2)."""
     from mrsph.scene.config import SceneError
+
     scene = for_solver(refined_blob_scene(dim), "dfsph")
     scene["adaptivity"]["coupling"] = "symmetric"
     with pytest.raises(SceneError) as info:
         load_scene(scene)
     lines = info.value.problems
-    assert len(lines) == 1 and "adaptivity.coupling" in lines[0] and "dfsph" in lines[0] \
-        and "symmetric" in lines[0] and "\n" not in lines[0], (
-            f"{dim}D: expected one line naming adaptivity.coupling, its value and dfsph; got {lines}")
+    assert (
+        len(lines) == 1
+        and "adaptivity.coupling" in lines[0]
+        and "dfsph" in lines[0]
+        and "symmetric" in lines[0]
+        and "\n" not in lines[0]
+    ), f"{dim}D: expected one line naming adaptivity.coupling, its value and dfsph; got {lines}"
     scene["adaptivity"]["coupling"] = "variational"
-    load_scene(scene)            # the same scene with the variational coupling loads
+    load_scene(scene)  # the same scene with the variational coupling loads
     scene["adaptivity"]["coupling"] = "symmetric"
-    load_scene(with_solver(scene, "wcsph"))         # and so does the symmetric one with wcsph
+    load_scene(with_solver(scene, "wcsph"))  # and so does the symmetric one with wcsph
 
 
 # ================================================================== 5. merging into the coarsest level
@@ -558,12 +639,15 @@ def test_refined_fluid_merges_back_into_the_coarsest_level(dim):
         splits += ev["splits"]
         merges += ev["merges"]
     lam = sim.particles(virtual=False)["lam"]
-    print(f"\n{dim}D two levels: {splits} splits, {merges} merges in 60 steps; wanted level of real "
-          f"particles in [{lam.min():.3g}, {lam.max():.3g}]")
+    print(
+        f"\n{dim}D two levels: {splits} splits, {merges} merges in 60 steps; wanted level of real "
+        f"particles in [{lam.min():.3g}, {lam.max():.3g}]"
+    )
     assert splits > 0, f"{dim}D: the box refined nothing ({splits} splits)"
     assert merges > 0, (
         f"{dim}D: {splits} splits but {merges} merges in 60 steps, while the wanted level of real "
-        f"particles reaches {lam.max():.3g} (= background level 1) behind the box")
+        f"particles reaches {lam.max():.3g} (= background level 1) behind the box"
+    )
 
 
 def stirred_slab_scene(dim: int, **adaptivity) -> dict:
@@ -574,15 +658,27 @@ def stirred_slab_scene(dim: int, **adaptivity) -> dict:
     s0 = S0[dim]
     mid = [0.5] * (dim - 1)
     return {
-        "description": "slab crossed by a stirrer", "dim": dim,
-        "domain": {"min": [0.0] * dim, "max": [1.0] * dim}, "particles": {"spacing": s0},
-        "fluid": {"viscosity": 1.0, "stiffness": 1000.0,
-                  "blocks": [{"min": [0.2] + [0.3] * (dim - 1), "max": [0.8] + [0.7] * (dim - 1)}]},
+        "description": "slab crossed by a stirrer",
+        "dim": dim,
+        "domain": {"min": [0.0] * dim, "max": [1.0] * dim},
+        "particles": {"spacing": s0},
+        "fluid": {
+            "viscosity": 1.0,
+            "stiffness": 1000.0,
+            "blocks": [{"min": [0.2] + [0.3] * (dim - 1), "max": [0.8] + [0.7] * (dim - 1)}],
+        },
         "physics": {"gravity": [0.0] * dim},
         "adaptivity": {"enabled": True, "levels": 2, "band": BAND[dim], **adaptivity},
         "criteria": [{"type": "disturbance", "level": 0}],
-        "stirrers": [{"radius": 0.1, "strength": 20.0, "loop": False,
-                      "path": [[0.0, 0.25] + mid, [0.1, 0.75] + mid, [0.12, 0.95] + [0.05] * (dim - 1)]}]}
+        "stirrers": [
+            {
+                "radius": 0.1,
+                "strength": 20.0,
+                "loop": False,
+                "path": [[0.0, 0.25] + mid, [0.1, 0.75] + mid, [0.12, 0.95] + [0.05] * (dim - 1)],
+            }
+        ],
+    }
 
 
 @pytest.mark.slow_params("2d-default", "3d-default", "3d-merge-remnants")
@@ -609,19 +705,25 @@ def test_fine_fluid_a_stirrer_left_merges_back(dim, remnants):
     stuck = int((fine & (p["lam"] > 1.0 + sim.scene.adaptivity.hysteresis)).sum())
     n = len(p["level"])
     rel = p["m"] / (sim.m0 * 2.0 ** (dim * p["level"]))
-    print(f"\n{dim}D merge_remnants={remnants}: {fine.sum()} fine of {n} real at 0.2 s, {stuck} of them "
-          f"wanting level 1; {(rel < 0.999).sum()} lighter than nominal (lightest {rel.min():.3f})")
+    print(
+        f"\n{dim}D merge_remnants={remnants}: {fine.sum()} fine of {n} real at 0.2 s, {stuck} of them "
+        f"wanting level 1; {(rel < 0.999).sum()} lighter than nominal (lightest {rel.min():.3f})"
+    )
     assert fine.sum() < n, f"{dim}D: nothing merged ({fine.sum()} fine of {n}); the test proves nothing"
     if remnants:
-        assert stuck <= 0.01 * n, (f"{dim}D: {stuck} of {n} real particles are fine, want level 1 and have "
-                                   f"not merged 0.08 s after the stirrer left, with merge_remnants on; "
-                                   f"expected at most 1 %")
+        assert stuck <= 0.01 * n, (
+            f"{dim}D: {stuck} of {n} real particles are fine, want level 1 and have "
+            f"not merged 0.08 s after the stirrer left, with merge_remnants on; "
+            f"expected at most 1 %"
+        )
     else:
         # 3D leaves groups of 1-3 (190 of 1791, 11 %); 2D all but a few (2 of 695)
         share = 0.15 if dim == 3 else 0.02
-        assert stuck <= share * n, (f"{dim}D: {stuck} of {n} real particles are fine, want level 1 and have "
-                                    f"not merged 0.08 s after the stirrer left; expected at most "
-                                    f"{100 * share:g} %")
+        assert stuck <= share * n, (
+            f"{dim}D: {stuck} of {n} real particles are fine, want level 1 and have "
+            f"not merged 0.08 s after the stirrer left; expected at most "
+            f"{100 * share:g} %"
+        )
 
 
 @pytest.mark.slow_params("2d-merged", "3d-absorbed", "3d-merged")
@@ -634,6 +736,7 @@ def test_no_particle_falls_below_half_its_level_mass(dim, absorb):
     2^-d of its level's mass, whose children are as light, and so on down (docs/
     performance.md, the mass cascade): the second case shows the check can fail."""
     from mrsph.multires.absorb import ABSORB_CAP
+
     sim = make_sim(stirred_slab_scene(dim, merge_remnants=True, absorb_below=absorb))
     p0 = sim.particles(virtual=False)
     mass0 = math.fsum(p0["m"].astype(np.float64))
@@ -647,18 +750,18 @@ def test_no_particle_falls_below_half_its_level_mass(dim, absorb):
         if absorb:
             assert rel.min() >= 0.5 * (1 - 1e-6) and rel.max() <= ABSORB_CAP * (1 + 1e-6), (
                 f"{dim}D at t = {sim.time:.2f} s: masses from {rel.min():.4f} to {rel.max():.4f} of "
-                f"their level's nominal; expected within [0.5, {ABSORB_CAP}]")
+                f"their level's nominal; expected within [0.5, {ABSORB_CAP}]"
+            )
     mass = math.fsum(p["m"].astype(np.float64))
     assert abs(mass - mass0) <= 1e-6 * mass0, f"{dim}D: real mass {mass} against {mass0} at the start"
-    print(f"\n{dim}D absorb_below={absorb}: {absorbed} groups absorbed, lightest particle "
-          f"{lightest:.3f} of nominal")
+    print(f"\n{dim}D absorb_below={absorb}: {absorbed} groups absorbed, lightest particle {lightest:.3f} of nominal")
     if absorb:
         assert absorbed > 0, f"{dim}D: no group was absorbed; the test proves nothing"
     else:
         assert lightest < 0.5, f"{dim}D without absorption: lightest {lightest:.3f}; the stir made no cascade"
 
 
-@pytest.mark.slow_params("3d")   # the quick run keeps 2D (conftest.py, "two tiers")
+@pytest.mark.slow_params("3d")  # the quick run keeps 2D (conftest.py, "two tiers")
 def test_a_lone_fine_particle_among_coarse_ones_is_absorbed(dim):
     """A remnant of one fine particle in fluid that wants the coarse level (a drag's
     wake, when the fine fluid has merged back round it) is too light to merge alone, so
@@ -672,13 +775,20 @@ def test_a_lone_fine_particle_among_coarse_ones_is_absorbed(dim):
     time, 97 J/m of kinetic energy; docs/performance.md, "A remnant no one could take").
     Here: one fine particle in a coarse block at rest, four adaptivity passes."""
     s1 = 2 * S0[dim]
-    scene = {"description": "coarse block with one fine particle", "dim": dim,
-             "domain": {"min": [0.0] * dim, "max": [1.0] * dim}, "particles": {"spacing": S0[dim]},
-             "fluid": {"viscosity": 1.0, "stiffness": 1000.0, "hydrostatic_start": False,
-                       "blocks": [{"min": [0.5 - 4 * s1] * dim, "max": [0.5 + 4 * s1] * dim}]},
-             "physics": {"gravity": [0.0] * dim},
-             "adaptivity": {"enabled": True, "levels": 2, "interval": 1000, "band": BAND[dim],
-                            "merge_remnants": True}}
+    scene = {
+        "description": "coarse block with one fine particle",
+        "dim": dim,
+        "domain": {"min": [0.0] * dim, "max": [1.0] * dim},
+        "particles": {"spacing": S0[dim]},
+        "fluid": {
+            "viscosity": 1.0,
+            "stiffness": 1000.0,
+            "hydrostatic_start": False,
+            "blocks": [{"min": [0.5 - 4 * s1] * dim, "max": [0.5 + 4 * s1] * dim}],
+        },
+        "physics": {"gravity": [0.0] * dim},
+        "adaptivity": {"enabled": True, "levels": 2, "interval": 1000, "band": BAND[dim], "merge_remnants": True},
+    }
     sim = make_sim(scene)
     pool = raw_pool(sim)
     assert (pool["level"][np.isin(pool["kind"], REAL_KINDS)] == 1).all(), f"{dim}D: the seed is not all coarse"
@@ -697,7 +807,8 @@ def test_a_lone_fine_particle_among_coarse_ones_is_absorbed(dim):
     assert len(fine) == 0 and absorbed == 1, (
         f"{dim}D: after four passes {len(fine)} fine particle(s) left "
         f"({', '.join(describe(after, int(i)) for i in fine)}), {absorbed} group(s) absorbed; "
-        f"expected the lone one absorbed by a coarse neighbour")
+        f"expected the lone one absorbed by a coarse neighbour"
+    )
     assert abs(real_mass(after) - mass) <= 1e-6 * mass, f"{dim}D: real mass {real_mass(after)} against {mass}"
     bad = link_violations(sim, after)
     assert not bad, f"{dim}D: " + "; ".join(bad)
@@ -717,28 +828,31 @@ def test_transient_parent_next_to_a_regular_fine_particle_splits_when_asked(dim,
     scene["adaptivity"]["split_near_regular"] = on
     sim = make_sim(scene)
     pool = raw_pool(sim)
-    lam = sim.pool.p.lam.to_numpy()[:pool["n"]]
+    lam = sim.pool.p.lam.to_numpy()[: pool["n"]]
     eta = float(scene["adaptivity"].get("hysteresis", 0.25))
-    parents = np.flatnonzero(np.isin(pool["kind"], PARENT_ROLE) & (pool["level"] == 1)
-                             & (lam >= 1 - eta) & (lam <= 1 + eta))
+    parents = np.flatnonzero(
+        np.isin(pool["kind"], PARENT_ROLE) & (pool["level"] == 1) & (lam >= 1 - eta) & (lam <= 1 + eta)
+    )
     assert len(parents) > 0, f"{dim}D: no transient parent between the thresholds to test"
     # the one furthest from the refined box, so that no other fine particle is near it
     target = parents[np.argmax(lam[parents])]
     xt = pool["x"][target].astype(np.float64)
     away = np.sign(xt - 0.5)
     sim.seeder.append((xt + 0.25 * S0[dim] * away)[None], np.zeros((1, dim)), 0)
-    sim.multires.adapt(sim.time)          # (sorts the pool: slots move, so find the parent by place)
+    sim.multires.adapt(sim.time)  # (sorts the pool: slots move, so find the parent by place)
     after = raw_pool(sim)
     coarse = np.flatnonzero((after["level"] == 1) & np.isin(after["kind"], REAL_KINDS + (V_PARENT,)))
     here = coarse[np.argmin(np.linalg.norm(after["x"][coarse] - xt, axis=1))]
     assert np.linalg.norm(after["x"][here] - xt) < 1e-6, f"{dim}D: the parent at {xt} is gone"
     split = after["kind"][here] == V_PARENT
-    assert split == on, (f"{dim}D, split_near_regular = {on}: the transient parent at {xt} "
-                         f"(wanted level {lam[target]:.3f}) {'split' if split else 'did not split'}")
+    assert split == on, (
+        f"{dim}D, split_near_regular = {on}: the transient parent at {xt} "
+        f"(wanted level {lam[target]:.3f}) {'split' if split else 'did not split'}"
+    )
 
 
 # ================================================================== 6. seeding a block
-@pytest.mark.slow_params("3d")   # the quick run keeps 2D (conftest.py, "two tiers")
+@pytest.mark.slow_params("3d")  # the quick run keeps 2D (conftest.py, "two tiers")
 def test_adaptive_seed_holds_the_uniform_runs_fluid(dim):
     """A block whose sides are not whole cells of the coarsest level (0.31, 0.27 and
     0.13 m against 4 cm: 7, 6 and 3 cells, and 3 or 1 cm left over) is seeded with the
@@ -751,10 +865,14 @@ def test_adaptive_seed_holds_the_uniform_runs_fluid(dim):
     coarse seeds next to fine ones (§8 rule e)."""
     s0 = 0.01
     lo, hi = [0.0] * dim, [0.31, 0.27, 0.13][:dim]
-    scene = {"description": "incommensurate block", "dim": dim,
-             "domain": {"min": [0.0] * dim, "max": [0.4] * dim}, "particles": {"spacing": s0},
-             "fluid": {"blocks": [{"min": lo, "max": hi}], "hydrostatic_start": False},
-             "adaptivity": {"enabled": True, "levels": 3}}
+    scene = {
+        "description": "incommensurate block",
+        "dim": dim,
+        "domain": {"min": [0.0] * dim, "max": [0.4] * dim},
+        "particles": {"spacing": s0},
+        "fluid": {"blocks": [{"min": lo, "max": hi}], "hydrostatic_start": False},
+        "adaptivity": {"enabled": True, "levels": 3},
+    }
     sim = make_sim(scene)
     seeds = sim.seeder.block_lattices(lo, hi)
     x = np.concatenate([xs for _, xs in seeds])
@@ -763,23 +881,26 @@ def test_adaptive_seed_holds_the_uniform_runs_fluid(dim):
     uniform_n = sim.scene.estimate_particles()
     m0 = float(sim.lev.m[0])
     mass = real_mass(raw_pool(sim))
-    print(f"\n{dim}D seed: {per_level} particles per level, mass after the first passes "
-          f"{mass / m0:.4f} m0 (uniform lattice {uniform_n})")
+    print(
+        f"\n{dim}D seed: {per_level} particles per level, mass after the first passes "
+        f"{mass / m0:.4f} m0 (uniform lattice {uniform_n})"
+    )
     assert min(per_level.values()) > 0, f"{dim}D: expected seeds at every level, got {per_level}"
     seeded = sum(n * 2 ** (dim * level) for level, n in per_level.items())
     assert seeded == uniform_n, f"{dim}D: the seed holds {seeded} m0, the uniform lattice {uniform_n} m0"
     assert abs(mass / m0 - uniform_n) <= 1e-5 * uniform_n, (
-        f"{dim}D: the adaptive run starts with {mass / m0:.4f} m0 of fluid, "
-        f"the uniform lattice {uniform_n} m0")
+        f"{dim}D: the adaptive run starts with {mass / m0:.4f} m0 of fluid, the uniform lattice {uniform_n} m0"
+    )
     cells_lo = (x - 0.5 * s_own[:, None]).min(axis=0)
     cells_hi = (x + 0.5 * s_own[:, None]).max(axis=0)
     assert np.allclose(cells_lo, lo, atol=1e-9) and np.allclose(cells_hi, hi, atol=1e-9), (
-        f"{dim}D: the seed's cells span {cells_lo.tolist()} to {cells_hi.tolist()}, "
-        f"the block {lo} to {hi}")
+        f"{dim}D: the seed's cells span {cells_lo.tolist()} to {cells_hi.tolist()}, the block {lo} to {hi}"
+    )
     d, j = cKDTree(x).query(x, k=2)
     closest = d[:, 1] / np.minimum(s_own, s_own[j[:, 1]])
     assert closest.min() >= 1.0 - 1e-9, (
-        f"{dim}D: seeds overlap: nearest neighbour at {closest.min():.3f} of the finer spacing")
+        f"{dim}D: seeds overlap: nearest neighbour at {closest.min():.3f} of the finer spacing"
+    )
 
 
 # ================================================================== profiled steps
@@ -803,13 +924,13 @@ def test_profiled_steps_take_the_same_physics_as_fused_ones(dim, adaptive):
     scene["physics"]["gravity"] = [0.0, -9.81] + [0.0] * (dim - 2)
     scene["adaptivity"]["enabled"] = adaptive
     block = scene["fluid"]["blocks"][0]
-    scene["domain"]["min"][1] = block["min"][1]     # the floor under the slab
+    scene["domain"]["min"][1] = block["min"][1]  # the floor under the slab
     speed = 1.5 if adaptive else 6.0
     block["velocity"] = [0.0, -speed] + [0.0] * (dim - 2)
     runs = []
     for profile in (False, True):
         sim = Simulation(load_scene(scene), arch="cpu", profile=profile, threads=1)
-        if not adaptive:   # the slab's lowest particle under the floor: the walls project it
+        if not adaptive:  # the slab's lowest particle under the floor: the walls project it
             low = int(np.argmin(sim.pool.p.x.to_numpy()[: sim.pool.count(), 1]))
             x = sim.pool.p.x[low]
             x[1] = block["min"][1] - 0.002
@@ -819,14 +940,16 @@ def test_profiled_steps_take_the_same_physics_as_fused_ones(dim, adaptive):
         runs.append((sim.time, sim.steps, raw_pool(sim)))
     (t0, n0, fused), (t1, n1, split) = runs
     assert n0 == n1 and t1 == pytest.approx(t0, rel=1e-6), (
-        f"{dim}D: fused steps reached t = {t0!r} in {n0}, profiled ones t = {t1!r} in {n1}")
+        f"{dim}D: fused steps reached t = {t0!r} in {n0}, profiled ones t = {t1!r} in {n1}"
+    )
     for key in ("n", "level", "kind", "nchild"):
         assert np.array_equal(fused[key], split[key]), f"{dim}D: profiled and fused steps differ in {key}"
     dx = float(np.abs(fused["x"] - split["x"]).max())
     dv = float(np.abs(fused["v"] - split["v"]).max())
     assert dx < 1e-6 and dv < 1e-4, (
         f"{dim}D: after 60 steps profiled and fused positions differ by up to {dx:.3g} m, "
-        f"velocities by {dv:.3g} m/s (slab at {speed} m/s)")
+        f"velocities by {dv:.3g} m/s (slab at {speed} m/s)"
+    )
 
 
 # ================================================================== save and restore
@@ -844,15 +967,16 @@ def test_a_restored_state_steps_exactly_as_the_original(dim):
 
     scene = moving_region_scene(dim)
     first = Simulation(load_scene(scene), arch="cpu", threads=1)
-    for _ in range(25):          # an odd count: the pass's phase matters
+    for _ in range(25):  # an odd count: the pass's phase matters
         first.step()
     state = first.save_state()
-    first.stats()                # counts events since the last call: start from zero here
+    first.stats()  # counts events since the last call: start from zero here
     for _ in range(30):
         first.step()
     events = first.stats()
     assert events["splits"] + events["merges"] > 0, (
-        f"{dim}D: no split or merge in the 30 steps compared ({events['splits']}, {events['merges']})")
+        f"{dim}D: no split or merge in the 30 steps compared ({events['splits']}, {events['merges']})"
+    )
     second = Simulation(load_scene(scene), arch="cpu", threads=1)
     second.restore_state(state)
     for _ in range(30):
@@ -860,7 +984,8 @@ def test_a_restored_state_steps_exactly_as_the_original(dim):
     a, b = raw_pool(first), raw_pool(second)
     assert (second.time, second.steps) == (first.time, first.steps), (
         f"{dim}D: restored run at t = {second.time!r} after {second.steps} steps, original at "
-        f"t = {first.time!r} after {first.steps}")
+        f"t = {first.time!r} after {first.steps}"
+    )
     for key in a:
         assert np.array_equal(a[key], b[key]), f"{dim}D: the restored run's {key} differs after 30 steps"
     # a state of another dimension or pool size is refused before anything is written
@@ -882,21 +1007,21 @@ def test_particles_whose_lists_overflowed_move_as_if_listed(dim, solver, monkeyp
     every kind of particle are in the sums. The two sum in another order, so they agree
     to round-off. Found by the stirred soak (session 35): under dfsph the own block holds
     i itself at r = 0, which the solver took for i on a wall, and its velocity went NaN."""
-    import mrsph.sph.neighbours
     import mrsph.pressure.dfsph
+    import mrsph.sph.neighbours
     from mrsph.simulation import Simulation
 
     scene = for_solver(moving_region_scene(dim), solver)
     scene["physics"]["gravity"] = [0.0, -9.81] + [0.0] * (dim - 2)
     block = scene["fluid"]["blocks"][0]
-    scene["domain"]["min"][1] = block["min"][1]       # the floor under the slab
+    scene["domain"]["min"][1] = block["min"][1]  # the floor under the slab
     block["velocity"] = [0.0, -1.5] + [0.0] * (dim - 2)
     listed = Simulation(load_scene(scene), arch="cpu", threads=1)
-    for _ in range(2):      # the slab's impact, where the walls' images push hardest
-        listed.step()       # (after 12 steps a wrong image term in the solve went unseen)
+    for _ in range(2):  # the slab's impact, where the walls' images push hardest
+        listed.step()  # (after 12 steps a wrong image term in the solve went unseen)
     state = listed.save_state()
     monkeypatch.setattr(mrsph.sph.neighbours, "MAX_NEIGHBOURS", {2: 1, 3: 1})
-    monkeypatch.setattr(mrsph.pressure.dfsph, "IMAGE_PAIRS", {2: 1, 3: 1})   # dfsph's image pairs too
+    monkeypatch.setattr(mrsph.pressure.dfsph, "IMAGE_PAIRS", {2: 1, 3: 1})  # dfsph's image pairs too
     overflowed = Simulation(load_scene(scene), arch="cpu", threads=1)
     overflowed.restore_state(state)
     listed.step()
@@ -911,11 +1036,12 @@ def test_particles_whose_lists_overflowed_move_as_if_listed(dim, solver, monkeyp
     assert np.isfinite(b["v"]).all() and dv[worst] <= 1e-4 * speed, (
         f"{case_label(dim, solver)}: a step with every list overflowed moves real particle {worst} at "
         f"{b['v'][real][worst]} m/s, the listed step at {a['v'][real][worst]} (fastest {speed:.3g} m/s; "
-        f"{int((~np.isfinite(b['v'])).any(axis=1).sum())} non-finite velocities)")
+        f"{int((~np.isfinite(b['v'])).any(axis=1).sum())} non-finite velocities)"
+    )
 
 
 # ================================================================== capacity
-@pytest.mark.slow_params("3d")   # the quick run keeps 2D (conftest.py, "two tiers")
+@pytest.mark.slow_params("3d")  # the quick run keeps 2D (conftest.py, "two tiers")
 def test_a_full_pool_refuses_splits_warns_once_and_loses_nothing(dim):
     """Issue 3 §7: a split that does not fit in the pool is refused, counted in the stats
     (``refused``) and reported once as a RuntimeWarning; the run goes on with its links
@@ -931,12 +1057,18 @@ def test_a_full_pool_refuses_splits_warns_once_and_loses_nothing(dim):
     lo, hi = scene["fluid"]["blocks"][0]["min"], scene["fluid"]["blocks"][0]["max"]
     half = [0.5 * (b - a) + 0.05 for a, b in zip(lo, hi)]
     centre = [0.5 * (a + b) for a, b in zip(lo, hi)]
-    start = [0.99] + centre[1:]          # the box's far edge over the slab's last quarter
+    start = [0.99] + centre[1:]  # the box's far edge over the slab's last quarter
     slide = 20 * sound_step(scene)
-    scene["criteria"] = [{"type": "region", "shape": "box", "level": 0,
-                          "min": [c - h for c, h in zip(start, half)],
-                          "max": [c + h for c, h in zip(start, half)],
-                          "path": [[0.0] + start, [slide] + centre, [1e3] + centre]}]
+    scene["criteria"] = [
+        {
+            "type": "region",
+            "shape": "box",
+            "level": 0,
+            "min": [c - h for c, h in zip(start, half)],
+            "max": [c + h for c, h in zip(start, half)],
+            "path": [[0.0] + start, [slide] + centre, [1e3] + centre],
+        }
+    ]
     block = scene["fluid"]["blocks"][0]
     extent = np.asarray(block["max"], float) - np.asarray(block["min"], float)
     scene["particles"]["capacity"] = int(np.prod(np.floor(extent / S0[dim] + 1e-9)))
@@ -952,19 +1084,22 @@ def test_a_full_pool_refuses_splits_warns_once_and_loses_nothing(dim):
             splits += ev["splits"]
             assert ev["total_mass"] == m_start, (
                 f"{dim}D, step {step}: total real mass {ev['total_mass']!r} != {m_start!r} "
-                f"with {refused} splits refused so far")
+                f"with {refused} splits refused so far"
+            )
             bad = link_violations(sim, raw_pool(sim))
             assert not bad, f"{dim}D, step {step}, {refused} refused so far: " + "; ".join(bad)
     full = [w for w in caught if issubclass(w.category, RuntimeWarning) and "pool full" in str(w.message)]
-    print(f"\n{dim}D capacity {sim.capacity}: {splits} splits, {refused} refused in 60 steps; "
-          f"{len(full)} warning(s)")
+    print(f"\n{dim}D capacity {sim.capacity}: {splits} splits, {refused} refused in 60 steps; {len(full)} warning(s)")
     assert refused > 0, f"{dim}D: capacity {sim.capacity} refused nothing ({splits} splits): the test is void"
     total = int(sim.pool.refused[None])
-    assert refused == total, (f"{dim}D: the stats rows' refused add up to {refused}, the pool "
-                              f"refused {total} claims (each row counts since the previous one)")
+    assert refused == total, (
+        f"{dim}D: the stats rows' refused add up to {refused}, the pool "
+        f"refused {total} claims (each row counts since the previous one)"
+    )
     assert len(full) == 1 and sim.warnings == [str(full[0].message)], (
         f"{dim}D: expected one 'pool full' warning, got {len(full)} "
-        f"({len(sim.warnings)} in sim.warnings); first: {full[0].message if full else None}")
+        f"({len(sim.warnings)} in sim.warnings); first: {full[0].message if full else None}"
+    )
 
 
 # ================================================================== 9. split compression
@@ -973,14 +1108,13 @@ def jittered_block_scene(dim: int, solver: str, fade: float) -> dict:
     is (none yet); no pass but the ones the test runs (``interval``)."""
     s0 = S0[dim]
     scene = {
-        "description": "coarse block, refined under the mouse", "dim": dim,
+        "description": "coarse block, refined under the mouse",
+        "dim": dim,
         "domain": {"min": [0.0] * dim, "max": [1.0] * dim},
         "particles": {"spacing": s0},
-        "fluid": {"viscosity": 1.0, "stiffness": 1000.0,
-                  "blocks": [{"min": [0.3] * dim, "max": [0.7] * dim}]},
+        "fluid": {"viscosity": 1.0, "stiffness": 1000.0, "blocks": [{"min": [0.3] * dim, "max": [0.7] * dim}]},
         "physics": {"gravity": [0.0] * dim, "cfl": 0.2},
-        "adaptivity": {"enabled": True, "levels": 2, "interval": 100000, "band": BAND[dim],
-                       "split_fade": fade},
+        "adaptivity": {"enabled": True, "levels": 2, "interval": 100000, "band": BAND[dim], "split_fade": fade},
         "criteria": [{"type": "disturbance", "level": 0}],
     }
     return for_solver(scene, solver)
@@ -997,6 +1131,7 @@ def test_split_children_start_at_their_parents_pressure(dim, solver):
     up to a fifth of its spacing, as a fluid that has flowed is, so that the children
     overlap."""
     from mrsph.scene.interaction import Disturbance
+
     tau = 0.01
     scene = jittered_block_scene(dim, solver, tau)
     sim = make_sim(scene, threads=1)
@@ -1005,7 +1140,7 @@ def test_split_children_start_at_their_parents_pressure(dim, solver):
     n = state["n"]
     s1 = 2.0 * S0[dim]
     x = state["attributes"]["x"]
-    inside = np.flatnonzero(np.linalg.norm(x[:n] - 0.5, axis=1) < 0.08)     # all split below
+    inside = np.flatnonzero(np.linalg.norm(x[:n] - 0.5, axis=1) < 0.08)  # all split below
     x[inside] += rng.uniform(-0.2 * s1, 0.2 * s1, size=(len(inside), dim)).astype(x.dtype)
     sim.restore_state(state)
     # no density pass before the split: the parents keep the density they were seeded
@@ -1013,34 +1148,41 @@ def test_split_children_start_at_their_parents_pressure(dim, solver):
     # though they are not on a lattice; one taken here would read the jitter as a
     # compression of the coarse fluid, which the split rightly hands on
     before = raw_pool(sim)
-    coarse_rho = {tuple(xc): r for xc, r, k, l in zip(before["x"], sim.pool.p.rho.to_numpy()[:before["n"]],
-                                                      before["kind"], before["level"])
-                  if k in REAL_KINDS and l == 1}
+    coarse_rho = {
+        tuple(xc): r
+        for xc, r, k, l in zip(before["x"], sim.pool.p.rho.to_numpy()[: before["n"]], before["kind"], before["level"])
+        if k in REAL_KINDS and l == 1
+    }
     sim.set_disturbance(Disturbance((0.5,) * dim, 0.1, 1e-6, "push", (0.0,) * dim))
     sim.multires.adapt(sim.time)
     sim.run_phases("grid", "density")
     pool = raw_pool(sim)
-    rho = sim.pool.p.rho.to_numpy()[:pool["n"]]
-    drho = sim.pool.p.drho.to_numpy()[:pool["n"]]
-    pres = sim.pool.p.p.to_numpy()[:pool["n"]]
+    rho = sim.pool.p.rho.to_numpy()[: pool["n"]]
+    drho = sim.pool.p.drho.to_numpy()[: pool["n"]]
+    pres = sim.pool.p.p.to_numpy()[: pool["n"]]
     kids = np.flatnonzero(np.isin(pool["kind"], CHILD_ROLE) & (pool["level"] == 0))
     assert len(kids) >= 8, f"{case_label(dim, solver)}: only {len(kids)} split children to test"
-    parent_rho = np.array([max(coarse_rho[tuple(pool["x"][pool["parent"][i]])], 1000.0) for i in kids],
-                          np.float32)      # its parent's density, rho0 at least
+    parent_rho = np.array(
+        [max(coarse_rho[tuple(pool["x"][pool["parent"][i]])], 1000.0) for i in kids], np.float32
+    )  # its parent's density, rho0 at least
     expected = np.maximum(rho[kids] - parent_rho, np.float32(0.0))
     worst = np.max(np.abs(drho[kids] - expected))
-    assert worst <= 1e-3, (f"{case_label(dim, solver)}: a child's drho differs from its density's excess "
-                           f"over its parent's by {worst:.3g} kg/m^3 (expected round-off)")
+    assert worst <= 1e-3, (
+        f"{case_label(dim, solver)}: a child's drho differs from its density's excess "
+        f"over its parent's by {worst:.3g} kg/m^3 (expected round-off)"
+    )
     offset = kids[drho[kids] > 1.0]
     assert len(offset) >= len(kids) // 10, (
         f"{case_label(dim, solver)}: {len(offset)} of {len(kids)} children read more than 1 kg/m^3 above "
-        f"their parent (the jitter should overlap a tenth at least); largest excess {drho[kids].max():.3g}")
+        f"their parent (the jitter should overlap a tenth at least); largest excess {drho[kids].max():.3g}"
+    )
     if solver == "wcsph":
-        k, rho0 = 1000.0, 1000.0          # the linear equation of state, p = k (rho - rho0)
+        k, rho0 = 1000.0, 1000.0  # the linear equation of state, p = k (rho - rho0)
         want = np.maximum(k * (rho[offset].astype(np.float64) - drho[offset] - rho0), 0.0)
         err = np.max(np.abs(pres[offset] - want))
-        assert err <= 1e-3 * rho0 * k, (f"{case_label(dim, solver)}: a split child's pressure is off "
-                                        f"p(rho - drho) by {err:.3g} Pa")
+        assert err <= 1e-3 * rho0 * k, (
+            f"{case_label(dim, solver)}: a split child's pressure is off p(rho - drho) by {err:.3g} Pa"
+        )
     total0 = float(drho[pool["level"] == 0].sum())
     for _ in range(20):
         sim.step()
@@ -1050,21 +1192,26 @@ def test_split_children_start_at_their_parents_pressure(dim, solver):
     # followed: never more than what the child still reads above its reference
     over = drho - np.maximum(rho - ref, 0.0)
     worst = int(np.argmax(over))
-    assert over[worst] <= 1e-3, (f"{case_label(dim, solver)}: a child keeps drho {drho[worst]:.4g} kg/m^3 out "
-                                 f"of its pressure while it reads {rho[worst]:.6g} against its reference "
-                                 f"{ref[worst]:.6g}")
+    assert over[worst] <= 1e-3, (
+        f"{case_label(dim, solver)}: a child keeps drho {drho[worst]:.4g} kg/m^3 out "
+        f"of its pressure while it reads {rho[worst]:.6g} against its reference "
+        f"{ref[worst]:.6g}"
+    )
     # and faded: at most what exp(-t/tau) leaves
     total, most = float(drho.sum()), total0 * math.exp(-sim.time / tau)
-    assert total <= 1.001 * most, (f"{case_label(dim, solver)}: after {sim.time * 1e3:.2f} ms the children's "
-                                   f"drho sums to {total:.4g}, more than {most:.4g} = {total0:.4g} "
-                                   f"exp(-t/{tau})")
+    assert total <= 1.001 * most, (
+        f"{case_label(dim, solver)}: after {sim.time * 1e3:.2f} ms the children's "
+        f"drho sums to {total:.4g}, more than {most:.4g} = {total0:.4g} "
+        f"exp(-t/{tau})"
+    )
     # what it is for: the fluid does not take the sampling error for a compression.
     # Measured after these 20 steps (2.5 ms in 2D, 5 ms in 3D): 0.56, 0.78 m/s (2D, 3D),
     # 0.35, 1.01 m/s with dfsph; with split_fade = 0 5.2, 3.9, 6.6 and 16 m/s
     fastest = float(np.linalg.norm(sim.particles(virtual=False)["v"], axis=1).max())
-    assert fastest <= 2.0, (f"{case_label(dim, solver)}: a split of the jittered block at rest threw a "
-                            f"particle at {fastest:.2f} m/s within {sim.time * 1e3:.2f} ms (expected <= 2)")
-
+    assert fastest <= 2.0, (
+        f"{case_label(dim, solver)}: a split of the jittered block at rest threw a "
+        f"particle at {fastest:.2f} m/s within {sim.time * 1e3:.2f} ms (expected <= 2)"
+    )
 
 
 def split_under_a_cursor(dim: int, jitter_radius: float = 0.08):
@@ -1072,6 +1219,7 @@ def split_under_a_cursor(dim: int, jitter_radius: float = 0.08):
     centre) split under a still cursor, three steps on: the children carry their
     offsets, measured and followed."""
     from mrsph.scene.interaction import Disturbance
+
     sim = make_sim(jittered_block_scene(dim, "wcsph", 1.0), threads=1)
     state = sim.save_state()
     rng = np.random.default_rng(7)
@@ -1098,9 +1246,9 @@ def test_a_merge_starts_at_the_pressure_its_group_had(dim):
     against rho - drho (docs/performance.md, "The release of the cursor")."""
     sim = split_under_a_cursor(dim)
     pool = raw_pool(sim)
-    rho = sim.pool.p.rho.to_numpy()[:pool["n"]].astype(np.float64)
-    drho = sim.pool.p.drho.to_numpy()[:pool["n"]].astype(np.float64)
-    centres, seen, raw = [], [], []     # each group's centre of mass, and what it read
+    rho = sim.pool.p.rho.to_numpy()[: pool["n"]].astype(np.float64)
+    drho = sim.pool.p.drho.to_numpy()[: pool["n"]].astype(np.float64)
+    centres, seen, raw = [], [], []  # each group's centre of mass, and what it read
     for vp in np.flatnonzero(pool["kind"] == V_PARENT):
         ch = pool["children"][vp][: pool["nchild"][vp]]
         m = pool["m"][ch].astype(np.float64)
@@ -1113,13 +1261,15 @@ def test_a_merge_starts_at_the_pressure_its_group_had(dim):
     real = np.isin(pool["kind"], REAL_KINDS)
     want = float((rho - np.maximum(drho, 0.0))[real].max()) / 1000.0
     got = sim.stats()["max_density_ratio"]
-    assert abs(got - want) <= 1e-6, (f"{dim}D: stats max_density_ratio {got:.6f}, the largest rho - drho "
-                                      f"{want:.6f} rho0 (raw {rho[real].max() / 1000.0:.6f})")
+    assert abs(got - want) <= 1e-6, (
+        f"{dim}D: stats max_density_ratio {got:.6f}, the largest rho - drho "
+        f"{want:.6f} rho0 (raw {rho[real].max() / 1000.0:.6f})"
+    )
     sim.set_disturbance(None)
     sim.multires.adapt(sim.time)
     after = raw_pool(sim)
-    ref = sim.pool.p.rho_ref.to_numpy()[:after["n"]]
-    born = sim.pool.p.drho.to_numpy()[:after["n"]] == -1.0
+    ref = sim.pool.p.rho_ref.to_numpy()[: after["n"]]
+    born = sim.pool.p.drho.to_numpy()[: after["n"]] == -1.0
     merged = np.flatnonzero((after["kind"] == REGULAR) & (after["level"] == 1) & born)
     # a merged particle stands at its group's centre of mass (a gathered group's is
     # elsewhere: those match none)
@@ -1127,11 +1277,15 @@ def test_a_merge_starts_at_the_pressure_its_group_had(dim):
     hit = dist < 1e-4 * S0[dim]
     matched = int(hit.sum())
     worst = float(np.max(np.abs(ref[merged[hit]] - np.maximum(seen[g[hit]], 1000.0)), initial=0.0))
-    assert carried >= 4 and matched >= 4, (f"{dim}D: {carried} of {len(groups)} groups carry an offset and "
-                                           f"{matched} of {len(merged)} merged particles matched one (expected "
-                                           f">= 4 each: the test is void)")
-    assert worst <= 0.05, (f"{dim}D: a merged particle's reference density is off its group's mass-weighted "
-                           f"rho - drho (rho0 at least) by {worst:.3g} kg/m^3")
+    assert carried >= 4 and matched >= 4, (
+        f"{dim}D: {carried} of {len(centres)} groups carry an offset and "
+        f"{matched} of {len(merged)} merged particles matched one (expected "
+        f">= 4 each: the test is void)"
+    )
+    assert worst <= 0.05, (
+        f"{dim}D: a merged particle's reference density is off its group's mass-weighted "
+        f"rho - drho (rho0 at least) by {worst:.3g} kg/m^3"
+    )
 
 
 @pytest.mark.parametrize("dim", DIMS_3D_SLOW)
@@ -1164,18 +1318,20 @@ def test_merging_back_compresses_nothing_around_it(dim):
         sim.run_phases("grid", "density")
         x1, eff1 = seen()
         dist, j = cKDTree(x0).query(x1)
-        same = dist < 1e-7             # there before the pass, and not moved by it
+        same = dist < 1e-7  # there before the pass, and not moved by it
         rise = eff1[same] - np.maximum(eff0[j[same]], 1000.0)
         worst = int(np.argmax(rise))
         assert rise[worst] <= 1e-3, (
             f"{dim}D, pass {npass + 1} after the cursor left: a particle's pressure read "
             f"{eff0[j[same]][worst]:.6g} kg/m^3 before the pass and {eff1[same][worst]:.6g} after it, at the "
             f"same place ({int((rise > 1e-3).sum())} of {int(same.sum())} rose above rho0 and their density "
-            f"before)")
+            f"before)"
+        )
         checked += int(same.sum())
         x0, eff0 = x1, eff1
-    assert len(x0) < n_before and checked > 0, (f"{dim}D: {n_before} real particles before the passes, "
-                                                f"{len(x0)} after: nothing merged, the test is void")
+    assert len(x0) < n_before and checked > 0, (
+        f"{dim}D: {n_before} real particles before the passes, {len(x0)} after: nothing merged, the test is void"
+    )
 
 
 @pytest.mark.parametrize("dim", DIMS_3D_SLOW)
@@ -1191,6 +1347,7 @@ def test_a_split_moves_no_mass(dim):
     coarse neighbours went to 1.03-1.08 rho0 in a step, and the density solve threw its
     children at 2.6 m/s (docs/performance.md, "A cursor dragged through resting water")."""
     from mrsph.scene.interaction import Disturbance
+
     sim = split_under_a_cursor(dim, jitter_radius=0.16)
     before = raw_pool(sim)
     was_real = np.isin(before["kind"], REAL_KINDS) & (before["level"] == 1)
@@ -1203,8 +1360,8 @@ def test_a_split_moves_no_mass(dim):
     for vp in np.flatnonzero((pool["kind"] == V_PARENT) & (pool["level"] == 1)):
         dist, _ = coarse.query(pool["x"][vp].astype(np.float64))
         ch = pool["children"][vp][: pool["nchild"][vp]]
-        if dist > 1e-9 or len(ch) != 2 ** dim:
-            continue                  # not a particle split in this pass
+        if dist > 1e-9 or len(ch) != 2**dim:
+            continue  # not a particle split in this pass
         m = pool["m"][ch].astype(np.float64)
         xc = pool["x"][ch].astype(np.float64)
         centre = (m[:, None] * xc).sum(axis=0) / m.sum()
@@ -1216,15 +1373,19 @@ def test_a_split_moves_no_mass(dim):
         groups += 1
     assert groups >= 4 and spread > 0.05 * S0[dim], (
         f"{dim}D: {groups} particles split in the pass, their children moved at most {spread / S0[dim]:.3g} "
-        f"fine spacings off the lattice (expected >= 4 splits and a move > 0.05: the test is void)")
-    assert worst <= 1e-5 * s1, (f"{dim}D: a split's children have their centre of mass "
-                                f"{worst / s1:.3g} coarse spacings from their parent's place (expected round-off)")
+        f"fine spacings off the lattice (expected >= 4 splits and a move > 0.05: the test is void)"
+    )
+    assert worst <= 1e-5 * s1, (
+        f"{dim}D: a split's children have their centre of mass "
+        f"{worst / s1:.3g} coarse spacings from their parent's place (expected round-off)"
+    )
 
 
 def test_scratch_flags_are_distinct_single_bits():
     """The adaptivity pass ORs and masks its scratch flags: two flags on one bit would
     make a particle carry the other's meaning."""
     from mrsph.multires import topology
+
     bits = sorted(topology._FLAGS)
     assert bits == [1 << k for k in range(len(bits))], f"flag bits {bits} are not distinct single bits"
 
@@ -1234,5 +1395,6 @@ def test_mass_is_the_only_attribute_divided_on_split_or_summed_on_merge():
     the mass by hand, as the merge's mass-weighted means need it; an attribute given
     either rule would be carried wrongly."""
     from mrsph.sph.particles import ATTRIBUTES
+
     ruled = [a.name for a in ATTRIBUTES if a.on_split == "divide" or a.on_merge == "sum"]
     assert ruled == ["m"], f"attributes with divide/sum rules: {ruled}; topology.py writes only the mass"

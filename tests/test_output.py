@@ -1,4 +1,5 @@
 """Frame dumps (npz, PLY, VTU) read back, and stats.csv columns and float round trip."""
+
 import csv
 import math
 
@@ -19,8 +20,8 @@ def particles(dim: int, n: int = 37, seed: int = 0) -> dict:
         "v": rng.standard_normal((n, dim)).astype(np.float32),
         "m": rng.random(n) * 1e-3 + 1e-4,
         "rho": 1000.0 + rng.standard_normal(n),
-        "p": rng.random(n) * 1e4,                    # pressure, Pa (both solvers write it)
-        "lam": rng.random(n),                        # extra arrays are ignored
+        "p": rng.random(n) * 1e4,  # pressure, Pa (both solvers write it)
+        "lam": rng.random(n),  # extra arrays are ignored
         "level": rng.integers(0, 3, n).astype(np.int32),
         "kind": rng.integers(0, 6, n).astype(np.int32),
     }
@@ -82,8 +83,18 @@ def test_vtu_reads_back_with_meshio(tmp_path, dim):
     for name in ("m", "rho", "p", "level", "kind"):
         np.testing.assert_array_equal(mesh.point_data[name], parts[name])
     # the XML check the empty frame relies on agrees with meshio here (zlib-compressed)
-    assert vtu_array_lengths(path) == {"Points": 37, "connectivity": 37, "offsets": 37, "types": 37,
-                                       "v": 37, "m": 37, "rho": 37, "p": 37, "level": 37, "kind": 37}
+    assert vtu_array_lengths(path) == {
+        "Points": 37,
+        "connectivity": 37,
+        "offsets": 37,
+        "types": 37,
+        "v": 37,
+        "m": 37,
+        "rho": 37,
+        "p": 37,
+        "level": 37,
+        "kind": 37,
+    }
 
 
 @pytest.mark.parametrize("fmt", FORMATS)
@@ -99,8 +110,9 @@ def test_empty_frame_is_written(tmp_path, fmt):
     elif fmt == "npz":
         with np.load(path) as f:
             shapes = {k: f[k].shape for k in f.files}
-        assert shapes == {"x": (0, 2), "v": (0, 2), "m": (0,), "rho": (0,), "p": (0,), "level": (0,),
-                          "kind": (0,)}, f"empty npz frame holds {shapes}"
+        assert shapes == {"x": (0, 2), "v": (0, 2), "m": (0,), "rho": (0,), "p": (0,), "level": (0,), "kind": (0,)}, (
+            f"empty npz frame holds {shapes}"
+        )
     elif fmt == "obj":
         # no fluid, no surface: the file names its object and holds no vertex or face
         lines = path.read_text().splitlines()
@@ -109,8 +121,18 @@ def test_empty_frame_is_written(tmp_path, fmt):
         # meshio cannot read an empty .vtu back (IndexError in vtk_cells_from_data, even on
         # a minimal hand-written valid one with ascii, empty DataArrays; meshio 5.3.5), so
         # the XML is checked here as a VTK reader sees it.
-        assert vtu_array_lengths(path) == {"Points": 0, "connectivity": 0, "offsets": 0, "types": 0,
-                                           "v": 0, "m": 0, "rho": 0, "p": 0, "level": 0, "kind": 0}
+        assert vtu_array_lengths(path) == {
+            "Points": 0,
+            "connectivity": 0,
+            "offsets": 0,
+            "types": 0,
+            "v": 0,
+            "m": 0,
+            "rho": 0,
+            "p": 0,
+            "level": 0,
+            "kind": 0,
+        }
 
 
 def vtu_array_lengths(path) -> dict:
@@ -127,8 +149,16 @@ def vtu_array_lengths(path) -> dict:
     header = np.dtype("<u8" if root.get("header_type") == "UInt64" else "<u4")
     compressed = root.get("compressor")
     assert compressed in (None, "vtkZLibDataCompressor"), root.attrib
-    types = {"Int8": "<i1", "UInt8": "<u1", "Int32": "<i4", "UInt32": "<u4", "Int64": "<i8",
-             "UInt64": "<u8", "Float32": "<f4", "Float64": "<f8"}
+    types = {
+        "Int8": "<i1",
+        "UInt8": "<u1",
+        "Int32": "<i4",
+        "UInt32": "<u4",
+        "Int64": "<i8",
+        "UInt64": "<u8",
+        "Float32": "<f4",
+        "Float64": "<f8",
+    }
     pieces = root.findall("./UnstructuredGrid/Piece")
     assert len(pieces) == 1, f"{len(pieces)} pieces"
     piece = pieces[0]
@@ -141,17 +171,17 @@ def vtu_array_lengths(path) -> dict:
         else:
             assert arr.get("format") == "binary", arr.attrib
             # base64 of the header, then (encoded separately) base64 of the data
-            b64len = lambda nbytes: 4 * -(-nbytes // 3)   # noqa: E731
-            first = int(np.frombuffer(base64.b64decode(text[:b64len(header.itemsize)]), header, 1)[0])
-            if compressed:   # header [blocks, block size, last size, compressed sizes...]
+            b64len = lambda nbytes: 4 * -(-nbytes // 3)  # noqa: E731
+            first = int(np.frombuffer(base64.b64decode(text[: b64len(header.itemsize)]), header, 1)[0])
+            if compressed:  # header [blocks, block size, last size, compressed sizes...]
                 head = b64len((3 + first) * header.itemsize)
                 sizes = np.frombuffer(base64.b64decode(text[:head]), header, 3 + first)[3:]
                 raw = base64.b64decode(text[head:])
                 assert len(raw) == int(sizes.sum()), f"{name}: {len(raw)} compressed bytes, header {sizes}"
                 ends = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
-                data = b"".join(zlib.decompress(raw[ends[i]:ends[i + 1]]) for i in range(first))
-            else:            # header [byte count]
-                data = base64.b64decode(text[b64len(header.itemsize):])
+                data = b"".join(zlib.decompress(raw[ends[i] : ends[i + 1]]) for i in range(first))
+            else:  # header [byte count]
+                data = base64.b64decode(text[b64len(header.itemsize) :])
                 assert len(data) == first, f"{name}: header says {first} bytes, {len(data)} follow"
             values = np.frombuffer(data, dtype)
         ncomp = int(arr.get("NumberOfComponents", 1))
@@ -159,7 +189,8 @@ def vtu_array_lengths(path) -> dict:
         lengths[name] = values.size // ncomp
     n_points, n_cells = int(piece.get("NumberOfPoints")), int(piece.get("NumberOfCells"))
     assert lengths["Points"] == n_points and lengths["types"] == lengths["offsets"] == n_cells, (
-        f"NumberOfPoints {n_points}, NumberOfCells {n_cells}, arrays {lengths}")
+        f"NumberOfPoints {n_points}, NumberOfCells {n_cells}, arrays {lengths}"
+    )
     for sect in piece.findall("PointData"):
         for arr in sect.iter("DataArray"):
             assert lengths[arr.get("Name")] == n_points, f"point data {arr.get('Name')}: {lengths}"
@@ -177,12 +208,19 @@ def test_missing_array_is_refused(tmp_path):
 
 def stats_row(dim: int, levels: int, frame: int = 0) -> dict:
     """A row shaped like Simulation.stats(), with awkward floats."""
-    row = {"frame": frame, "time": frame / 30.0, "dt": 1.0 / 3.0 * 1e-4, "n_real": 1234,
-           "n_virtual": 56, "total_mass": math.fsum([0.1] * 7 + [1e-17]),
-           "kinetic_energy": 2.0 / 3.0, "max_density_ratio": 1.0 + 1e-15}
+    row = {
+        "frame": frame,
+        "time": frame / 30.0,
+        "dt": 1.0 / 3.0 * 1e-4,
+        "n_real": 1234,
+        "n_virtual": 56,
+        "total_mass": math.fsum([0.1] * 7 + [1e-17]),
+        "kinetic_energy": 2.0 / 3.0,
+        "max_density_ratio": 1.0 + 1e-15,
+    }
     for k, ax in enumerate("xyz"[:dim]):
         row[f"momentum_{ax}"] = (-1) ** k * 1e-7 / 3.0
-    for l in reversed(range(levels)):              # the writer orders columns itself
+    for l in reversed(range(levels)):  # the writer orders columns itself
         row[f"n_level_{l}"] = 100 + l
         row[f"n_virtual_level_{l}"] = l
     row.update({"refused": 0, "merges": 2, "absorbed": 1, "splits": 3, "n_transient": 8})
@@ -198,10 +236,25 @@ def test_stats_csv_columns(tmp_path, dim):
     with open(tmp_path / "stats.csv", newline="") as f:
         rows = list(csv.reader(f))
     momenta = ["momentum_x", "momentum_y"] + (["momentum_z"] if dim == 3 else [])
-    expected = (["frame", "time", "dt", "n_real", "n_virtual", "total_mass"] + momenta
-                + ["kinetic_energy", "max_density_ratio", "n_level_0", "n_level_1", "n_level_2",
-                   "n_virtual_level_0", "n_virtual_level_1", "n_virtual_level_2",
-                   "n_transient", "splits", "merges", "absorbed", "refused"])
+    expected = (
+        ["frame", "time", "dt", "n_real", "n_virtual", "total_mass"]
+        + momenta
+        + [
+            "kinetic_energy",
+            "max_density_ratio",
+            "n_level_0",
+            "n_level_1",
+            "n_level_2",
+            "n_virtual_level_0",
+            "n_virtual_level_1",
+            "n_virtual_level_2",
+            "n_transient",
+            "splits",
+            "merges",
+            "absorbed",
+            "refused",
+        ]
+    )
     assert rows[0] == expected
     assert rows[0][: len(stats_columns(dim, levels))] == stats_columns(dim, levels)
     assert len(rows) == 4 and all(len(r) == len(expected) for r in rows)
@@ -211,7 +264,7 @@ def test_stats_csv_columns(tmp_path, dim):
 @pytest.mark.parametrize("dim", DIMS)
 def test_stats_csv_floats_round_trip_exactly(tmp_path, dim):
     row = stats_row(dim, 1)
-    row["total_mass"] = np.float64(row["total_mass"])   # numpy scalars too
+    row["total_mass"] = np.float64(row["total_mass"])  # numpy scalars too
     with StatsWriter(tmp_path / "stats.csv", dim, 1) as w:
         w.write(row)
     with open(tmp_path / "stats.csv", newline="") as f:

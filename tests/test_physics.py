@@ -11,10 +11,20 @@ import re
 
 import numpy as np
 import pytest
+from scenekit import (
+    DIMS_3D_SLOW,
+    SolveLog,
+    advance_logged,
+    box,
+    case_id,
+    dim_solver_params,
+    known_xfail,
+    watch_solves,
+    with_solver,
+    worst_leak,
+)
 
 from mrsph.scene.config import load_scene
-from scenekit import (DIMS_3D_SLOW, SolveLog, advance_logged, box, case_id, dim_solver_params, known_xfail,
-                      watch_solves, with_solver, worst_leak)
 
 G = 9.81
 RHO0 = 1000.0
@@ -50,6 +60,7 @@ def stiffness_for(height: float) -> float:
 
 def make_sim(scene: dict):
     from mrsph.simulation import Simulation
+
     return Simulation(load_scene(scene), arch="cpu")
 
 
@@ -82,7 +93,8 @@ def blob_scene(dim):
     lo, hi = box(dim, (0.0, 0.0), (1.0, 1.0), (0.0, 1.0))
     blo, bhi = box(dim, (0.4, 0.4), (0.6, 0.6), (0.4, 0.6))
     return {
-        "description": "free blob, gravity off", "dim": dim,
+        "description": "free blob, gravity off",
+        "dim": dim,
         "domain": {"min": lo, "max": hi},
         "particles": {"spacing": 0.025},
         "fluid": {"viscosity": 1.0, "stiffness": 1000.0, "blocks": [{"min": blo, "max": bhi}]},
@@ -109,8 +121,8 @@ def test_internal_forces_conserve_momentum(dim, solver):
     p0 = real(sim)
     m0 = p0["m"].astype(np.float64)
     mom0 = (m0[:, None] * p0["v"]).sum(axis=0)
-    scale = float((m0 * np.linalg.norm(p0["v"], axis=1)).sum())     # Σ m |v|
-    impulse = 0.0                                                   # Σ_steps dt Σ m |a|
+    scale = float((m0 * np.linalg.norm(p0["v"], axis=1)).sum())  # Σ m |v|
+    impulse = 0.0  # Σ_steps dt Σ m |a|
     for _ in range(100):
         dt = sim.step()
         a = alive_slots(sim, "a").astype(np.float64)
@@ -122,26 +134,32 @@ def test_internal_forces_conserve_momentum(dim, solver):
     assert gap > sim.h0, f"a particle came within {gap:.3g} m of a wall (h = {sim.h0}); the test proves nothing"
     mom1 = (p1["m"].astype(np.float64)[:, None] * p1["v"]).sum(axis=0)
     dp = float(np.linalg.norm(mom1 - mom0))
-    print(f"\n{case} momentum: |ΔP| = {dp:.3e}, Σ m|v| = {scale:.3e}, ratio {dp / scale:.2e}, "
-          f"Σ dt Σ m|a| = {impulse:.3e} kg m/s")
+    print(
+        f"\n{case} momentum: |ΔP| = {dp:.3e}, Σ m|v| = {scale:.3e}, ratio {dp / scale:.2e}, "
+        f"Σ dt Σ m|a| = {impulse:.3e} kg m/s"
+    )
     # the forces did real work: their total impulse dwarfs the bound below
     assert impulse > 1e3 * 1e-5 * scale, f"internal forces too weak to test (impulse {impulse:.3e})"
     assert dp <= 1e-5 * scale, (
         f"{case}: internal forces changed the total momentum by |ΔP| = {dp:.3e} kg m/s in 100 steps; "
-        f"expected <= 1e-5 · Σ m|v| = {1e-5 * scale:.3e} (ratio {dp / scale:.2e})")
+        f"expected <= 1e-5 · Σ m|v| = {1e-5 * scale:.3e} (ratio {dp / scale:.2e})"
+    )
     if solves:
         which, leak, push, floor, ratio = worst_leak(solves)
-        print(f"{case}: {len(solves)} solves; worst (|Σ m Δv| - round-off {floor:.2e}) / Σ m|Δv| = "
-              f"{ratio:.2e} ({which} solve)")
+        print(
+            f"{case}: {len(solves)} solves; worst (|Σ m Δv| - round-off {floor:.2e}) / Σ m|Δv| = "
+            f"{ratio:.2e} ({which} solve)"
+        )
         assert ratio <= 1e-4, (
             f"{case}: a {which} solve changed the momentum by |Σ m Δv| = {leak:.3e} kg m/s while pushing "
             f"Σ m|Δv| = {push:.3e}; expected <= 1e-4 of it beyond the float32 round-off {floor:.2e} "
-            f"(ratio {ratio:.2e})")
+            f"(ratio {ratio:.2e})"
+        )
 
 
 # ================================================================== fluid at rest
-TANK_H = 0.3          # fluid depth, m
-TANK_W = 0.3          # tank width (and depth in 3D), m
+TANK_H = 0.3  # fluid depth, m
+TANK_W = 0.3  # tank width (and depth in 3D), m
 
 
 def tank_scene(dim):
@@ -149,11 +167,11 @@ def tank_scene(dim):
     lo, hi = box(dim, (0.0, 0.0), (TANK_W, 2.0 * TANK_H), (0.0, TANK_W))
     blo, bhi = box(dim, (0.0, 0.0), (TANK_W, TANK_H), (0.0, TANK_W))
     return {
-        "description": "fluid at rest in a tank", "dim": dim,
+        "description": "fluid at rest in a tank",
+        "dim": dim,
         "domain": {"min": lo, "max": hi},
         "particles": {"spacing": spacing},
-        "fluid": {"viscosity": 2.0, "stiffness": stiffness_for(TANK_H),
-                  "blocks": [{"min": blo, "max": bhi}]},
+        "fluid": {"viscosity": 2.0, "stiffness": stiffness_for(TANK_H), "blocks": [{"min": blo, "max": bhi}]},
         "physics": {"cfl": 0.2},
     }
 
@@ -179,26 +197,30 @@ def test_lattice_block_starts_at_rest_density(dim):
         sim.step()
     p = real(sim)
     x = p["x"].astype(np.float64)
-    below_surface = x[:, 1] < TANK_H - sim.h0          # the free surface has less density
+    below_surface = x[:, 1] < TANK_H - sim.h0  # the free surface has less density
     rho = p["rho"][below_surface].astype(np.float64)
     err = np.abs(rho / RHO0 - 1.0)
     k = int(np.argmax(err))
     assert below_surface.sum() > 0.5 * len(x)
     # f32: the sum of a few dozen terms, each rounded to ~6e-8
-    assert err[k] <= 2e-5, (f"{dim}D: density {rho[k]:.4f} at {x[below_surface][k].round(3)}; expected "
-                            f"{RHO0} within 2e-5 relative in a lattice block at rest")
+    assert err[k] <= 2e-5, (
+        f"{dim}D: density {rho[k]:.4f} at {x[below_surface][k].round(3)}; expected "
+        f"{RHO0} within 2e-5 relative in a lattice block at rest"
+    )
     # at rest up to round-off: a density error of 1e-3 anywhere (a missing wall image, say)
     # would push with about k rho0 1e-3 / (rho0 h) = 15 m/s², far beyond this bound
     speed = float(np.linalg.norm(p["v"], axis=1).max())
     bound = 0.01 * G * sim.time
-    assert speed <= bound, (f"{dim}D: a lattice block without gravity started moving: max speed "
-                            f"{speed:.3g} m/s after {sim.time:.2e} s; expected <= {bound:.2e} m/s "
-                            f"(1 % of what gravity would have given)")
+    assert speed <= bound, (
+        f"{dim}D: a lattice block without gravity started moving: max speed "
+        f"{speed:.3g} m/s after {sim.time:.2e} s; expected <= {bound:.2e} m/s "
+        f"(1 % of what gravity would have given)"
+    )
 
 
-SETTLE_S = 1.5        # simulated seconds before measuring
-MEASURE_S = 0.3       # then averaged over this long: several periods of the pool's sound
-SAMPLE_S = 0.002      # modes (4 H / c = 0.05 s), which viscosity damps only slowly;
+SETTLE_S = 1.5  # simulated seconds before measuring
+MEASURE_S = 0.3  # then averaged over this long: several periods of the pool's sound
+SAMPLE_S = 0.002  # modes (4 H / c = 0.05 s), which viscosity damps only slowly;
 # sampled every 2 ms, physics.dt_max: every step of a DFSPH run, whose pressure swings by
 # ±20 % over a cycle of ~6 steps around the hydrostatic mean (its Jacobi solves stop at
 # their tolerance at a different point of the cycle each step); every fifth step, as
@@ -213,6 +235,7 @@ def tank_run(request):
     DFSPH tanks are long (900 steps of dt_max and a row a step): marked slow; so is the
     3D one (the quick run keeps 2D; conftest.py, "two tiers")."""
     from mrsph import runtime
+
     runtime.reset()
     dim, solver = request.param
     sim = make_sim(with_solver(tank_scene(dim), solver))
@@ -221,8 +244,17 @@ def tank_run(request):
     lo = np.asarray(sim.scene.domain.min, float)
     hi = np.asarray(sim.scene.domain.max, float)
     p0 = real(sim)
-    out = {"dim": dim, "solver": solver, "case": case_id(dim, solver), "log": log, "spacing": s, "lo": lo, "hi": hi, "n0": len(p0["m"]),
-           "mass0": math.fsum(p0["m"].astype(np.float64).tolist())}
+    out = {
+        "dim": dim,
+        "solver": solver,
+        "case": case_id(dim, solver),
+        "log": log,
+        "spacing": s,
+        "lo": lo,
+        "hi": hi,
+        "n0": len(p0["m"]),
+        "mass0": math.fsum(p0["m"].astype(np.float64).tolist()),
+    }
     advance_logged(sim, SETTLE_S, log)
     speeds, band_p, band_ref, tops = [], [], [], []
     for _ in range(int(round(MEASURE_S / SAMPLE_S))):
@@ -241,15 +273,23 @@ def tank_run(request):
         band_ref.append(float(RHO0 * G * depth[band].mean()))
         tops.append(float(x[:, 1].max()))
     p = real(sim)
-    out.update(x=p["x"], n1=len(p["m"]), mass1=math.fsum(p["m"].astype(np.float64).tolist()),
-               speed=float(np.mean(speeds)), pressure=float(np.mean(band_p)),
-               reference=float(np.mean(band_ref)), top=max(tops))
+    out.update(
+        x=p["x"],
+        n1=len(p["m"]),
+        mass1=math.fsum(p["m"].astype(np.float64).tolist()),
+        speed=float(np.mean(speeds)),
+        pressure=float(np.mean(band_p)),
+        reference=float(np.mean(band_ref)),
+        top=max(tops),
+    )
     out["v_ref"] = math.sqrt(G * TANK_H)
     out["error"] = out["pressure"] / out["reference"] - 1.0
-    print(f"\n{dim}D {solver} tank after {SETTLE_S + MEASURE_S:.1f} s: mean speed {out['speed']:.4f} m/s = "
-          f"{out['speed'] / out['v_ref']:.4f} sqrt(gH); band pressure {out['pressure']:.1f} Pa vs "
-          f"rho0 g depth {out['reference']:.1f} Pa ({100 * out['error']:+.2f} %); highest particle "
-          f"{out['top']:.4f} m" + (f"; {log.summary()}" if solver == "dfsph" else ""))
+    print(
+        f"\n{dim}D {solver} tank after {SETTLE_S + MEASURE_S:.1f} s: mean speed {out['speed']:.4f} m/s = "
+        f"{out['speed'] / out['v_ref']:.4f} sqrt(gH); band pressure {out['pressure']:.1f} Pa vs "
+        f"rho0 g depth {out['reference']:.1f} Pa ({100 * out['error']:+.2f} %); highest particle "
+        f"{out['top']:.4f} m" + (f"; {log.summary()}" if solver == "dfsph" else "")
+    )
     runtime.reset()
     return out
 
@@ -264,10 +304,12 @@ def test_tank_keeps_its_fluid(tank_run, request):
     assert np.all(np.isfinite(x)), f"{d}: {int((~np.isfinite(x)).any(axis=1).sum())} non-finite positions"
     # the walls clamp any particle that reaches them onto them; the mirror images must
     # hold the fluid off before that (the bottom layer rests half a spacing above)
-    assert gap >= 0.25 * r["spacing"], (f"{d}: a particle came within {gap:.2e} m of a wall "
-                                        f"(spacing {r['spacing']} m; expected >= a quarter)")
-    assert r["top"] <= TANK_H + 2.0 * r["spacing"], \
+    assert gap >= 0.25 * r["spacing"], (
+        f"{d}: a particle came within {gap:.2e} m of a wall (spacing {r['spacing']} m; expected >= a quarter)"
+    )
+    assert r["top"] <= TANK_H + 2.0 * r["spacing"], (
         f"{d}: a particle rose to {r['top']:.4f} m above a {TANK_H} m deep pool at rest"
+    )
     assert r["mass1"] == r["mass0"], f"{d}: total mass {r['mass1']!r}, started with {r['mass0']!r}"
 
 
@@ -278,7 +320,8 @@ def test_tank_settles_to_rest(tank_run, request):
     assert r["speed"] <= 0.01 * r["v_ref"], (
         f"{r['dim']}D {r['solver']}: mean speed {r['speed']:.4f} m/s after {SETTLE_S} s (averaged over the next "
         f"{MEASURE_S} s); expected <= 1 % of sqrt(g H) = {0.01 * r['v_ref']:.4f} m/s "
-        f"(measured {ratio:.4f} sqrt(gH))")
+        f"(measured {ratio:.4f} sqrt(gH))"
+    )
 
 
 def test_tank_pressure_is_hydrostatic(tank_run, request):
@@ -287,7 +330,8 @@ def test_tank_pressure_is_hydrostatic(tank_run, request):
     assert abs(r["error"]) <= 0.05, (
         f"{r['dim']}D {r['solver']}: mean pressure {r['pressure']:.1f} Pa in the band 0.3 H..0.7 H below the "
         f"surface; rho0 g depth = {r['reference']:.1f} Pa ({100 * r['error']:+.2f} %, expected "
-        f"within 5 %)")
+        f"within 5 %)"
+    )
 
 
 def test_tank_density_error_stays_within_tolerance(tank_run):
@@ -312,8 +356,8 @@ MARTIN_MOYCE = ((1.43, 1.67), (1.97, 2.33), (2.50, 3.00), (2.96, 3.67))
 # (gravity x1.3 gives +0.10, +0.10, +0.18, +0.21 and fails; a symmetric 0.5 let it pass).
 MM_BEHIND, MM_AHEAD = 0.5, 0.15
 
-DAM_A = 0.2           # column width, m; its height is 2a
-DAM_L = 1.0           # tank length, m (Z = 5 at the far wall)
+DAM_A = 0.2  # column width, m; its height is 2a
+DAM_L = 1.0  # tank length, m (Z = 5 at the far wall)
 DAM_END_S = 1.5
 FRAME_S = 0.02
 
@@ -323,11 +367,11 @@ def dam_scene(dim):
     lo, hi = box(dim, (0.0, 0.0), (DAM_L, 0.6), (0.0, 0.1))
     blo, bhi = box(dim, (0.0, 0.0), (DAM_A, 2.0 * DAM_A), (0.0, 0.1))
     return {
-        "description": "dam break, Martin & Moyce n^2 = 2", "dim": dim,
+        "description": "dam break, Martin & Moyce n^2 = 2",
+        "dim": dim,
         "domain": {"min": lo, "max": hi},
         "particles": {"spacing": spacing},
-        "fluid": {"viscosity": 1.0, "stiffness": stiffness_for(2.0 * DAM_A),
-                  "blocks": [{"min": blo, "max": bhi}]},
+        "fluid": {"viscosity": 1.0, "stiffness": stiffness_for(2.0 * DAM_A), "blocks": [{"min": blo, "max": bhi}]},
         "physics": {"cfl": 0.2},
     }
 
@@ -337,9 +381,11 @@ def dam_run(request):
     """One dam break per dimension and pressure solver to t = 1.5 s, checked every frame
     for NaN and for its mass at the end; returns the front history. Shared by the
     dam-break tests below. The 3D runs and the DFSPH ones (2D: ~75 s on a loaded core)
-    are long validation, marked ``slow`` (``python3 -m pytest -q -m slow``). A DFSPH run reads its stats row after every step
-    (``SolveLog``). (Particles cannot leave the domain: the boundary pass clamps them into it.)"""
+    are long validation, marked ``slow`` (``python3 -m pytest -q -m slow``). A DFSPH run
+    reads its stats row after every step (``SolveLog``). (Particles cannot leave the
+    domain: the boundary pass clamps them into it.)"""
     from mrsph import runtime
+
     runtime.reset()
     dim, solver = request.param
     sim = make_sim(with_solver(dam_scene(dim), solver))
@@ -366,8 +412,18 @@ def dam_run(request):
     runtime.reset()
     if solver == "dfsph":
         print(f"\n{dim}D dfsph dam break: {log.summary()}")
-    return {"dim": dim, "solver": solver, "case": case_id(dim, solver), "log": log, "spacing": s, "t": np.array(times), "lead": np.array(lead),
-            "p99": np.array(p99), "problems": problems, "t_end": sim.time}
+    return {
+        "dim": dim,
+        "solver": solver,
+        "case": case_id(dim, solver),
+        "log": log,
+        "spacing": s,
+        "t": np.array(times),
+        "lead": np.array(lead),
+        "p99": np.array(p99),
+        "problems": problems,
+        "t_end": sim.time,
+    }
 
 
 def test_dam_break_runs_clean_and_front_advances(dam_run):
@@ -385,7 +441,8 @@ def test_dam_break_runs_clean_and_front_advances(dam_run):
         k = int(np.argmin(drops))
         assert drops[k] >= -0.5 * s, (
             f"{d}: front ({name}) went back by {-drops[k]:.4f} m between t = {t[k]:.2f} "
-            f"and {t[k + 1]:.2f} s; expected non-decreasing within half a spacing ({0.5 * s} m)")
+            f"and {t[k + 1]:.2f} s; expected non-decreasing within half a spacing ({0.5 * s} m)"
+        )
 
 
 def test_dam_break_front_matches_experiment(dam_run):
@@ -397,17 +454,28 @@ def test_dam_break_front_matches_experiment(dam_run):
     T = r["t"] * math.sqrt(2.0 * G / DAM_A)
     rows = []
     for t_exp, z_exp in MARTIN_MOYCE:
-        rows.append((t_exp, z_exp, float(np.interp(t_exp, T, r["p99"] / DAM_A)),
-                     float(np.interp(t_exp, T, r["lead"] / DAM_A)), 1.0 + 2.0 * t_exp))
-    table = "; ".join(f"T={t:.2f}: Z={z:.2f} (experiment {ze:.2f}, leading particle {zl:.2f}, "
-                      f"Ritter {zr:.2f})" for t, ze, z, zl, zr in rows)
+        rows.append(
+            (
+                t_exp,
+                z_exp,
+                float(np.interp(t_exp, T, r["p99"] / DAM_A)),
+                float(np.interp(t_exp, T, r["lead"] / DAM_A)),
+                1.0 + 2.0 * t_exp,
+            )
+        )
+    table = "; ".join(
+        f"T={t:.2f}: Z={z:.2f} (experiment {ze:.2f}, leading particle {zl:.2f}, Ritter {zr:.2f})"
+        for t, ze, z, zl, zr in rows
+    )
     print(f"\n{d} dam break front: {table}")
     for t_exp, z_exp, z_sim, z_lead, z_ritter in rows:
-        assert z_lead <= z_ritter + 0.5 * r["spacing"] / DAM_A, \
+        assert z_lead <= z_ritter + 0.5 * r["spacing"] / DAM_A, (
             f"{d}: front faster than Ritter's ideal dam break: {table}"
+        )
         assert -MM_BEHIND <= z_sim - z_exp <= MM_AHEAD, (
             f"{d}: surge front at T = {t_exp:.2f} is {z_sim - z_exp:+.2f} a off Martin & Moyce "
-            f"(allowed -{MM_BEHIND} .. +{MM_AHEAD} a): {table}")
+            f"(allowed -{MM_BEHIND} .. +{MM_AHEAD} a): {table}"
+        )
 
 
 def test_dam_break_density_error_stays_within_tolerance(dam_run):
@@ -429,16 +497,20 @@ def test_emitter_delivers_its_flux_at_its_velocity(dim):
     and moves at U: without the nozzle (emitters.Emitters.hold) the 2D jet broke up
     at its outlet and was thrown back out of it, its mean velocity 1.54 m/s for 1.5."""
     from mrsph.scene.config import emitter_disc
+
     s, speed, start, stop = 0.02, 1.5, 0.04, 0.4437
     lo, hi = box(dim, (0.0, 0.0), (1.0, 0.5), (0.0, 0.4))
     centre = [0.1] + [0.25] * (dim - 1) if dim == 2 else [0.1, 0.25, 0.2]
     vel = [speed] + [0.0] * (dim - 1)
-    scene = {"description": "a jet in free space", "dim": dim,
-             "domain": {"min": lo, "max": hi}, "particles": {"spacing": s},
-             "physics": {"gravity": [0.0] * dim},
-             "fluid": {"stiffness": stiffness_for(0.1)},
-             "emitters": [{"center": centre, "radius": 0.05, "velocity": vel,
-                           "start": start, "stop": stop}]}
+    scene = {
+        "description": "a jet in free space",
+        "dim": dim,
+        "domain": {"min": lo, "max": hi},
+        "particles": {"spacing": s},
+        "physics": {"gravity": [0.0] * dim},
+        "fluid": {"stiffness": stiffness_for(0.1)},
+        "emitters": [{"center": centre, "radius": 0.05, "velocity": vel, "start": start, "stop": stop}],
+    }
     sim = make_sim(scene)
     per_layer = len(emitter_disc(centre, 0.05, vel, s))
     sim.advance(start - 0.01)
@@ -449,18 +521,21 @@ def test_emitter_delivers_its_flux_at_its_velocity(dim):
     want = speed * (stop - start) / s
     assert len(p["x"]) % per_layer == 0 and abs(layers - want) <= 1.0, (
         f"{dim}D: {len(p['x'])} particles = {layers:.2f} layers of {per_layer}; expected "
-        f"{want:.2f} layers (|U| (stop - start) / s) within one")
+        f"{want:.2f} layers (|U| (stop - start) / s) within one"
+    )
     # each emitted particle has the level's mass, the one a block's particles get (m0:
     # rho0 over the kernel sum of the lattice, so that it reads rho0 there)
     m0 = p["m"].dtype.type(sim.m0)
-    assert np.all(p["m"] == m0), (
-        f"{dim}D: emitted masses {np.unique(p['m'])} kg; expected m0 = {m0!r} kg each")
+    assert np.all(p["m"] == m0), f"{dim}D: emitted masses {np.unique(p['m'])} kg; expected m0 = {m0!r} kg each"
     behind = int((p["x"][:, 0] < centre[0] - 0.5 * s).sum())
-    assert behind == 0, (f"{dim}D: {behind} of {len(p['x'])} particles behind the emitting disc "
-                         f"(x < {centre[0] - 0.5 * s} m); expected none: the jet flows forward")
+    assert behind == 0, (
+        f"{dim}D: {behind} of {len(p['x'])} particles behind the emitting disc "
+        f"(x < {centre[0] - 0.5 * s} m); expected none: the jet flows forward"
+    )
     mean_u = p["v"].astype(np.float64).mean(axis=0)
     assert abs(mean_u[0] / speed - 1.0) <= 0.02, (
-        f"{dim}D: the emitted jet's mean velocity {mean_u.round(3)} m/s; expected {vel} within 2 %")
+        f"{dim}D: the emitted jet's mean velocity {mean_u.round(3)} m/s; expected {vel} within 2 %"
+    )
 
 
 @pytest.mark.parametrize("dim", DIMS_3D_SLOW)
@@ -469,6 +544,7 @@ def test_a_horizontal_hose_does_not_spray_back(dim):
     disc. Without the nozzle, 76-87 of 540 particles (2D) and 24-31 of 870 (3D) were
     behind it after 0.3 s (one thread, two), thrown back out of the outlet."""
     from mrsph.simulation import Simulation
+
     centre = [0.1, 0.65] if dim == 2 else [0.08, 0.55, 0.15]
     vel = [1.0] + [0.0] * (dim - 1)
     scene = load_scene(f"pour_{dim}d", [f"emitters.0.center={centre}", f"emitters.0.velocity={vel}"])
@@ -477,11 +553,11 @@ def test_a_horizontal_hose_does_not_spray_back(dim):
     x = real(sim)["x"]
     behind = int((x[:, 0] < centre[0] - 0.5 * sim.s0).sum())
     assert len(x) > 400 and behind == 0, (
-        f"{dim}D: {behind} of {len(x)} particles behind a sideways hose's disc after 0.3 s; "
-        f"expected none")
+        f"{dim}D: {behind} of {len(x)} particles behind a sideways hose's disc after 0.3 s; expected none"
+    )
 
 
-@pytest.mark.slow_params("3d")   # the quick run keeps 2D (conftest.py, "two tiers")
+@pytest.mark.slow_params("3d")  # the quick run keeps 2D (conftest.py, "two tiers")
 def test_short_time_step_names_the_bound_that_set_it(dim):
     """dt below physics.dt_min: the message names the bound that made it. A resting tank
     whose dt_min is half its sound-speed step runs; one particle set moving at 150 m/s
@@ -501,8 +577,11 @@ def test_short_time_step_names_the_bound_that_set_it(dim):
     with pytest.raises(SimulationError) as info:
         sim.step()
     msg = str(info.value)
-    found = re.search(r"the CFL bound sets it \(.*a particle at about ([0-9.e+]+) m/s if at the "
-                      r"finest level\)", msg)
+    found = re.search(
+        r"the CFL bound sets it \(.*a particle at about ([0-9.e+]+) m/s if at the "
+        r"finest level\)",
+        msg,
+    )
     assert found, f"message does not name the CFL bound and a speed: {msg}"
     assert float(found.group(1)) == pytest.approx(150.0, rel=0.02), msg
 
@@ -516,7 +595,7 @@ def test_short_time_step_set_by_a_disturbance_names_it(dim):
 
     scene = tank_scene(dim)
     sim = make_sim(scene)
-    strength = 2.0 / float(sim.scene.data["physics"]["dt_min"])     # cap 0.25 dt_min
+    strength = 2.0 / float(sim.scene.data["physics"]["dt_min"])  # cap 0.25 dt_min
     centre = [0.5 * (a + b) for a, b in zip(scene["domain"]["min"], scene["domain"]["max"])]
     sim.set_disturbance(Disturbance(tuple(centre), 0.05, strength))
     with pytest.raises(SimulationError) as info:
@@ -525,11 +604,18 @@ def test_short_time_step_set_by_a_disturbance_names_it(dim):
     assert "the disturbance bound 0.5/strength sets it" in msg and f"{strength:.3g} 1/s" in msg, msg
 
 
-@pytest.mark.parametrize("bad", [dict(radius=float("nan")), dict(radius=0.0),
-                                 dict(strength=-1.0), dict(strength=float("inf")),
-                                 dict(velocity=(1.0,)), dict(center=(0.5, float("nan")))],
-                         ids=["radius-nan", "radius-0", "strength-negative", "strength-inf",
-                              "velocity-length", "centre-nan"])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        dict(radius=float("nan")),
+        dict(radius=0.0),
+        dict(strength=-1.0),
+        dict(strength=float("inf")),
+        dict(velocity=(1.0,)),
+        dict(center=(0.5, float("nan"))),
+    ],
+    ids=["radius-nan", "radius-0", "strength-negative", "strength-inf", "velocity-length", "centre-nan"],
+)
 def test_bad_disturbance_is_refused(bad):
     """The window and scripts build Disturbance values; a bad one is refused where it is
     made, with the field's name, not taken into the step (an infinite strength made a
@@ -565,7 +651,8 @@ def test_nan_velocity_raises_simulation_error_naming_step_particle_level(dim, ad
     x = alive_slots(sim, "x")
     level = alive_slots(sim, "level")
     assert np.count_nonzero(level == bad_level) > 7, (
-        f"expected level-{bad_level} particles, got {np.bincount(level)} per level")
+        f"expected level-{bad_level} particles, got {np.bincount(level)} per level"
+    )
     # the poisoned particle is moved to an empty spot high above the pool, further than
     # h from every other particle and every wall, so that it is the only bad one
     victim = int(np.flatnonzero(level == bad_level)[7])
@@ -591,12 +678,16 @@ def test_nan_velocity_raises_simulation_error_naming_step_particle_level(dim, ad
     slot = int(found.group(1))
     # the slot named is where the sort put the poisoned particle
     xs = alive_slots(sim, "x")
-    assert np.allclose(xs[slot], spot, atol=1e-5), \
+    assert np.allclose(xs[slot], spot, atol=1e-5), (
         f"message names particle {slot} at {xs[slot]}, the NaN was put at {spot}: {msg}"
+    )
     assert f"level {bad_level}" in msg, f"message does not name the particle's level ({bad_level}): {msg}"
     assert re.search(r"\b1 particle", msg), f"only one particle was poisoned: {msg}"
-    why = "NaN/Inf velocity or acceleration$" if poison == "nan" else \
-        rf"speed {1.5 * limit:.4g} m/s above physics.max_speed = {limit:g} m/s$"
+    why = (
+        "NaN/Inf velocity or acceleration$"
+        if poison == "nan"
+        else rf"speed {1.5 * limit:.4g} m/s above physics.max_speed = {limit:g} m/s$"
+    )
     assert re.search(why, msg), f"message does not say why the particle is bad ({why}): {msg}"
 
 
@@ -630,15 +721,15 @@ def test_stats_dt_is_the_chosen_step_not_the_frame_remainder(dim):
         rows.append(sim.stats()["dt"])
         step = sim.step()
         assert rows[-1] == pytest.approx(step, rel=0.05), (
-            f"{dim}D: stats dt {rows[-1]:.4g} s after frame {sim.frame}, the next step "
-            f"{step:.4g} s")
+            f"{dim}D: stats dt {rows[-1]:.4g} s after frame {sim.frame}, the next step {step:.4g} s"
+        )
 
 
 # ================================================================== DFSPH solve reporting
 SOLVE_COLUMNS = ("solver", "density_iterations", "divergence_iterations", "density_error", "unconverged")
 
 
-@pytest.mark.slow_params("3d")   # the quick run keeps 2D (conftest.py, "two tiers")
+@pytest.mark.slow_params("3d")  # the quick run keeps 2D (conftest.py, "two tiers")
 def test_dfsph_solve_stopped_at_its_maximum_is_counted_warned_once_and_written(dim, tmp_path):
     """A density solve that stops at dfsph.max_iterations before its tolerance is never
     silent (issue 31 §3): each such step is counted in the stats row (``unconverged``), a
@@ -666,26 +757,34 @@ def test_dfsph_solve_stopped_at_its_maximum_is_counted_warned_once_and_written(d
                 out.write(rows[-1])
     hits = [w for w in caught if issubclass(w.category, RuntimeWarning) and "dfsph" in str(w.message)]
     counted = sum(r["unconverged"] for r in rows)
-    print(f"\n{dim}D max_iterations = 1: rows {[{k: r[k] for k in SOLVE_COLUMNS} for r in rows]}; "
-          f"warnings {[str(w.message) for w in hits]}")
-    assert counted == steps, (f"{dim}D: {counted} unconverged solves counted in the stats rows over {steps} "
-                              f"steps that each stopped at max_iterations = 1; expected {steps}")
+    print(
+        f"\n{dim}D max_iterations = 1: rows {[{k: r[k] for k in SOLVE_COLUMNS} for r in rows]}; "
+        f"warnings {[str(w.message) for w in hits]}"
+    )
+    assert counted == steps, (
+        f"{dim}D: {counted} unconverged solves counted in the stats rows over {steps} "
+        f"steps that each stopped at max_iterations = 1; expected {steps}"
+    )
     assert all(r["density_error"] > 1e-9 for r in rows), (
-        f"{dim}D: density errors {[r['density_error'] for r in rows]}; expected above the 1e-9 tolerance")
+        f"{dim}D: density errors {[r['density_error'] for r in rows]}; expected above the 1e-9 tolerance"
+    )
     assert len(hits) == 1 and "dfsph.max_iterations = 1" in str(hits[0].message), (
         f"{dim}D: expected one RuntimeWarning naming dfsph.max_iterations = 1 for {steps} unconverged "
-        f"solves, got {len(hits)}: {[str(w.message) for w in hits]}")
+        f"solves, got {len(hits)}: {[str(w.message) for w in hits]}"
+    )
     with open(tmp_path / "stats.csv", newline="") as f:
         back = list(csv.DictReader(f))
     missing = [c for c in SOLVE_COLUMNS if c not in back[0]]
     assert not missing, f"{dim}D: stats.csv lacks the columns {missing} (has {list(back[0])})"
     assert [r["solver"] for r in back] == ["dfsph", "dfsph"], f"{dim}D: solver column {[r['solver'] for r in back]}"
     assert [int(r["unconverged"]) for r in back] == [r["unconverged"] for r in rows], (
-        f"{dim}D: stats.csv unconverged {[r['unconverged'] for r in back]}, rows {[r['unconverged'] for r in rows]}")
+        f"{dim}D: stats.csv unconverged {[r['unconverged'] for r in back]}, rows {[r['unconverged'] for r in rows]}"
+    )
     for key in ("density_iterations", "divergence_iterations", "density_error"):
         assert [float(r[key]) for r in back] == [r[key] for r in rows], f"{dim}D: stats.csv {key} does not read back"
     assert all(r["density_iterations"] == 1.0 for r in rows), (
-        f"{dim}D: density iterations a step {[r['density_iterations'] for r in rows]}; expected 1 (the maximum)")
+        f"{dim}D: density iterations a step {[r['density_iterations'] for r in rows]}; expected 1 (the maximum)"
+    )
 
 
 def test_dfsph_converged_solves_are_not_counted(dim):
@@ -703,12 +802,14 @@ def test_dfsph_converged_solves_are_not_counted(dim):
     tol = float(sim.scene.data["dfsph"]["density_tolerance"])
     assert row["unconverged"] == 0 and not hits and row["density_error"] <= tol, (
         f"{dim}D: {row['unconverged']} unconverged, density error {row['density_error']:.3g} "
-        f"(tolerance {tol:g}), warnings {hits}; expected none, within the tolerance")
+        f"(tolerance {tol:g}), warnings {hits}; expected none, within the tolerance"
+    )
     assert row["solver"] == "dfsph" and row["density_iterations"] >= 1.0, row
 
 
 def _dfsph_tank_rows(dim, sets, steps=15):
     from mrsph.simulation import Simulation
+
     sim = Simulation(load_scene(with_solver(tank_scene(dim), "dfsph"), sets), arch="cpu")
     rows = []
     for _ in range(steps):
@@ -717,7 +818,7 @@ def _dfsph_tank_rows(dim, sets, steps=15):
     return sim, rows
 
 
-@pytest.mark.slow_params("3d")   # the quick run keeps 2D (conftest.py, "two tiers")
+@pytest.mark.slow_params("3d")  # the quick run keeps 2D (conftest.py, "two tiers")
 def test_dfsph_tightens_its_tolerance_in_water_at_rest(dim):
     """In water at rest (its fastest particle moves far less than dfsph.slow_flow of a
     spacing a step) every density solve stops within dfsph.rest_tolerance, not only
@@ -732,12 +833,15 @@ def test_dfsph_tightens_its_tolerance_in_water_at_rest(dim):
     worst = max(r["density_error"] for r in rows)
     assert worst <= rest and all(r["unconverged"] == 0 for r in rows), (
         f"{dim}D tank at rest: density error {worst:.3g} at worst over {len(rows)} steps; expected "
-        f"within dfsph.rest_tolerance = {rest:g} (density_tolerance {tol:g}), none unconverged")
+        f"within dfsph.rest_tolerance = {rest:g} (density_tolerance {tol:g}), none unconverged"
+    )
     _, fast = _dfsph_tank_rows(dim, ["dfsph.slow_flow=1e-9"])
     loose = max(r["density_error"] for r in fast)
-    assert rest < loose <= tol, (f"{dim}D tank, every flow fast: density error {loose:.3g} at worst; "
-                                 f"expected above rest_tolerance {rest:g} (else this test guards "
-                                 f"nothing) and within density_tolerance {tol:g}")
+    assert rest < loose <= tol, (
+        f"{dim}D tank, every flow fast: density error {loose:.3g} at worst; "
+        f"expected above rest_tolerance {rest:g} (else this test guards "
+        f"nothing) and within density_tolerance {tol:g}"
+    )
 
 
 def test_dfsph_solve_short_of_the_rest_tolerance_is_not_unconverged(dim):
@@ -746,13 +850,19 @@ def test_dfsph_solve_short_of_the_rest_tolerance_is_not_unconverged(dim):
     counts a solve unconverged exactly when it stopped beyond the scene's tolerance."""
     sim, rows = _dfsph_tank_rows(dim, ["dfsph.rest_tolerance=1e-7", "dfsph.max_iterations=5"])
     tol = float(sim.scene.data["dfsph"]["density_tolerance"])
-    wrong = [(k, r["density_error"], r["unconverged"]) for k, r in enumerate(rows)
-             if r["unconverged"] != (r["density_error"] > tol)]
-    assert not wrong, (f"{dim}D: (step, density error, unconverged) counted against the scene's "
-                       f"tolerance {tol:g}: {wrong}")
+    wrong = [
+        (k, r["density_error"], r["unconverged"])
+        for k, r in enumerate(rows)
+        if r["unconverged"] != (r["density_error"] > tol)
+    ]
+    assert not wrong, (
+        f"{dim}D: (step, density error, unconverged) counted against the scene's tolerance {tol:g}: {wrong}"
+    )
     capped = [r for r in rows if r["density_iterations"] == 5 and r["density_error"] <= tol]
-    assert capped, (f"{dim}D: no solve stopped at the maximum within the tolerance "
-                    f"({[(r['density_iterations'], r['density_error']) for r in rows]}); the test checks nothing")
+    assert capped, (
+        f"{dim}D: no solve stopped at the maximum within the tolerance "
+        f"({[(r['density_iterations'], r['density_error']) for r in rows]}); the test checks nothing"
+    )
 
 
 # ================================================================== time step
@@ -763,25 +873,27 @@ def test_time_step_obeys_cfl_and_force_bounds(dim, bound):
         # a small force factor makes the force condition the binding one
         scene["physics"]["force_factor"] = 0.002
     sim = make_sim(scene)
-    sim.advance(0.1)      # the column is collapsing: speeds and accelerations vary
+    sim.advance(0.1)  # the column is collapsing: speeds and accelerations vary
     ph = sim.scene.data["physics"]
     c = math.sqrt(float(sim.scene.fluid.stiffness))
     h = float(sim.h0)
     for _ in range(5):
         dt = sim.step()
-        a = alive_slots(sim, "a").astype(np.float64)      # accelerations of this step
+        a = alive_slots(sim, "a").astype(np.float64)  # accelerations of this step
         v1 = alive_slots(sim, "v").astype(np.float64)
-        v0 = v1 - dt * a                                   # velocities the step started from
+        v0 = v1 - dt * a  # velocities the step started from
         cfl = float(ph["cfl"]) * h / (c + np.linalg.norm(v0, axis=1).max())
         force = float(ph["force_factor"]) * math.sqrt(h / np.linalg.norm(a, axis=1).max())
         allowed = min(cfl, force, float(ph["dt_max"]))
         assert dt <= allowed * (1 + 1e-4), (
             f"{dim}D: dt = {dt:.4e} s exceeds min(CFL {cfl:.4e}, force {force:.4e}, dt_max "
-            f"{ph['dt_max']}) at t = {sim.time:.4f} s")
+            f"{ph['dt_max']}) at t = {sim.time:.4f} s"
+        )
         # and it is not needlessly small: the binding bound sets it
         assert dt >= allowed * (1 - 1e-3), (
             f"{dim}D: dt = {dt:.4e} s is below the bounds min(CFL {cfl:.4e}, force {force:.4e}, "
-            f"dt_max {ph['dt_max']}) by more than round-off")
+            f"dt_max {ph['dt_max']}) by more than round-off"
+        )
         binding = "cfl" if cfl <= force else "force"
         assert binding == bound, f"{dim}D: the {binding} bound binds (CFL {cfl:.4e}, force {force:.4e})"
 
@@ -804,12 +916,14 @@ def test_viscous_bound_keeps_a_fluid_made_very_viscous_live_stable(dim):
         dt = sim.step()
         assert bound * (1 - 1e-6) <= dt <= bound * (1 + 1e-6), (
             f"{dim}D: dt = {dt:.4e} s at t = {sim.time:.4f} s, the viscous bound is {bound:.4e} s "
-            f"(mu = {mu:.0f} Pa s, CFL step {cfl_dt:.4e} s)")
+            f"(mu = {mu:.0f} Pa s, CFL step {cfl_dt:.4e} s)"
+        )
     speed = float(np.linalg.norm(alive_slots(sim, "v"), axis=1).max())
     g = float(np.linalg.norm(sim.scene.data["physics"]["gravity"]))
     assert speed <= 2.0 * g * sim.time, (
         f"{dim}D: a fluid of {mu:.0f} Pa s reached {speed:.3f} m/s in {sim.time:.3f} s "
-        f"(2 g t = {2.0 * g * sim.time:.3f} m/s): the viscous term is unstable")
+        f"(2 g t = {2.0 * g * sim.time:.3f} m/s): the viscous term is unstable"
+    )
 
 
 def test_frame_within_a_wall_budget_stops_early_and_whole_frames_end_exactly(dim):
@@ -821,10 +935,12 @@ def test_frame_within_a_wall_budget_stops_early_and_whole_frames_end_exactly(dim
     assert steps == 1, f"{dim}D: {steps} steps within a spent budget, expected exactly 1"
     assert 0.0 < sim.time == sim.dt < frame, (
         f"{dim}D: one step should advance by its dt ({sim.dt:.3e} s), less than a frame "
-        f"({frame:.4f} s); the time is {sim.time:.6e} s")
+        f"({frame:.4f} s); the time is {sim.time:.6e} s"
+    )
     start = sim.time
     steps = sim.advance_frame()
     assert steps > 1 and sim.time == start + frame, (
         f"{dim}D: a whole frame from t = {start:.6e} s ended at {sim.time!r} in {steps} steps, "
-        f"expected {start + frame!r}")
+        f"expected {start + frame!r}"
+    )
     assert sim.frame == 2, f"{dim}D: frame counter {sim.frame} after two frames"

@@ -10,17 +10,19 @@ from mrsph.scene.config import load_scene
 
 
 def test_auto_threads_by_starting_particles():
-    demo = load_scene("demo_2d")             # adaptive, starts at its coarsest level
+    demo = load_scene("demo_2d")  # adaptive, starts at its coarsest level
     assert runtime.starting_particles(demo) == demo.estimate_particles() // 16
     assert runtime.auto_threads(demo) == 1
-    big = load_scene("dam_break_2d", ["particles.spacing=0.0016"])   # ~48k particles
+    big = load_scene("dam_break_2d", ["particles.spacing=0.0016"])  # ~48k particles
     assert runtime.starting_particles(big) > runtime.AUTO_ONE_THREAD_BELOW[2]
     assert runtime.auto_threads(big) is None
     assert runtime.auto_threads(big, 3) == 3 and runtime.auto_threads(demo, None) is None
 
 
-@pytest.mark.skipif(not hasattr(os, "sched_getaffinity") or len(os.sched_getaffinity(0)) < 2,
-                    reason="needs a CPU affinity of two cores or more")
+@pytest.mark.skipif(
+    not hasattr(os, "sched_getaffinity") or len(os.sched_getaffinity(0)) < 2,
+    reason="needs a CPU affinity of two cores or more",
+)
 def test_one_thread_is_pinned_and_released():
     before = os.sched_getaffinity(0)
     runtime.reset()
@@ -28,7 +30,7 @@ def test_one_thread_is_pinned_and_released():
         runtime.ensure("cpu", "f32", threads=1)
         pinned = os.sched_getaffinity(0)
         assert len(pinned) == 1 and pinned <= before, f"affinity with one thread: {pinned}"
-        runtime.ensure("cpu", "f32")              # all cores again: the pin is undone
+        runtime.ensure("cpu", "f32")  # all cores again: the pin is undone
         assert os.sched_getaffinity(0) == before
     finally:
         runtime.reset()
@@ -41,6 +43,7 @@ def _loops_hidden_in_kernel_ifs(source: str) -> list[str]:
     inside a run-time ``if`` at its top level (a ``ti.static`` condition or loop is
     unrolled at compile time and looked through)."""
     import ast
+
     found = []
     tree = ast.parse(source)
     for fn in ast.walk(tree):
@@ -50,16 +53,17 @@ def _loops_hidden_in_kernel_ifs(source: str) -> list[str]:
         if not any("kernel" in d or ("func" in d and fn.name.endswith("_func")) for d in decorators):
             continue
 
-        def walk(stmts):
+        def walk(stmts, name):
             for s in stmts:
                 if isinstance(s, ast.If) and "ti.static" in ast.unparse(s.test):
-                    walk(s.body + s.orelse)
+                    walk(s.body + s.orelse, name)
                 elif isinstance(s, ast.If):
                     if any(isinstance(sub, ast.For) for sub in ast.walk(s)):
-                        found.append(f"{fn.name} (line {s.lineno}: if {ast.unparse(s.test)})")
+                        found.append(f"{name} (line {s.lineno}: if {ast.unparse(s.test)})")
                 elif isinstance(s, ast.For) and "ti.static" in ast.unparse(s.iter):
-                    walk(s.body)
-        walk(fn.body)
+                    walk(s.body, name)
+
+        walk(fn.body, fn.name)
     return found
 
 
@@ -69,15 +73,20 @@ def test_no_kernel_hides_a_particle_loop_inside_a_top_level_if():
     DENSITY: for i in range(n)`` took 8 of its 9 ms at 100k particles on an H200). Put
     the condition in the loop's bound or body instead."""
     from pathlib import Path
+
     root = Path(__file__).resolve().parent.parent / "mrsph"
-    hidden = [f"{path.relative_to(root.parent)}: {k}" for path in sorted(root.rglob("*.py"))
-              for k in _loops_hidden_in_kernel_ifs(path.read_text())]
+    hidden = [
+        f"{path.relative_to(root.parent)}: {k}"
+        for path in sorted(root.rglob("*.py"))
+        for k in _loops_hidden_in_kernel_ifs(path.read_text())
+    ]
     assert not hidden, f"loops that would run on one thread: {hidden}"
     # the check itself finds one
     planted = "@ti.kernel\ndef k(n: ti.i32, m: ti.i32):\n    if m == 1:\n        for i in range(n):\n            pass\n"
     assert _loops_hidden_in_kernel_ifs(planted) == ["k (line 3: if m == 1)"]
-    assert _loops_hidden_in_kernel_ifs(planted.replace("@ti.kernel\ndef k(", "@ti.func\ndef k_func(")) == \
-        ["k_func (line 3: if m == 1)"]
+    assert _loops_hidden_in_kernel_ifs(planted.replace("@ti.kernel\ndef k(", "@ti.func\ndef k_func(")) == [
+        "k_func (line 3: if m == 1)"
+    ]
 
 
 # ---------------------------------------------------------------- kernel_build.py
@@ -86,7 +95,9 @@ def checked_positions(taichi_f32):
     """Every position message the memoized ``get_pos_info`` returns while the test builds
     kernels, compared with the one Taichi's own function makes for the same node."""
     from taichi.lang.ast import ast_transformer_utils as utils
+
     from mrsph import kernel_build
+
     assert kernel_build.installed() == (True, ""), kernel_build.installed()
     memoized = utils.ASTTransformerContext.get_pos_info
     original = memoized.original
@@ -110,6 +121,7 @@ def test_remembered_positions_are_taichis_own(checked_positions):
     (a key without the column would give the second ``a`` of a line the first one's
     caret; a key without the line, the second line the first one's)."""
     import taichi as ti
+
     x = ti.field(float, shape=4)
 
     @ti.func
@@ -131,8 +143,9 @@ def test_remembered_positions_are_taichis_own(checked_positions):
     first()
     second()
     assert checked_positions["calls"] > 20, checked_positions
-    assert not checked_positions["wrong"], \
+    assert not checked_positions["wrong"], (
         f"{len(checked_positions['wrong'])} message(s) differ; first: {checked_positions['wrong'][0]}"
+    )
 
 
 def test_a_compile_error_still_points_at_its_line(taichi_f32):
@@ -140,7 +153,9 @@ def test_a_compile_error_still_points_at_its_line(taichi_f32):
     first kernel built the same function and a line above built the same nodes at the
     same columns (the memoized source and positions)."""
     import inspect
+
     import taichi as ti
+
     x = ti.field(float, shape=4)
 
     @ti.func
@@ -152,7 +167,7 @@ def test_a_compile_error_still_points_at_its_line(taichi_f32):
         for i in x:
             x[i] = shaped(x[i])
 
-    a_defined_name = 1.0        # as long as the missing name: the two lines differ only in their line
+    a_defined_name = 1.0  # as long as the missing name: the two lines differ only in their line
 
     @ti.kernel
     def broken():

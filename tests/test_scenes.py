@@ -8,6 +8,7 @@ lose mass. Whether a scene looks right is judged by watching it.
 steps per frame), so that the whole file stays at a few minutes on a 2-core CPU; the
 scene files themselves are sized for an interactive run.
 """
+
 import numpy as np
 import pytest
 
@@ -19,8 +20,8 @@ FRAMES = 5
 # demo_3d, dam_break_3d and pour_3d (the emitter) stay.
 SLOW_SCENES = ("region_3d", "dam_break_obstacle_3d", "slit_3d", "pool_3d")
 COARSER_3D = 2.0
-DOMAIN_TOL = 1e-6     # m: positions are float32, clamped onto the walls
-OBSTACLE_TOL = 1e-4   # m: signed distance a particle may sit inside an obstacle
+DOMAIN_TOL = 1e-6  # m: positions are float32, clamped onto the walls
+OBSTACLE_TOL = 1e-4  # m: signed distance a particle may sit inside an obstacle
 
 
 def signed_distance(x: np.ndarray, obstacle: dict) -> np.ndarray:
@@ -40,6 +41,7 @@ def fresh_taichi():
     kernels compile to what a separate ``python3 main.py`` run of the scene compiles to,
     so Taichi's offline cache serves both."""
     from mrsph import runtime
+
     runtime.reset()
     yield
     runtime.reset()
@@ -52,10 +54,10 @@ def test_there_are_scenes():
         assert description and "\n" not in description, name
 
 
-@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n in SLOW_SCENES else n
-                                  for n in SCENES])
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n in SLOW_SCENES else n for n in SCENES])
 def test_scene_runs(name, fresh_taichi):
     from mrsph.simulation import Simulation
+
     scene = load_scene(name)
     if scene.dim == 3:
         scene = scene.with_overrides({"particles.spacing": COARSER_3D * scene.particles.spacing})
@@ -73,21 +75,25 @@ def test_scene_runs(name, fresh_taichi):
         n_real = len(x)
         bad = int((~np.isfinite(x)).any(axis=1).sum() + (~np.isfinite(parts["v"])).any(axis=1).sum())
         assert bad == 0, f"{name}: {bad} non-finite positions or velocities at t = {sim.time:.3f} s"
-        assert (x >= lo - DOMAIN_TOL).all() and (x <= hi + DOMAIN_TOL).all(), \
+        assert (x >= lo - DOMAIN_TOL).all() and (x <= hi + DOMAIN_TOL).all(), (
             f"{name}: particles outside the domain at t = {sim.time:.3f} s"
+        )
         for i, ob in enumerate(data["obstacles"]):
             depth = signed_distance(x, ob).min() if n_real else 0.0
-            assert depth >= -OBSTACLE_TOL, \
+            assert depth >= -OBSTACLE_TOL, (
                 f"{name}: a particle {-depth:.2e} m inside obstacles.{i} at t = {sim.time:.3f} s"
+            )
         now = sim.stats()["total_mass"]
         if emits:
-            assert now >= mass, (f"{name}: total mass fell from {mass!r} to {now!r} at t = "
-                                 f"{sim.time:.3f} s; emitters only add fluid")
+            assert now >= mass, (
+                f"{name}: total mass fell from {mass!r} to {now!r} at t = {sim.time:.3f} s; emitters only add fluid"
+            )
         elif mass_exact(data):
             assert now == mass, f"{name}: total mass changed from {mass!r} to {now!r}"
-        else:   # partial groups merge: float32 round-off (one particle is ~1e-4 of it)
-            assert now == pytest.approx(mass, rel=1e-7), \
+        else:  # partial groups merge: float32 round-off (one particle is ~1e-4 of it)
+            assert now == pytest.approx(mass, rel=1e-7), (
                 f"{name}: total mass changed from {mass!r} to {now!r} (beyond round-off)"
+            )
         mass = now
 
     assert n_real > 0, f"{name}: no fluid after {FRAMES} frames"

@@ -10,6 +10,7 @@
 - The checker itself is tested on hand-made particles, so that a passing soak means the
   checks could have failed.
 """
+
 import math
 import re
 from pathlib import Path
@@ -40,17 +41,23 @@ def test_the_soak_caps_its_cursor_harder_than_the_window_unless_asked():
     ``--window-cap`` caps it as the window does, at a tenth of sqrt(fluid.stiffness)."""
     from mrsph.app.mouse import safe_speed
     from mrsph.scene.config import load_scene
+
     data = load_scene("demo_2d").data
     harsh, window = soak_tool.soak_mouse(data), soak_tool.soak_mouse(data, window_cap=True)
     assert harsh.max_speed == pytest.approx(8.0 * 1.6), harsh.max_speed
-    assert window.max_speed == pytest.approx(safe_speed(data["fluid"]["stiffness"], data["domain"]["min"],
-                                                        data["domain"]["max"])) == pytest.approx(2.0)
+    assert (
+        window.max_speed
+        == pytest.approx(safe_speed(data["fluid"]["stiffness"], data["domain"]["min"], data["domain"]["max"]))
+        == pytest.approx(2.0)
+    )
     assert harsh.strength == window.strength == soak_tool.STRENGTH_MAX and harsh.radius == pytest.approx(0.8)
 
 
 def test_obstacle_sdf_matches_boxes_and_circles():
-    obstacles = [{"shape": "box", "min": [1.0, 0.0], "max": [2.0, 1.0]},
-                 {"shape": "sphere", "center": [5.0, 5.0], "radius": 1.0}]
+    obstacles = [
+        {"shape": "box", "min": [1.0, 0.0], "max": [2.0, 1.0]},
+        {"shape": "sphere", "center": [5.0, 5.0], "radius": 1.0},
+    ]
     x = np.array([[1.5, 0.5], [1.1, 0.5], [0.0, 0.5], [3.0, 2.0], [5.0, 5.5], [5.0, 7.0]])
     expected = [-0.5, -0.1, 1.0, math.sqrt(2.0), -0.5, 1.0]
     np.testing.assert_allclose(soak_tool.obstacle_sdf(x, obstacles), expected, atol=1e-12)
@@ -60,13 +67,20 @@ def test_obstacle_sdf_matches_boxes_and_circles():
 def _parts(x, m, kind=None):
     x = np.asarray(x, np.float32)
     n = len(x)
-    return {"x": x, "v": np.zeros_like(x), "m": np.asarray(m, np.float32),
-            "kind": np.zeros(n, np.int32) if kind is None else np.asarray(kind, np.int32),
-            "level": np.zeros(n, np.int32)}
+    return {
+        "x": x,
+        "v": np.zeros_like(x),
+        "m": np.asarray(m, np.float32),
+        "kind": np.zeros(n, np.int32) if kind is None else np.asarray(kind, np.int32),
+        "level": np.zeros(n, np.int32),
+    }
 
 
-SCENE = {"dim": 2, "domain": {"min": [0.0, 0.0], "max": [2.0, 1.0]},
-         "obstacles": [{"shape": "box", "min": [1.0, 0.0], "max": [1.2, 0.5]}]}
+SCENE = {
+    "dim": 2,
+    "domain": {"min": [0.0, 0.0], "max": [2.0, 1.0]},
+    "obstacles": [{"shape": "box", "min": [1.0, 0.0], "max": [1.2, 0.5]}],
+}
 
 
 def test_checks_pass_on_a_clean_state_and_flag_each_fault():
@@ -83,20 +97,18 @@ def test_checks_pass_on_a_clean_state_and_flag_each_fault():
         problems = soak_tool.check_state(parts, SCENE, mass0, 1e-6)
         assert len(problems) == 1 and what in problems[0], (what, problems)
     # virtual particles carry no mass of their own and may sit in walls (solver.py)
-    virtual = _parts([[0.5, 0.5], [1.5, 0.2], [1.2, 0.3], [1.1, 0.3]], [0.1, 0.1, 0.2, 0.4],
-                     kind=[0, 0, 0, 4])
+    virtual = _parts([[0.5, 0.5], [1.5, 0.2], [1.2, 0.3], [1.1, 0.3]], [0.1, 0.1, 0.2, 0.4], kind=[0, 0, 0, 4])
     assert soak_tool.check_state(virtual, SCENE, mass0, 1e-6) == []
 
 
 def test_mass_is_exact_where_only_full_groups_merge_and_to_round_off_elsewhere():
-    full = {**SCENE, "dim": 2, "adaptivity": {"enabled": True, "merge_min_children": 4,
-                                              "merge_remnants": False}}
+    full = {**SCENE, "dim": 2, "adaptivity": {"enabled": True, "merge_min_children": 4, "merge_remnants": False}}
     partial = {**full, "adaptivity": {**full["adaptivity"], "merge_remnants": True}}
     assert soak_tool.mass_rtol(full) == 0.0 and soak_tool.mass_rtol(SCENE) == 0.0
     assert soak_tool.mass_rtol(partial) == soak_tool.PARTIAL_MASS_RTOL
     m = [0.1, 0.1, 0.2]
     mass0 = math.fsum(float(np.float32(v)) for v in m)
-    rounded = _parts([[0.5, 0.5], [1.5, 0.2], [1.2, 0.3]], [0.1, 0.1, 0.2000001])   # 2.5e-7
+    rounded = _parts([[0.5, 0.5], [1.5, 0.2], [1.2, 0.3]], [0.1, 0.1, 0.2000001])  # 2.5e-7
     assert soak_tool.check_state(rounded, partial, mass0, 1e-6) == []
     assert len(soak_tool.check_state(rounded, full, mass0, 1e-6)) == 1
     lost = _parts([[0.5, 0.5], [1.2, 0.3]], [0.1, 0.2])
@@ -105,6 +117,7 @@ def test_mass_is_exact_where_only_full_groups_merge_and_to_round_off_elsewhere()
 
 def test_cursor_pushes_pulls_and_lets_go_inside_the_fluid():
     from mrsph.scene.config import load_scene
+
     data = load_scene("demo_2d").data
     cursor = soak_tool.ScriptedCursor(data, speed=10.0, gesture_s=0.5)
     assert [cursor.buttons(t) for t in (0.1, 0.6, 1.1, 1.6)] == [{"left"}, {"right"}, set(), {"left"}]
@@ -114,7 +127,7 @@ def test_cursor_pushes_pulls_and_lets_go_inside_the_fluid():
     assert step.max() == pytest.approx(10.0, rel=1e-6)
 
 
-@pytest.mark.slow    # 44 s: a long run, in -m slow (conftest.py, "two tiers")
+@pytest.mark.slow  # 44 s: a long run, in -m slow (conftest.py, "two tiers")
 def test_soak_short(fresh_program, monkeypatch):
     """SHORT soak (1000 steps, not the 10^5 of test_soak_full): every check passes, the
     stirring refines the fluid, and the summary line says so. Each level's median mass
@@ -136,17 +149,22 @@ def test_soak_short(fresh_program, monkeypatch):
     assert line.startswith("soak demo_2d: 1000 steps") and line.endswith("8 checks: OK")
     assert len(res.mass_ratio) == 3 and "median mass / nominal by level" in line, line
     from mrsph.multires.absorb import ABSORB_CAP
-    assert all(0.5 - 1e-6 <= r <= ABSORB_CAP + 1e-6 for r in res.mass_ratio if not math.isnan(r)), \
+
+    assert all(0.5 - 1e-6 <= r <= ABSORB_CAP + 1e-6 for r in res.mass_ratio if not math.isnan(r)), (
         f"median mass / nominal by level {res.mass_ratio}; expected within [0.5, {ABSORB_CAP}]"
+    )
 
 
 def test_mass_ratios_are_per_level_medians_of_the_real_particles():
     """The summary's mass drift: real particles only (a virtual one's mass is a share of
     its owner's), over the level's nominal mass; nan for a level with no real particle."""
     from mrsph.sph.particles import REGULAR, TRANSIENT_CHILD, VIRTUAL_CHILD
-    parts = {"kind": np.array([REGULAR, REGULAR, TRANSIENT_CHILD, VIRTUAL_CHILD, REGULAR]),
-             "level": np.array([0, 0, 0, 0, 1]),
-             "m": np.array([1.0, 0.5, 0.25, 9.0, 1.0], np.float32)}
+
+    parts = {
+        "kind": np.array([REGULAR, REGULAR, TRANSIENT_CHILD, VIRTUAL_CHILD, REGULAR]),
+        "level": np.array([0, 0, 0, 0, 1]),
+        "m": np.array([1.0, 0.5, 0.25, 9.0, 1.0], np.float32),
+    }
     r = soak_tool.mass_ratios(parts, [1.0, 4.0, 16.0])
     assert r[:2] == [0.5, 0.25] and np.isnan(r[2]), r
 

@@ -1,5 +1,6 @@
 """tools/step_profile.py: one short run through its command line (it leans on Taichi's
 profiler internals, which a Taichi update could move)."""
+
 import subprocess
 import sys
 from pathlib import Path
@@ -8,9 +9,25 @@ REPO = Path(__file__).resolve().parent.parent
 
 
 def test_step_profile_lists_tasks_and_calls():
-    proc = subprocess.run([sys.executable, "tools/step_profile.py", "dam_break_2d", "--set",
-                           "particles.spacing=0.02", "--warm", "2", "--steps", "3", "--top", "5"],
-                          cwd=REPO, capture_output=True, text=True, timeout=600)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "tools/step_profile.py",
+            "dam_break_2d",
+            "--set",
+            "particles.spacing=0.02",
+            "--warm",
+            "2",
+            "--steps",
+            "3",
+            "--top",
+            "5",
+        ],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     out = proc.stdout
     assert "dam_break_2d particles.spacing=0.02:" in out and "solver wcsph" in out, out
@@ -23,9 +40,24 @@ def test_step_profile_lists_tasks_and_calls():
 
 
 def test_step_profile_by_phase_names_the_phases_kernels():
-    proc = subprocess.run([sys.executable, "tools/step_profile.py", "dam_break_2d", "--set",
-                           "particles.spacing=0.02", "--warm", "2", "--steps", "3", "--by-phase"],
-                          cwd=REPO, capture_output=True, text=True, timeout=600)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "tools/step_profile.py",
+            "dam_break_2d",
+            "--set",
+            "particles.spacing=0.02",
+            "--warm",
+            "2",
+            "--steps",
+            "3",
+            "--by-phase",
+        ],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     out = proc.stdout
     assert ", phase by phase" in out, out
@@ -35,7 +67,12 @@ def test_step_profile_by_phase_names_the_phases_kernels():
 
 
 def test_step_profile_refuses_a_bad_override():
-    proc = subprocess.run([sys.executable, "tools/step_profile.py", "dam_break_2d", "--set", "fluid.nope=1"],
-                          cwd=REPO, capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "tools/step_profile.py", "dam_break_2d", "--set", "fluid.nope=1"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
     assert proc.stderr.startswith("step_profile: --set fluid.nope: unknown key"), proc.stderr

@@ -1,4 +1,5 @@
 """Import a script of tools/ as a module, for the tests of those scripts."""
+
 import importlib.util
 import sys
 from pathlib import Path

@@ -40,6 +40,7 @@ def record(out: pathlib.Path, steps: int, only: str | None = None) -> None:
     from mrsph import runtime
     from mrsph.scene.config import load_scene
     from mrsph.simulation import Simulation
+
     root = pathlib.Path(__file__).resolve().parents[1]
     out.mkdir(parents=True, exist_ok=True)
     for name, path, overrides in RUNS:

@@ -23,6 +23,7 @@ the kinetic energy is sampled every millisecond and its peak reported with when 
 came. The refinement alone should leave the pool near rest (docs/performance.md, "A
 cursor dragged through resting water").
 """
+
 from __future__ import annotations
 
 import argparse
@@ -44,10 +45,20 @@ AFTER_MS = (2.5, 10.0, 20.0, 50.0, 100.0)
 #: the floor, through the middle, down from the surface, up from the floor, diagonals, in
 #: both basins. One drag says little of a chaotic burst; their median and worst say more
 #: (docs/performance.md, "A cursor dragged through resting water").
-PATHS = (((0.3, 0.12), (2.0, 0.0)), ((0.3, 0.2), (2.0, 0.0)), ((0.9, 0.12), (-2.0, 0.0)),
-         ((0.3, 0.12), (1.0, 0.0)), ((0.5, 0.3), (0.0, -1.0)), ((0.2, 0.1), (1.5, 1.0)),
-         ((0.15, 0.25), (2.0, -0.5)), ((1.0, 0.25), (-1.5, 0.0)), ((0.6, 0.05), (0.0, 1.5)),
-         ((0.4, 0.15), (-1.0, 1.0)), ((1.4, 0.15), (0.5, 0.0)), ((0.7, 0.2), (2.0, 1.0)))
+PATHS = (
+    ((0.3, 0.12), (2.0, 0.0)),
+    ((0.3, 0.2), (2.0, 0.0)),
+    ((0.9, 0.12), (-2.0, 0.0)),
+    ((0.3, 0.12), (1.0, 0.0)),
+    ((0.5, 0.3), (0.0, -1.0)),
+    ((0.2, 0.1), (1.5, 1.0)),
+    ((0.15, 0.25), (2.0, -0.5)),
+    ((1.0, 0.25), (-1.5, 0.0)),
+    ((0.6, 0.05), (0.0, 1.5)),
+    ((0.4, 0.15), (-1.0, 1.0)),
+    ((1.4, 0.15), (0.5, 0.0)),
+    ((0.7, 0.2), (2.0, 1.0)),
+)
 
 
 def speeds(sim) -> tuple[np.ndarray, float]:
@@ -58,19 +69,31 @@ def speeds(sim) -> tuple[np.ndarray, float]:
 
 
 def line(label: str, sp: np.ndarray, ke: float) -> str:
-    return (f"{label:>11}: fastest {sp.max():6.2f} m/s, {int((sp > 1.0).sum()):5d} above 1 m/s, "
-            f"{int((sp > 0.3).sum()):5d} above 0.3 m/s, mean {sp.mean():.3f} m/s, KE {ke:7.2f} J")
+    return (
+        f"{label:>11}: fastest {sp.max():6.2f} m/s, {int((sp > 1.0).sum()):5d} above 1 m/s, "
+        f"{int((sp > 0.3).sum()):5d} above 0.3 m/s, mean {sp.mean():.3f} m/s, KE {ke:7.2f} J"
+    )
 
 
-def burst(scene: str, overrides: list[str], at, radius: float, settle: float, after_ms,
-          threads: int | None, arch: str = "cpu", leave: bool = False,
-          strength: float = 1e-6) -> list[tuple[float, np.ndarray, float]]:
+def burst(
+    scene: str,
+    overrides: list[str],
+    at,
+    radius: float,
+    settle: float,
+    after_ms,
+    threads: int | None,
+    arch: str = "cpu",
+    leave: bool = False,
+    strength: float = 1e-6,
+) -> list[tuple[float, np.ndarray, float]]:
     """[(ms after the cursor came, the real particles' speeds, their kinetic energy)], the
     first at 0 (before); with ``leave``, then the cursor goes and the same times after it
     left follow, as negative ms."""
     from mrsph.scene.config import load_scene
     from mrsph.scene.interaction import Disturbance
     from mrsph.simulation import Simulation
+
     sc = load_scene(scene, overrides)
     if len(at) != sc["dim"]:
         raise SystemExit(f"--at: {len(at)} coordinates for a {sc['dim']}D scene")
@@ -91,9 +114,19 @@ def burst(scene: str, overrides: list[str], at, radius: float, settle: float, af
     return out
 
 
-def drag(scene: str, overrides: list[str], at, radius: float, settle: float, velocity,
-         duration_ms: float, frame_ms: float, threads: int | None, arch: str = "cpu",
-         strength: float = 1e-6) -> list[tuple[float, np.ndarray, float]]:
+def drag(
+    scene: str,
+    overrides: list[str],
+    at,
+    radius: float,
+    settle: float,
+    velocity,
+    duration_ms: float,
+    frame_ms: float,
+    threads: int | None,
+    arch: str = "cpu",
+    strength: float = 1e-6,
+) -> list[tuple[float, np.ndarray, float]]:
     """[(ms after the cursor came, the real particles' speeds, their kinetic energy)], one
     a millisecond, the first at 0 (before): the cursor starts at ``at`` and jumps to
     at + velocity t every ``frame_ms``, its velocity (what its push pulls towards) the
@@ -101,10 +134,10 @@ def drag(scene: str, overrides: list[str], at, radius: float, settle: float, vel
     from mrsph.scene.config import load_scene
     from mrsph.scene.interaction import Disturbance
     from mrsph.simulation import Simulation
+
     sc = load_scene(scene, overrides)
     if len(at) != sc["dim"] or len(velocity) != sc["dim"]:
-        raise SystemExit(f"--at and --drag: {len(at)} and {len(velocity)} coordinates for a "
-                         f"{sc['dim']}D scene")
+        raise SystemExit(f"--at and --drag: {len(at)} and {len(velocity)} coordinates for a {sc['dim']}D scene")
     sim = Simulation(sc, arch=arch, threads=threads)
     sim.advance(settle)
     out = [(0.0, *speeds(sim))]
@@ -119,33 +152,51 @@ def drag(scene: str, overrides: list[str], at, radius: float, settle: float, vel
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0],
-                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__.splitlines()[0], formatter_class=argparse.ArgumentDefaultsHelpFormatter
+    )
     ap.add_argument("--scene", default="demo_2d", help="an adaptive scene with a disturbance criterion")
-    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
-                    help="override a scene key (repeatable)")
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        dest="overrides",
+        help="override a scene key (repeatable)",
+    )
     ap.add_argument("--at", default=",".join(map(str, AT)), help="the cursor's place, m (x,y[,z])")
     ap.add_argument("--radius", type=float, default=RADIUS, help="the cursor's radius, m")
     ap.add_argument("--settle", type=float, default=2.5, help="simulated seconds before the cursor comes")
-    ap.add_argument("--after", default=",".join(f"{t:g}" for t in AFTER_MS),
-                    help="times after it came to report, ms")
-    ap.add_argument("--strength", type=float, default=1e-6,
-                    help="the cursor's pull towards rest, 1/s (the window's mouse: 20; the default "
-                         "only refines)")
+    ap.add_argument("--after", default=",".join(f"{t:g}" for t in AFTER_MS), help="times after it came to report, ms")
+    ap.add_argument(
+        "--strength",
+        type=float,
+        default=1e-6,
+        help="the cursor's pull towards rest, 1/s (the window's mouse: 20; the default only refines)",
+    )
     ap.add_argument("--threads", type=int, default=1, help="CPU threads")
-    ap.add_argument("--leave", action="store_true",
-                    help="then take the cursor away and report the same times after it left "
-                         "(the refined fluid merges back)")
-    ap.add_argument("--drag", default=None, metavar="VX,VY[,VZ]",
-                    help="move the cursor from --at at this velocity, m/s (default: held still)")
-    ap.add_argument("--for", type=float, default=400.0, dest="duration",
-                    help="with --drag: how long, ms")
+    ap.add_argument(
+        "--leave",
+        action="store_true",
+        help="then take the cursor away and report the same times after it left (the refined fluid merges back)",
+    )
+    ap.add_argument(
+        "--drag",
+        default=None,
+        metavar="VX,VY[,VZ]",
+        help="move the cursor from --at at this velocity, m/s (default: held still)",
+    )
+    ap.add_argument("--for", type=float, default=400.0, dest="duration", help="with --drag: how long, ms")
     ap.add_argument("--frame", type=int, default=10, help="with --drag: ms between the cursor's jumps")
-    ap.add_argument("--paths", action="store_true",
-                    help="drag along each of demo_2d's twelve PATHS in turn (--at and --drag unused): "
-                         "one line each with the kinetic energy's peak, then their median and worst")
+    ap.add_argument(
+        "--paths",
+        action="store_true",
+        help="drag along each of demo_2d's twelve PATHS in turn (--at and --drag unused): "
+        "one line each with the kinetic energy's peak, then their median and worst",
+    )
     args = ap.parse_args(argv)
     from mrsph.scene.config import SceneError
+
     try:
         at = [float(c) for c in args.at.split(",")]
         after = [float(t) for t in args.after.split(",")]
@@ -172,27 +223,63 @@ def _paths(args) -> None:
     """--paths: each of PATHS dragged in turn, one line each, then the median and worst."""
     peaks = []
     for start, vel in PATHS:
-        rows = drag(args.scene, args.overrides, start, args.radius, args.settle, vel, args.duration,
-                    args.frame, args.threads, strength=args.strength)
+        rows = drag(
+            args.scene,
+            args.overrides,
+            start,
+            args.radius,
+            args.settle,
+            vel,
+            args.duration,
+            args.frame,
+            args.threads,
+            strength=args.strength,
+        )
         ms, sp, ke = max(rows[1:], key=lambda r: r[2])
         peaks.append(ke)
-        print(f"from {start} at {vel} m/s: peak {ke:8.2f} J at {ms:3g} ms, {int((sp > 1.0).sum()):4d} "
-              f"above 1 m/s, the fastest {sp.max():.2f} m/s", flush=True)
-    print(f"peaks over {len(PATHS)} paths: median {np.median(peaks):.2f} J, worst {max(peaks):.2f} J, "
-          f"{sum(k > 25.0 for k in peaks)} above 25 J")
+        print(
+            f"from {start} at {vel} m/s: peak {ke:8.2f} J at {ms:3g} ms, {int((sp > 1.0).sum()):4d} "
+            f"above 1 m/s, the fastest {sp.max():.2f} m/s",
+            flush=True,
+        )
+    print(
+        f"peaks over {len(PATHS)} paths: median {np.median(peaks):.2f} J, worst {max(peaks):.2f} J, "
+        f"{sum(k > 25.0 for k in peaks)} above 25 J"
+    )
 
 
 def _one(args, at, after, velocity) -> None:
     """One cursor, held still at ``at`` or dragged from it: the lines at ``after``."""
     if velocity is None:
-        rows = burst(args.scene, args.overrides, at, args.radius, args.settle, after, args.threads,
-                     leave=args.leave, strength=args.strength)
+        rows = burst(
+            args.scene,
+            args.overrides,
+            at,
+            args.radius,
+            args.settle,
+            after,
+            args.threads,
+            leave=args.leave,
+            strength=args.strength,
+        )
     else:
-        rows = drag(args.scene, args.overrides, at, args.radius, args.settle, velocity, args.duration,
-                    args.frame, args.threads, strength=args.strength)
+        rows = drag(
+            args.scene,
+            args.overrides,
+            at,
+            args.radius,
+            args.settle,
+            velocity,
+            args.duration,
+            args.frame,
+            args.threads,
+            strength=args.strength,
+        )
     how = "a still cursor" if velocity is None else f"a cursor dragged at {tuple(velocity)} m/s from"
-    print(f"{args.scene} {' '.join(args.overrides)}".rstrip() + f": {how} {tuple(at)}, "
-          f"radius {args.radius} m, strength {args.strength:g} 1/s, after {args.settle} s")
+    print(
+        f"{args.scene} {' '.join(args.overrides)}".rstrip() + f": {how} {tuple(at)}, "
+        f"radius {args.radius} m, strength {args.strength:g} 1/s, after {args.settle} s"
+    )
     if velocity is not None:
         peak = max(rows[1:], key=lambda r: r[2])
         median = float(np.median([ke for _, _, ke in rows[1:]]))

@@ -20,6 +20,7 @@ Why a tool: a single run says little. The front at 1 s spreads by several per ce
 viscosities and CFL numbers a few per cent apart, so every fix in docs/dam-front.md was
 judged over several of them; this is the harness that did it.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -51,6 +52,7 @@ def run_one(dim: int, solver: str, viscosity: float, cfl: float, sets: list[str]
     sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
     import numpy as np
     import test_adaptive_flow as flow
+
     from mrsph.scene.config import load_scene
     from mrsph.simulation import Simulation
 
@@ -76,27 +78,37 @@ def run_one(dim: int, solver: str, viscosity: float, cfl: float, sets: list[str]
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--dim", type=int, choices=(2, 3), required=True)
-    ap.add_argument("--viscosity", type=_floats, default=[1.0],
-                    help="factors on the test's viscosity, comma-separated (default 1)")
-    ap.add_argument("--solver", choices=tuple(CFL_KEY), default="wcsph",
-                    help="fluid.solver (default wcsph)")
-    ap.add_argument("--cfl", type=_floats,
-                    help="CFL numbers, comma-separated: physics.cfl with wcsph, dfsph.cfl with "
-                         "dfsph (default the solver's own, 0.2 or 0.4, as the test runs)")
-    ap.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
-                    help="a scene override, as on the command line (repeatable)")
-    ap.add_argument("--uniform", action="store_true",
-                    help="also run each uniform twin and compare with it")
+    ap.add_argument(
+        "--viscosity", type=_floats, default=[1.0], help="factors on the test's viscosity, comma-separated (default 1)"
+    )
+    ap.add_argument("--solver", choices=tuple(CFL_KEY), default="wcsph", help="fluid.solver (default wcsph)")
+    ap.add_argument(
+        "--cfl",
+        type=_floats,
+        help="CFL numbers, comma-separated: physics.cfl with wcsph, dfsph.cfl with "
+        "dfsph (default the solver's own, 0.2 or 0.4, as the test runs)",
+    )
+    ap.add_argument(
+        "--set",
+        dest="sets",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a scene override, as on the command line (repeatable)",
+    )
+    ap.add_argument("--uniform", action="store_true", help="also run each uniform twin and compare with it")
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
-    ap.add_argument("--one", help=argparse.SUPPRESS)      # a worker: JSON arguments
+    ap.add_argument("--one", help=argparse.SUPPRESS)  # a worker: JSON arguments
     args = ap.parse_args(argv)
 
     if args.one:
         sys.path.insert(0, str(ROOT))
         from mrsph.scene.config import SceneError
+
         try:
             print(json.dumps(run_one(**json.loads(args.one))), flush=True)
         except SceneError as e:
@@ -105,9 +117,11 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
     args.cfl = args.cfl or [CFL_KEY[args.solver][1]]
-    jobs = [dict(dim=args.dim, solver=args.solver, viscosity=v, cfl=c, sets=args.sets, uniform=u)
-            for v, c in itertools.product(args.viscosity, args.cfl)
-            for u in ((False, True) if args.uniform else (False,))]
+    jobs = [
+        dict(dim=args.dim, solver=args.solver, viscosity=v, cfl=c, sets=args.sets, uniform=u)
+        for v, c in itertools.product(args.viscosity, args.cfl)
+        for u in ((False, True) if args.uniform else (False,))
+    ]
     results, running, core = [], [], 0
     while jobs or running:
         while jobs and len(running) < max(1, args.jobs):
@@ -116,8 +130,7 @@ def main(argv: list[str] | None = None) -> int:
             if hasattr(os, "sched_setaffinity") and args.jobs > 1:
                 cmd = ["taskset", "-c", str(core % (os.cpu_count() or 1)), *cmd]
                 core += 1
-            running.append((job, subprocess.Popen(cmd, stdout=subprocess.PIPE,
-                                                  stderr=subprocess.PIPE, text=True)))
+            running.append((job, subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)))
         job, proc = running.pop(0)
         stdout, stderr = proc.communicate()
         if proc.returncode != 0:
@@ -133,11 +146,15 @@ def main(argv: list[str] | None = None) -> int:
         u = ref.get((r["viscosity"], r["cfl"]), UNIFORM_FRONT[args.solver, args.dim])
         err = 100 * (r["front"] / u - 1)
         errors.append(err)
-        print(f"x{r['viscosity']:<8g} {r['cfl']:<6g} {r['early']:9.3f} m {r['front']:8.3f} m "
-              f"{u:7.3f} m {err:+6.1f} %  {r['mean_real']:8.0f}")
+        print(
+            f"x{r['viscosity']:<8g} {r['cfl']:<6g} {r['early']:9.3f} m {r['front']:8.3f} m "
+            f"{u:7.3f} m {err:+6.1f} %  {r['mean_real']:8.0f}"
+        )
     source = "its uniform twin" if args.uniform else f"{UNIFORM_FRONT[args.solver, args.dim]} m (test settings)"
-    print(f"{args.dim}D {args.solver}, {len(errors)} runs against {source}: mean {sum(errors) / len(errors):+.1f} %, "
-          f"{min(errors):+.1f} .. {max(errors):+.1f} %, {sum(abs(e) > 5 for e in errors)} beyond 5 %")
+    print(
+        f"{args.dim}D {args.solver}, {len(errors)} runs against {source}: mean {sum(errors) / len(errors):+.1f} %, "
+        f"{min(errors):+.1f} .. {max(errors):+.1f} %, {sum(abs(e) > 5 for e in errors)} beyond 5 %"
+    )
     return 0
 
 

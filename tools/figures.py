@@ -3,8 +3,10 @@
     python3 tools/figures.py            # assets/kinds.png and assets/demo.gif (--out DIR: elsewhere)
 
 kinds.png: a zoom on a level interface of region_2d at t = 0 (two levels): real particles
-coloured by kind, virtual ones as rings joined to the real particles they stand for. demo.gif: the adaptive dam break hitting a block.
+coloured by kind, virtual ones as rings joined to the real particles they stand for.
+demo.gif: the adaptive dam break hitting a block.
 """
+
 import argparse
 import sys
 from dataclasses import replace
@@ -21,15 +23,14 @@ from mrsph.app.record import record  # noqa: E402
 from mrsph.scene.config import load_scene  # noqa: E402
 from mrsph.simulation import Simulation  # noqa: E402
 
-
 #: kinds.png: the world window (m) around the lower-left corner of region_2d's refined
 #: zone, where coarse fluid meets fine fluid along a side and along the floor.
 KINDS_WINDOW = (np.array([0.14, 0.0]), np.array([0.26, 0.068]))
 #: drawn radius of a particle, in spacings of its level (0.5 would touch)
 KINDS_DISC = 0.36
-KINDS_VIRTUAL_CHILD = np.array([0.85, 0.85, 0.85], np.float32)   # light grey ring
-KINDS_VIRTUAL_PARENT = np.array([1.0, 1.0, 1.0], np.float32)     # white ring
-KINDS_LINK = np.array([0.55, 0.55, 0.60], np.float32)            # thin line to the real particle(s)
+KINDS_VIRTUAL_CHILD = np.array([0.85, 0.85, 0.85], np.float32)  # light grey ring
+KINDS_VIRTUAL_PARENT = np.array([1.0, 1.0, 1.0], np.float32)  # white ring
+KINDS_LINK = np.array([0.55, 0.55, 0.60], np.float32)  # thin line to the real particle(s)
 
 
 def _ring(img, view, centres, r_world, colour, width_px=2.0):
@@ -37,7 +38,7 @@ def _ring(img, view, centres, r_world, colour, width_px=2.0):
     h, w, _ = img.shape
     r = float(view.radius_px(r_world))
     k = int(np.ceil(r + width_px))
-    dy, dx = np.mgrid[-k:k + 1, -k:k + 1]
+    dy, dx = np.mgrid[-k : k + 1, -k : k + 1]
     on = np.abs(np.hypot(dx, dy) - r) <= width_px / 2
     dx, dy = dx[on], dy[on]
     for c in view.world_to_px(centres):
@@ -71,29 +72,40 @@ def kinds_figure(path: Path) -> None:
     snap = sim.snapshot(stats=False)
     n, pool = sim.pool.count(), sim.pool.p
     # pool order (not particles(), which leaves out dead slots): parent links index it
-    x, v, m, rho, kind, level, parent = (getattr(pool, a).to_numpy()[:n] for a in
-                                         ("x", "v", "m", "rho", "kind", "level", "parent"))
+    x, v, m, rho, kind, level, parent = (
+        getattr(pool, a).to_numpy()[:n] for a in ("x", "v", "m", "rho", "kind", "level", "parent")
+    )
     lo, hi = KINDS_WINDOW
     pad = 2 * sim.s0 * 2 ** (sim.levels - 1)
     near = np.all((x >= lo - pad) & (x <= hi + pad), axis=1) & (kind != DEAD)
     real = near & ~palette.is_virtual(kind)
-    zoom = replace(snap, x=x[real], v=v[real], m=m[real], rho=rho[real],
-                   level=level[real], kind=kind[real], domain_min=lo, domain_max=hi)
+    zoom = replace(
+        snap,
+        x=x[real],
+        v=v[real],
+        m=m[real],
+        rho=rho[real],
+        level=level[real],
+        kind=kind[real],
+        domain_min=lo,
+        domain_max=hi,
+    )
     width, height = 1040, 610
-    img = Rasterizer(width, height).render(zoom, color_mode="kind", legend=False,
-                                           style=palette.Style(point_scale=2 * KINDS_DISC))
-    img = np.ascontiguousarray(img[::-1]).astype(np.float32) / 255.0   # rows y-up while drawing
+    img = Rasterizer(width, height).render(
+        zoom, color_mode="kind", legend=False, style=palette.Style(point_scale=2 * KINDS_DISC)
+    )
+    img = np.ascontiguousarray(img[::-1]).astype(np.float32) / 255.0  # rows y-up while drawing
     view = View2D(lo, hi, width, height)
     linked = near & np.isin(kind, (VIRTUAL_CHILD, TRANSIENT_CHILD, TRANSIENT_BOTH)) & (parent >= 0)
     _segments(img, view, x[linked], x[parent[linked]], KINDS_LINK)
     for code, colour in ((VIRTUAL_CHILD, KINDS_VIRTUAL_CHILD), (VIRTUAL_PARENT, KINDS_VIRTUAL_PARENT)):
         for lvl in range(sim.levels):
             sel = near & (kind == code) & (level == lvl)
-            _ring(img, view, x[sel], KINDS_DISC * sim.s0 * 2.0 ** lvl, colour)
+            _ring(img, view, x[sel], KINDS_DISC * sim.s0 * 2.0**lvl, colour)
     # the outline drawn around the window is no wall (but its bottom edge, the floor, is):
     # crop the other three edges and the margin away
     (x0, y0), (x1, y1) = view.world_to_px(np.array([lo, hi]))
-    img = img[max(int(y0) - 3, 0):int(y1) - 2, int(x0) + 3:int(x1) - 2]
+    img = img[max(int(y0) - 3, 0) : int(y1) - 2, int(x0) + 3 : int(x1) - 2]
     iio.imwrite(path, np.clip(img[::-1] * 255.0 + 0.5, 0, 255).astype(np.uint8))
 
 
@@ -103,11 +115,12 @@ def demo_gif(path: Path) -> None:
 
 
 if __name__ == "__main__":
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter,
-                                 epilog="Without --out it overwrites the README's assets/kinds.png and assets/demo.gif.")
-    ap.add_argument("--out", type=Path, default=ROOT / "assets", help="folder for the two files "
-                    "(default: assets/)")
+    ap = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="Without --out it overwrites the README's assets/kinds.png and assets/demo.gif.",
+    )
+    ap.add_argument("--out", type=Path, default=ROOT / "assets", help="folder for the two files (default: assets/)")
     out = ap.parse_args().out
     out.mkdir(parents=True, exist_ok=True)
     kinds_figure(out / "kinds.png")

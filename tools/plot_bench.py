@@ -15,6 +15,7 @@ and timed interval of the benchmark's pair cases (the front has reached the bloc
 
 Needs matplotlib (requirements-test.txt).
 """
+
 import argparse
 import json
 import sys
@@ -26,17 +27,19 @@ sys.path.insert(0, str(ROOT))
 DEFAULT_OUT = ROOT / "assets" / "bench.png"
 #: Finest spacings of the sweep (m): uniform runs of 6k, 12k and 25k particles in 2D,
 #: 2.6k, 6k and 12k in 3D (dam_break_obstacle_*d, two levels).
-SWEEP = {2: ("dam_break_obstacle_2d", (0.005, 0.0035, 0.0025)),
-         3: ("dam_break_obstacle_3d", (0.02, 0.015, 0.012))}
+SWEEP = {2: ("dam_break_obstacle_2d", (0.005, 0.0035, 0.0025)), 3: ("dam_break_obstacle_3d", (0.02, 0.015, 0.012))}
 #: Warm-up and timed interval (simulated s) of the sweep: those of the bench's pairs.
 SWEEP_TIMES = {2: (0.24, 0.01), 3: (0.2, 0.01)}
-STYLE = {True: dict(color="tab:orange", marker="o", label="adaptive (2 levels)"),
-         False: dict(color="tab:blue", marker="s", label="uniform at the finest spacing")}
+STYLE = {
+    True: dict(color="tab:orange", marker="o", label="adaptive (2 levels)"),
+    False: dict(color="tab:blue", marker="s", label="uniform at the finest spacing"),
+}
 
 
 def sweep(repeats: int, arch: str, threads, scale: float, dims=(2, 3)) -> dict:
     """Run the pair sweep; returns a bench-shaped result ({"cases": rows, "pairs": ...})."""
     from mrsph.cli.bench import run_pair
+
     rows, pairs = [], []
     for dim in dims:
         scene, spacings = SWEEP[dim]
@@ -44,13 +47,17 @@ def sweep(repeats: int, arch: str, threads, scale: float, dims=(2, 3)) -> dict:
         for s in spacings:
             name = f"{scene} s={1e3 * s:g}mm"
             print(f"running {name} ...", file=sys.stderr, flush=True)
-            pair_rows, summary = run_pair(name, scene, (f"particles.spacing={s}",), warm,
-                                          interval * scale, repeats, arch, threads)
+            pair_rows, summary = run_pair(
+                name, scene, (f"particles.spacing={s}",), warm, interval * scale, repeats, arch, threads
+            )
             rows += pair_rows
             pairs.append(summary)
-            print(f"    adaptive {pair_rows[0]['wall_s']:.3g} s, uniform {pair_rows[1]['wall_s']:.3g} s"
-                  f" per {interval * scale:g} simulated s: {summary['speedup']:.2f}x",
-                  file=sys.stderr, flush=True)
+            print(
+                f"    adaptive {pair_rows[0]['wall_s']:.3g} s, uniform {pair_rows[1]['wall_s']:.3g} s"
+                f" per {interval * scale:g} simulated s: {summary['speedup']:.2f}x",
+                file=sys.stderr,
+                flush=True,
+            )
     return {"cases": rows, "pairs": pairs, "repeats": repeats, "arch": arch, "threads": threads}
 
 
@@ -71,13 +78,13 @@ def curves(result: dict) -> dict:
 
 def plot(result: dict, path: Path) -> Path:
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     data = curves(result)
     if not data:
-        raise SystemExit("plot_bench: no pair rows in the results (run the bench's pair cases, "
-                         "or --sweep)")
+        raise SystemExit("plot_bench: no pair rows in the results (run the bench's pair cases, or --sweep)")
     dims = sorted(data)
     fig, axes = plt.subplots(1, len(dims), figsize=(5.2 * len(dims), 4.2), squeeze=False)
     for ax, dim in zip(axes[0], dims):
@@ -89,14 +96,20 @@ def plot(result: dict, path: Path) -> Path:
             ax.plot(n, y, linewidth=1.8, markersize=6, **STYLE[adaptive])
             if not adaptive:
                 for xi, yi, si in pts:
-                    ax.annotate(f"{1e3 * si:g} mm", (xi, yi), textcoords="offset points",
-                                xytext=(4, 6), fontsize=8, color="0.35")
+                    ax.annotate(
+                        f"{1e3 * si:g} mm",
+                        (xi, yi),
+                        textcoords="offset points",
+                        xytext=(4, 6),
+                        fontsize=8,
+                        color="0.35",
+                    )
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_title(f"{dim}D: dam break onto a block")
         ax.set_xlabel("finest resolution: particles of a uniform run at the finest spacing")
         ax.set_ylabel("wall seconds per simulated second")
-        ax.margins(x=0.08, y=0.12)   # room for the spacing labels
+        ax.margins(x=0.08, y=0.12)  # room for the spacing labels
         ax.grid(True, which="both", linewidth=0.4, alpha=0.5)
         ax.legend(fontsize=8, loc="upper left")
     machine = f"{result.get('arch', 'cpu')}"
@@ -105,8 +118,7 @@ def plot(result: dict, path: Path) -> Path:
         machine += ", threads as the app picks them"
     elif threads:
         machine += f", {threads} thread{'s' if threads > 1 else ''}"
-    fig.suptitle(f"mrsph: adaptive vs uniform ({machine}; median of {result.get('repeats', '?')})",
-                 fontsize=10)
+    fig.suptitle(f"mrsph: adaptive vs uniform ({machine}; median of {result.get('repeats', '?')})", fontsize=10)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
@@ -116,18 +128,25 @@ def plot(result: dict, path: Path) -> Path:
 
 def main(argv=None) -> int:
     from mrsph.cli.options import threads_arg
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0],
-                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+
+    ap = argparse.ArgumentParser(
+        description=__doc__.splitlines()[0], formatter_class=argparse.ArgumentDefaultsHelpFormatter
+    )
     ap.add_argument("json", nargs="?", help="a bench result (python3 main.py bench --json FILE)")
     ap.add_argument("--sweep", action="store_true", help="run the pair sweep instead of reading JSON")
     ap.add_argument("--save", metavar="FILE", help="with --sweep: also write its results as JSON")
     ap.add_argument("--repeats", type=int, default=1, help="with --sweep: timed runs per point")
-    ap.add_argument("--interval-scale", type=float, default=1.0,
-                    help="with --sweep: multiply the timed interval (not the warm-up)")
+    ap.add_argument(
+        "--interval-scale", type=float, default=1.0, help="with --sweep: multiply the timed interval (not the warm-up)"
+    )
     ap.add_argument("--dims", type=int, nargs="+", default=[2, 3], choices=(2, 3))
     ap.add_argument("--arch", default="cpu", choices=("auto", "cpu", "gpu"))
-    ap.add_argument("--threads", type=threads_arg, default="auto",
-                    help="CPU threads: a count, or auto (as the app: one pinned thread for small scenes)")
+    ap.add_argument(
+        "--threads",
+        type=threads_arg,
+        default="auto",
+        help="CPU threads: a count, or auto (as the app: one pinned thread for small scenes)",
+    )
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT, help="the picture to write")
     args = ap.parse_args(argv)
     if args.sweep == bool(args.json):

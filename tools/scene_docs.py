@@ -8,6 +8,7 @@ The tables sit between two HTML comments in docs/scenes.md (:data:`BEGIN`, :data
 the prose around them is written by hand and left as it is. ``tests/test_config.py``
 fails when the file is out of date.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -46,8 +47,15 @@ def markdown_tables() -> str:
     def type_of(k: Key) -> str:
         if k.kind == "choice":
             return " or ".join(f'"{c}"' for c in k.choices)
-        base = {"float": "number", "int": "integer", "bool": "bool", "str": "string", "vec": "vec",
-                "vec3": "vec3", "path": f"path, >= {k.min_items} waypoints"}[k.kind]
+        base = {
+            "float": "number",
+            "int": "integer",
+            "bool": "bool",
+            "str": "string",
+            "vec": "vec",
+            "vec3": "vec3",
+            "path": f"path, >= {k.min_items} waypoints",
+        }[k.kind]
         if not k.range:
             return base
         return f"{base} in {k.range}" if k.range[0] in "[(" else f"{base} {k.range}"
@@ -64,8 +72,10 @@ def markdown_tables() -> str:
         out.extend([f"### {title}", ""] + ([doc or table.doc, ""] if doc or table.doc else []))
         if rows:
             out.extend(["| key | type | unit | default | meaning |", "|---|---|---|---|---|"])
-            out.extend(f"| `{name}` | {cell(type_of(k))} | {k.unit or '-'} | {cell(default_of(k))} "
-                       f"| {cell(k.doc)} |" for name, k in rows)
+            out.extend(
+                f"| `{name}` | {cell(type_of(k))} | {k.unit or '-'} | {cell(default_of(k))} | {cell(k.doc)} |"
+                for name, k in rows
+            )
             out.append("")
         for name, sub in table.keys.items():
             key = f"{dotted}.{name}" if dotted else name
@@ -86,8 +96,9 @@ def render(text: str) -> str:
     head, sep, rest = text.partition(BEGIN + "\n")
     old, sep2, tail = rest.partition(END)
     if not (sep and sep2):
-        raise ValueError(f"docs/scenes.md: the markers {BEGIN!r} and {END!r} are missing "
-                         "(put them around the key tables)")
+        raise ValueError(
+            f"docs/scenes.md: the markers {BEGIN!r} and {END!r} are missing (put them around the key tables)"
+        )
     return f"{head}{BEGIN}\n\n{markdown_tables()}\n{END}{tail}"
 
 
@@ -104,8 +115,7 @@ def main(argv=None) -> int:
     new = render(text)
     if args.check:
         if new != text:
-            print(f"{DOC.relative_to(ROOT)} is out of date: run python3 tools/scene_docs.py",
-                  file=sys.stderr)
+            print(f"{DOC.relative_to(ROOT)} is out of date: run python3 tools/scene_docs.py", file=sys.stderr)
             return 1
         return 0
     if new != text:

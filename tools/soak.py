@@ -37,6 +37,7 @@ wall time, smallest dt, largest speed, splits, merges, refusals, and per level t
 real particle's mass over the level's nominal mass, :func:`mass_ratios`) and exits 0 when
 every check passed, 1 otherwise.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -84,7 +85,7 @@ class SoakResult:
     n_real_max: int = 0
     n_real_end: int = 0
     mass0: float = 0.0
-    mass_ratio: list = field(default_factory=list)     # per level, at the last check
+    mass_ratio: list = field(default_factory=list)  # per level, at the last check
     warnings: list = field(default_factory=list)
     failures: list = field(default_factory=list)
 
@@ -94,13 +95,15 @@ class SoakResult:
 
     def summary(self) -> str:
         verdict = "OK" if self.ok else f"FAILED ({len(self.failures)}): {self.failures[0]}"
-        return (f"soak {self.scene}: {self.steps} steps, {self.sim_time:.4g} s simulated in "
-                f"{self.wall_s:.4g} s wall ({self.steps / max(self.wall_s, 1e-9):.0f} steps/s); "
-                f"min dt {self.min_dt:.3g} s; max speed {self.max_speed:.3g} m/s; "
-                f"splits {self.splits}, merges {self.merges}; refused {self.refused}"
-                f"{' (warned)' if self.refused and self.warnings else ''}; real particles "
-                f"{self.n_real_min}..{self.n_real_max} (at the end {self.n_real_end}); "
-                f"{self._mass_text()}{self.checks} checks: {verdict}")
+        return (
+            f"soak {self.scene}: {self.steps} steps, {self.sim_time:.4g} s simulated in "
+            f"{self.wall_s:.4g} s wall ({self.steps / max(self.wall_s, 1e-9):.0f} steps/s); "
+            f"min dt {self.min_dt:.3g} s; max speed {self.max_speed:.3g} m/s; "
+            f"splits {self.splits}, merges {self.merges}; refused {self.refused}"
+            f"{' (warned)' if self.refused and self.warnings else ''}; real particles "
+            f"{self.n_real_min}..{self.n_real_max} (at the end {self.n_real_end}); "
+            f"{self._mass_text()}{self.checks} checks: {verdict}"
+        )
 
     def _mass_text(self) -> str:
         if not self.mass_ratio:
@@ -114,6 +117,7 @@ def mass_ratios(parts: dict, nominal) -> list[float]:
     (a group of one, a quarter in 2D), but a run that drifts far below 1 has fewer
     particles than its spacing says, each with more neighbours (docs/performance.md)."""
     from mrsph.sph.particles import VIRTUAL_CHILD
+
     real = parts["kind"] < VIRTUAL_CHILD
     out = []
     for level, m in enumerate(nominal):
@@ -146,6 +150,7 @@ def mass_rtol(scene_data: dict) -> float:
     """0 (exact) where only full groups merge (:func:`mrsph.scene.config.mass_exact`), else
     :data:`PARTIAL_MASS_RTOL`."""
     from mrsph.scene.config import mass_exact
+
     if "adaptivity" not in scene_data or mass_exact(scene_data):
         return 0.0
     return PARTIAL_MASS_RTOL
@@ -154,31 +159,34 @@ def mass_rtol(scene_data: dict) -> float:
 def check_state(parts: dict, scene_data: dict, mass0: float, tolerance: float) -> list[str]:
     """The checks of one moment, as failure lines (empty when all pass)."""
     from mrsph.sph.particles import VIRTUAL_CHILD
+
     problems = []
     x, v = parts["x"].astype(np.float64), parts["v"].astype(np.float64)
     bad = ~(np.isfinite(x).all(axis=1) & np.isfinite(v).all(axis=1))
     if bad.any():
         i = int(np.argmax(bad))
-        problems.append(f"{int(bad.sum())} particle(s) with NaN/Inf position or velocity "
-                        f"(first: level {int(parts['level'][i])}, kind {int(parts['kind'][i])})")
+        problems.append(
+            f"{int(bad.sum())} particle(s) with NaN/Inf position or velocity "
+            f"(first: level {int(parts['level'][i])}, kind {int(parts['kind'][i])})"
+        )
     real = parts["kind"] < VIRTUAL_CHILD
     xr = x[real & ~bad]
     lo = np.asarray(scene_data["domain"]["min"], float)
     hi = np.asarray(scene_data["domain"]["max"], float)
     out = ((xr < lo - tolerance) | (xr > hi + tolerance)).any(axis=1)
     if out.any():
-        problems.append(f"{int(out.sum())} real particle(s) outside the domain "
-                        f"(first at {np.round(xr[np.argmax(out)], 5).tolist()})")
+        problems.append(
+            f"{int(out.sum())} real particle(s) outside the domain "
+            f"(first at {np.round(xr[np.argmax(out)], 5).tolist()})"
+        )
     if scene_data["obstacles"]:
         phi = obstacle_sdf(xr, scene_data["obstacles"])
         inside = phi < -tolerance
         if inside.any():
-            problems.append(f"{int(inside.sum())} real particle(s) inside an obstacle "
-                            f"(deepest {-phi.min():.3g} m)")
+            problems.append(f"{int(inside.sum())} real particle(s) inside an obstacle (deepest {-phi.min():.3g} m)")
     mass = math.fsum(parts["m"][real].astype(np.float64).tolist())
     if abs(mass - mass0) > mass_rtol(scene_data) * abs(mass0):
-        problems.append(f"real mass {mass!r} kg differs from the start's {mass0!r} kg "
-                        f"(by {mass - mass0:.3g} kg)")
+        problems.append(f"real mass {mass!r} kg differs from the start's {mass0!r} kg (by {mass - mass0:.3g} kg)")
     return problems
 
 
@@ -198,7 +206,7 @@ class ScriptedCursor:
     def position(self, t: float) -> np.ndarray:
         span = self.hi - self.lo
         inner_lo, inner_span = self.lo + 0.1 * span, 0.8 * span
-        phase = (t * self.speed / inner_span[0]) % 2.0          # triangle wave along x
+        phase = (t * self.speed / inner_span[0]) % 2.0  # triangle wave along x
         pos = inner_lo + 0.5 * inner_span
         pos[0] = inner_lo[0] + inner_span[0] * (phase if phase < 1.0 else 2.0 - phase)
         pos[1] = inner_lo[1] + inner_span[1] * (0.5 + 0.5 * math.sin(2.0 * math.pi * t / 1.3))
@@ -212,34 +220,48 @@ class ScriptedCursor:
 
 
 # ----------------------------------------------------------------------------- the soak
-def soak_mouse(data: dict, strength: float = STRENGTH_MAX, radius_fraction: float | None = None,
-               window_cap: bool = False):
+def soak_mouse(
+    data: dict, strength: float = STRENGTH_MAX, radius_fraction: float | None = None, window_cap: bool = False
+):
     """The soak's mouse: ``strength``, the radius at ``radius_fraction`` (default the
     mouse's clamp) of the domain's largest side, and the speed cap of a mouse that knows
     no sound speed, or with ``window_cap`` the window's (``safe_speed`` of the scene's
     ``fluid.stiffness``, as ``mrsph/app/window.py`` builds it)."""
     from mrsph.app.mouse import RADIUS_MAX_FRACTION, MouseDisturbance
+
     lo, hi = np.asarray(data["domain"]["min"], float), np.asarray(data["domain"]["max"], float)
     size = float(np.max(hi - lo))
     stiffness = float(data["fluid"]["stiffness"]) if window_cap else None
-    return MouseDisturbance.for_domain(lo, hi, stiffness, strength=strength,
-                                       radius=(radius_fraction or RADIUS_MAX_FRACTION) * size)
+    return MouseDisturbance.for_domain(
+        lo, hi, stiffness, strength=strength, radius=(radius_fraction or RADIUS_MAX_FRACTION) * size
+    )
 
 
-def soak(steps: int = 100_000, check_every: int = 500, scene="demo_2d", overrides=(),
-         arch: str = "cpu", threads: int | None = None, strength: float = STRENGTH_MAX,
-         radius_fraction: float | None = None, gesture_s: float = GESTURE_S,
-         progress=None, window_cap: bool = False) -> SoakResult:
+def soak(
+    steps: int = 100_000,
+    check_every: int = 500,
+    scene="demo_2d",
+    overrides=(),
+    arch: str = "cpu",
+    threads: int | None = None,
+    strength: float = STRENGTH_MAX,
+    radius_fraction: float | None = None,
+    gesture_s: float = GESTURE_S,
+    progress=None,
+    window_cap: bool = False,
+) -> SoakResult:
     """Run the soak (see the module docstring); ``progress(result)`` after every check."""
     from mrsph.scene.config import load_scene
-    from mrsph.sph.particles import VIRTUAL_CHILD
     from mrsph.simulation import Simulation, SimulationError
+    from mrsph.sph.particles import VIRTUAL_CHILD
 
     sc = load_scene(scene, list(overrides))
     data = sc.data
     if int(data["dim"]) != 2 or not data["adaptivity"]["enabled"]:
-        raise ValueError(f"{sc.name}: the soak wants a 2D adaptive scene (dim = {data['dim']}, "
-                         f"adaptivity.enabled = {data['adaptivity']['enabled']})")
+        raise ValueError(
+            f"{sc.name}: the soak wants a 2D adaptive scene (dim = {data['dim']}, "
+            f"adaptivity.enabled = {data['adaptivity']['enabled']})"
+        )
     sim = Simulation(sc, arch=arch, threads=threads)
     mouse = soak_mouse(data, strength, radius_fraction, window_cap)
     cursor = ScriptedCursor(data, mouse.max_speed, gesture_s)
@@ -259,8 +281,7 @@ def soak(steps: int = 100_000, check_every: int = 500, scene="demo_2d", override
         while res.steps < steps and res.ok:
             if sim.time - last_mouse >= mouse_every:
                 dt_mouse = sim.time - last_mouse if last_mouse > -math.inf else 0.0
-                sim.set_disturbance(mouse.update(cursor.position(sim.time), cursor.buttons(sim.time),
-                                                 dt_mouse))
+                sim.set_disturbance(mouse.update(cursor.position(sim.time), cursor.buttons(sim.time), dt_mouse))
                 last_mouse = sim.time
             res.min_dt = min(res.min_dt, sim.step())
             res.steps += 1
@@ -295,38 +316,62 @@ def soak(steps: int = 100_000, check_every: int = 500, scene="demo_2d", override
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0],
-                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__.splitlines()[0], formatter_class=argparse.ArgumentDefaultsHelpFormatter
+    )
     ap.add_argument("--steps", type=int, default=100_000, help="time steps to run")
     ap.add_argument("--check-every", type=int, default=500, metavar="N", help="steps between checks")
     ap.add_argument("--scene", default="demo_2d", help="a 2D adaptive scene (name or path)")
-    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
-                    help="override a scene key (repeatable)")
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        dest="overrides",
+        help="override a scene key (repeatable)",
+    )
     ap.add_argument("--arch", default="cpu", choices=("auto", "cpu", "gpu"))
     ap.add_argument("--threads", type=int, default=None, help="CPU threads (default: all cores)")
     ap.add_argument("--strength", type=float, default=STRENGTH_MAX, help="stirring strength, 1/s")
-    ap.add_argument("--gesture-s", type=float, default=GESTURE_S,
-                    help="simulated seconds of each gesture (push, pull, let go)")
-    ap.add_argument("--window-cap", action="store_true",
-                    help="cap the cursor's speed as the window does (0.1 sqrt(fluid.stiffness)), "
-                         "not at 8 domain sizes a second")
+    ap.add_argument(
+        "--gesture-s", type=float, default=GESTURE_S, help="simulated seconds of each gesture (push, pull, let go)"
+    )
+    ap.add_argument(
+        "--window-cap",
+        action="store_true",
+        help="cap the cursor's speed as the window does (0.1 sqrt(fluid.stiffness)), not at 8 domain sizes a second",
+    )
     ap.add_argument("--quiet", action="store_true", help="only the summary line")
     args = ap.parse_args(argv)
     if args.steps < 1 or args.check_every < 1:
         ap.error("--steps and --check-every must be positive")
     from mrsph.scene.config import SceneError
+
     report_every = max(1, args.steps // args.check_every // 20)
 
     def progress(r: SoakResult):
         if not args.quiet and (r.checks % report_every == 0 or not r.ok):
-            print(f"  step {r.steps}: t = {r.sim_time:.4g} s, {r.wall_s:.0f} s wall, "
-                  f"real {r.n_real_end} ({r.n_real_min}..{r.n_real_max}), splits {r.splits}, merges {r.merges}, "
-                  f"refused {r.refused}, max speed {r.max_speed:.3g} m/s", file=sys.stderr, flush=True)
+            print(
+                f"  step {r.steps}: t = {r.sim_time:.4g} s, {r.wall_s:.0f} s wall, "
+                f"real {r.n_real_end} ({r.n_real_min}..{r.n_real_max}), splits {r.splits}, merges {r.merges}, "
+                f"refused {r.refused}, max speed {r.max_speed:.3g} m/s",
+                file=sys.stderr,
+                flush=True,
+            )
 
     try:
-        res = soak(args.steps, args.check_every, args.scene, args.overrides, args.arch,
-                   args.threads, args.strength, gesture_s=args.gesture_s, progress=progress,
-                   window_cap=args.window_cap)
+        res = soak(
+            args.steps,
+            args.check_every,
+            args.scene,
+            args.overrides,
+            args.arch,
+            args.threads,
+            args.strength,
+            gesture_s=args.gesture_s,
+            progress=progress,
+            window_cap=args.window_cap,
+        )
     except SceneError as e:
         for line in e.problems:
             print(line, file=sys.stderr)

@@ -25,6 +25,7 @@ A weakly compressible step is one launch (``mrsph/sph/fused.py``), so its tasks 
 profiled interval does, so that each task carries its phase's kernel name (``run``,
 ``end_step``, ...), at the cost of the launches the fused step saves.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -52,6 +53,7 @@ def count_calls(step, steps: int) -> collections.Counter:
         def counted(self, *a, **k):
             calls[name_of(self)] += 1
             return original(self, *a, **k)
+
         setattr(owner, attr, counted)
         patched.append((owner, attr, original))
 
@@ -69,27 +71,29 @@ def count_calls(step, steps: int) -> collections.Counter:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python3 tools/step_profile.py",
-                                 description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python3 tools/step_profile.py", description=__doc__.splitlines()[0])
     ap.add_argument("scene", help="a scene name or a .toml path")
-    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
-                    help="scene override (repeatable)")
+    ap.add_argument(
+        "--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides", help="scene override (repeatable)"
+    )
     ap.add_argument("--arch", default="cpu", choices=("cpu", "gpu"), help="Taichi backend")
     ap.add_argument("--threads", type=int, default=1, help="CPU threads (default 1, pinned)")
     ap.add_argument("--warm", type=int, default=50, help="steps before the profiled ones")
     ap.add_argument("--steps", type=int, default=50, help="profiled steps (and counted ones)")
     ap.add_argument("--top", type=int, default=25, help="tasks listed")
-    ap.add_argument("--by-phase", action="store_true",
-                    help="step phase by phase (each phase's own kernels), not as one launch")
+    ap.add_argument(
+        "--by-phase", action="store_true", help="step phase by phase (each phase's own kernels), not as one launch"
+    )
     args = ap.parse_args(argv)
     if min(args.warm, args.steps - 1, args.top - 1, args.threads - 1) < 0:
         ap.error("--warm must be >= 0, and --steps, --top and --threads >= 1")
 
-    os.environ["TI_KERNEL_PROFILER"] = "1"     # read by the ti.init that Simulation makes
+    os.environ["TI_KERNEL_PROFILER"] = "1"  # read by the ti.init that Simulation makes
     import taichi as ti
 
     from mrsph.scene.config import SceneError, load_scene
     from mrsph.simulation import Simulation
+
     try:
         scene = load_scene(args.scene, args.overrides)
     except SceneError as e:
@@ -97,9 +101,12 @@ def main(argv=None) -> int:
             print(f"step_profile: {line}", file=sys.stderr)
         return 2
     sim = Simulation(scene, arch=args.arch, threads=args.threads, profile=args.by_phase)
-    print(f"{' '.join([scene.name] + args.overrides)}: {sim.stats()['n_real']} real particles, "
-          f"arch {sim.arch_name}, solver {scene.data['fluid']['solver']}"
-          f"{', phase by phase' if args.by_phase else ''}", flush=True)
+    print(
+        f"{' '.join([scene.name] + args.overrides)}: {sim.stats()['n_real']} real particles, "
+        f"arch {sim.arch_name}, solver {scene.data['fluid']['solver']}"
+        f"{', phase by phase' if args.by_phase else ''}",
+        flush=True,
+    )
     for _ in range(args.warm):
         sim.step()
     ti.sync()
@@ -109,8 +116,10 @@ def main(argv=None) -> int:
         sim.step()
     ti.sync()
     wall = time.perf_counter() - t0
-    print(f"{args.steps} profiled steps from t = {start:.4g} s: {1e3 * wall / args.steps:.3f} ms a step "
-          f"with the profiler's syncs")
+    print(
+        f"{args.steps} profiled steps from t = {start:.4g} s: {1e3 * wall / args.steps:.3f} ms a step "
+        f"with the profiler's syncs"
+    )
     tasks = _tasks()
     total = sum(t for t, _ in tasks.values())
     print(f"\ntasks, by total time over the {args.steps} steps ({total:.4f} s in all):")
@@ -129,6 +138,7 @@ def _tasks() -> dict:
     from the default profiler's per-name statistics, which ``get_total_time`` fills
     (taichi 1.7 has no public call that returns them)."""
     from taichi.profiler.kernel_profiler import get_default_kernel_profiler
+
     prof = get_default_kernel_profiler()
     prof.get_total_time()
     return {name: (st.total_time / 1e3, st.counter) for name, st in prof._statistical_results.items()}

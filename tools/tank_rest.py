@@ -15,6 +15,7 @@ under dfsph one run lands on either side of the bound as its float sequence fall
 (docs/performance.md, "The warm start's share"), so a change is judged over several.
 One thread, one run after another, about 10 s each in 2D and 15 s in 3D.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -24,13 +25,17 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-for _path in (ROOT, ROOT / "tests"):     # mrsph, and the test's scene (test_physics)
+for _path in (ROOT, ROOT / "tests"):  # mrsph, and the test's scene (test_physics)
     if str(_path) not in sys.path:
         sys.path.insert(0, str(_path))
 
 #: one key moved by about round-off a run (``--nudge``): (key, factor on the test's value)
-NUDGES = (("fluid.viscosity", 0.99), ("fluid.viscosity", 1.01),
-          ("dfsph.density_tolerance", 0.99), ("dfsph.density_tolerance", 1.01))
+NUDGES = (
+    ("fluid.viscosity", 0.99),
+    ("fluid.viscosity", 1.01),
+    ("dfsph.density_tolerance", 0.99),
+    ("dfsph.density_tolerance", 1.01),
+)
 
 
 def settle(dim: int, solver: str, sets: list[str]) -> float:
@@ -38,6 +43,7 @@ def settle(dim: int, solver: str, sets: list[str]) -> float:
     import numpy as np
     import test_physics as tp
     from scenekit import with_solver
+
     from mrsph.scene.config import load_scene
     from mrsph.simulation import Simulation
 
@@ -56,6 +62,7 @@ def nudged(dim: int, solver: str, sets: list[str]) -> list[list[str]]:
     scene leaves it)."""
     import test_physics as tp
     from scenekit import with_solver
+
     from mrsph.scene.config import load_scene
 
     scene = load_scene(with_solver(tp.tank_scene(dim), solver), sets)
@@ -67,24 +74,34 @@ def nudged(dim: int, solver: str, sets: list[str]) -> list[list[str]]:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0],
-                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__.splitlines()[0], formatter_class=argparse.ArgumentDefaultsHelpFormatter
+    )
     ap.add_argument("--dim", type=int, choices=(2, 3), default=2)
     ap.add_argument("--solver", choices=("dfsph", "wcsph"), default="dfsph")
-    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="sets",
-                    help="override a key of the test's scene (repeatable)")
-    ap.add_argument("--nudge", action="store_true",
-                    help="also run with one key moved by about round-off, four runs")
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        dest="sets",
+        help="override a key of the test's scene (repeatable)",
+    )
+    ap.add_argument("--nudge", action="store_true", help="also run with one key moved by about round-off, four runs")
     args = ap.parse_args(argv)
     from mrsph.scene.config import SceneError
+
     try:
         runs = nudged(args.dim, args.solver, args.sets) if args.nudge else [args.sets]
         for sets in runs:
             t0 = time.perf_counter()
             ratio = settle(args.dim, args.solver, sets)
             label = " ".join(sets) or "(the test's scene)"
-            print(f"{args.dim}D {args.solver} {label}: mean speed "
-                  f"{ratio:.4f} sqrt(gH) ({time.perf_counter() - t0:.0f} s)", flush=True)
+            print(
+                f"{args.dim}D {args.solver} {label}: mean speed "
+                f"{ratio:.4f} sqrt(gH) ({time.perf_counter() - t0:.0f} s)",
+                flush=True,
+            )
     except SceneError as e:
         for msg in e.problems:
             print(msg, file=sys.stderr)

@@ -5,13 +5,13 @@ Obstacles come from ``Snapshot.obstacles`` (docs/ARCHITECTURE.md):
 ``{"shape": "box", "min": .., "max": ..}`` or ``{"shape": "sphere", "center": .., "radius": r}``
 (a "sphere" in 2D is a circle).
 """
+
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
-
-from typing import NamedTuple
 
 from .view import box_edges, circle_loop, scene_setting
 
@@ -71,7 +71,7 @@ def obstacle_shell(obstacle: dict):
     if shape == "sphere":
         c, r = np.asarray(obstacle["center"], dtype=np.float64), float(obstacle["radius"])
         spacing = 2.0 * r / SHELL_POINTS_ACROSS
-        n = max(int(math.ceil(4.0 * math.pi * r * r / spacing ** 2)), 12)
+        n = max(int(math.ceil(4.0 * math.pi * r * r / spacing**2)), 12)
         # Fibonacci sphere: near-uniform points without clustering at the poles.
         i = np.arange(n) + 0.5
         y = 1.0 - 2.0 * i / n
@@ -101,6 +101,7 @@ def obstacle_shell(obstacle: dict):
 class Mark(NamedTuple):
     """Something that acts on the water, drawn as a circle: the mouse's reach or a
     scene's stirrer. ``kind`` is "mouse" or "stirrer" (palette.MARK_COLOURS)."""
+
     center: np.ndarray
     radius: float
     kind: str
@@ -112,7 +113,8 @@ def stirrer_marks(scene, t: float) -> list[Mark]:
     stirrers = scene_setting(scene, "stirrers", None) or []
     if not stirrers:
         return []
-    from mrsph.scene.interaction import path_sample   # imports Taichi (not initialised): lazily
+    from mrsph.scene.interaction import path_sample  # imports Taichi (not initialised): lazily
+
     out = []
     for st in stirrers:
         pos, _vel = path_sample(st["path"], t, bool(st.get("loop", True)))
@@ -133,7 +135,7 @@ def mark_segments(mark: Mark, dim: int, facing=None) -> np.ndarray:
     a = np.cross(f, (0.0, 1.0, 0.0) if abs(f[1]) < 0.9 else (1.0, 0.0, 0.0))
     a /= np.linalg.norm(a)
     b = np.cross(f, a)
-    c = c - r * f     # on the near side of the reach, so the surface it acts on hides none of it
+    c = c - r * f  # on the near side of the reach, so the surface it acts on hides none of it
     t = np.linspace(0.0, 2.0 * math.pi, CIRCLE_SEGMENTS + 1)
     rings = []
     for rr in (r, 0.5 * r):
@@ -146,6 +148,8 @@ def water(snapshot, rgb):
     """The water view's surface of a snapshot (``mrsph.io.surface.surface``), coloured by
     the particles' colours ``rgb`` (N, 3) mixed into the water's (palette.WATER_TINT)."""
     from mrsph.io.surface import surface
+
     from . import palette
+
     tint = (1.0 - palette.WATER_TINT) * np.asarray(palette.WATER_COLOUR) + palette.WATER_TINT * np.asarray(rgb)
     return surface(snapshot.x, snapshot.m, snapshot.rho, snapshot.level, snapshot.kind, snapshot.dim, tint)

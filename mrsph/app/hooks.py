@@ -15,6 +15,7 @@ AUTO_SCREENSHOT_FRAME, and on ``p``), and every frame that shows the loading mes
 beside it, as ``<stem>_loading_<scene>_<n><suffix>`` (n counts them from 0); without it
 ``p`` writes into SCREENSHOT_DIR.
 """
+
 from __future__ import annotations
 
 import math
@@ -43,30 +44,38 @@ def stats_row(app, snap, disturbance) -> dict:
     """The stats line of one frame of the window ``app`` (an ``_App``)."""
     st = snap.stats or {}
     camera = app.renderer.camera
-    return {"frame": int(snap.frame), "time": float(snap.time),
-            "kinetic_energy": float(st.get("kinetic_energy", 0.0)),
-            "n_real": int(st.get("n_real", 0)), "n_virtual": int(st.get("n_virtual", 0)),
-            "disturbance_active": disturbance is not None,
-            "disturbance_speed": (round(math.hypot(*disturbance.velocity), 6)
-                                  if disturbance is not None and disturbance.velocity else 0.0),
-            "paused": app.paused,
-            "scene": app.scene_name, "wall_s": round(time.perf_counter() - app.start, 4),
-            "fps": round(app.fps, 2), "speed": round(app.speed.value() or 0.0, 4),
-            "camera_distance": (round(float(camera.distance), 6)
-                                if snap.dim == 3 and camera is not None else None),
-            "surface": app.surface, "surface_ms": round(1e3 * app.renderer.surface_s, 3),
-            "loading": app.loading is not None,
-            "solver": st.get("solver", app.solver),
-            **{k: st.get(k) for k in ("density_iterations", "divergence_iterations",
-                                      "density_error", "unconverged")},
-            "message": app.message}
+    return {
+        "frame": int(snap.frame),
+        "time": float(snap.time),
+        "kinetic_energy": float(st.get("kinetic_energy", 0.0)),
+        "n_real": int(st.get("n_real", 0)),
+        "n_virtual": int(st.get("n_virtual", 0)),
+        "disturbance_active": disturbance is not None,
+        "disturbance_speed": (
+            round(math.hypot(*disturbance.velocity), 6) if disturbance is not None and disturbance.velocity else 0.0
+        ),
+        "paused": app.paused,
+        "scene": app.scene_name,
+        "wall_s": round(time.perf_counter() - app.start, 4),
+        "fps": round(app.fps, 2),
+        "speed": round(app.speed.value() or 0.0, 4),
+        "camera_distance": (round(float(camera.distance), 6) if snap.dim == 3 and camera is not None else None),
+        "surface": app.surface,
+        "surface_ms": round(1e3 * app.renderer.surface_s, 3),
+        "loading": app.loading is not None,
+        "solver": st.get("solver", app.solver),
+        **{k: st.get(k) for k in ("density_iterations", "divergence_iterations", "density_error", "unconverged")},
+        "message": app.message,
+    }
 
 
 def write_screenshot(window, path: str | None) -> str:
     """Save the frame in the window's image buffer (call between drawing and show());
     ``path`` None: a time-stamped file in SCREENSHOT_DIR. Returns the HUD's message."""
     import imageio.v3 as iio
+
     from .render import image_from_window
+
     out = Path(path or SCREENSHOT_DIR / time.strftime("mrsph_%Y%m%d_%H%M%S.png"))
     try:
         out.parent.mkdir(parents=True, exist_ok=True)

@@ -1,5 +1,6 @@
 """The window's panels: the HUD on the right (stats, buttons, sliders) and the help,
 plus the rate counters it shows. GGUI/ImGui calls only; the state is the window's."""
+
 from __future__ import annotations
 
 import collections
@@ -12,7 +13,7 @@ from .switch import next_solver
 #: HUD panel on the right: width in pixels (fits the slider labels of ImGui's default
 #: 13 px font) and height in pixels (cut to the window, less the margins).
 HUD_WIDTH_PX = 330
-HUD_TEXT_CHARS = 40     # characters a line of the panel holds (ImGui's 7 px wide glyphs)
+HUD_TEXT_CHARS = 40  # characters a line of the panel holds (ImGui's 7 px wide glyphs)
 HUD_HEIGHT_PX = 600
 HUD_MARGIN_PX = 8
 #: The colour of the HUD's message lines (what an action did, or why it could not).
@@ -31,7 +32,6 @@ w         water view (surface)
 Esc       quit
 3D: right drag or arrows orbit, middle drag pan,
     z / x zoom in / out, f frame the domain"""
-
 
 
 def hud_rect_px(size) -> tuple[int, int, int, int]:
@@ -93,7 +93,6 @@ class Speed:
         return (t1 - t0) / (w1 - w0) if w1 > w0 else None
 
 
-
 def solver_lines(st: dict, solver: str | None, tolerance: float | None = None) -> list[str]:
     """The HUD's lines on the pressure solver, from a stats row ``st`` of
     ``Simulation.stats()`` (``solver``, ``density_iterations``, ``divergence_iterations``,
@@ -108,8 +107,10 @@ def solver_lines(st: dict, solver: str | None, tolerance: float | None = None) -
     lines = [f"solver {name}   (s: switch to {next_solver(name)})"]
     err = st.get("density_error")
     if name == "dfsph":
-        lines.append(f"iterations/step: density {float(st.get('density_iterations') or 0.0):.1f}, "
-                     f"div {float(st.get('divergence_iterations') or 0.0):.1f}")
+        lines.append(
+            f"iterations/step: density {float(st.get('density_iterations') or 0.0):.1f}, "
+            f"div {float(st.get('divergence_iterations') or 0.0):.1f}"
+        )
         tol = f" (tol {100.0 * tolerance:.3g} %)" if tolerance else ""
         lines.append(f"density error {100.0 * float(err or 0.0):.3g} %{tol}")
         if st.get("unconverged"):
@@ -153,17 +154,22 @@ def draw_hud(self, snap) -> None:
         # the panel's foot it fell below the fold of a 600-pixel window)
         for line in textwrap.wrap(self.message, HUD_TEXT_CHARS):
             gui.text(line, color=MESSAGE_COLOUR)
-        gui.text(f"real {st.get('n_real', '?')}   virtual {st.get('n_virtual', '?')}"
-                 f"   transient {st.get('n_transient', '?')}")
+        gui.text(
+            f"real {st.get('n_real', '?')}   virtual {st.get('n_virtual', '?')}"
+            f"   transient {st.get('n_transient', '?')}"
+        )
         for lvl in range(int(snap.levels)):
-            gui.text(f"  level {lvl}: {st.get(f'n_level_{lvl}', '?')} real, "
-                     f"{st.get(f'n_virtual_level_{lvl}', '?')} virtual",
-                     color=tuple(float(c) for c in palette.level_colour(lvl)))
+            gui.text(
+                f"  level {lvl}: {st.get(f'n_level_{lvl}', '?')} real, {st.get(f'n_virtual_level_{lvl}', '?')} virtual",
+                color=tuple(float(c) for c in palette.level_colour(lvl)),
+            )
         splits, merges = self.rates.rates()
         gui.text(f"splits {splits:.0f}/s   merges {merges:.0f}/s")
         unit = "kg" if snap.dim == 3 else "kg/m"
-        gui.text(f"mass {float(st.get('total_mass', 0.0)):.4g} {unit}   "
-                 f"max rho/rho0 {float(st.get('max_density_ratio', 0.0)):.3f}")
+        gui.text(
+            f"mass {float(st.get('total_mass', 0.0)):.4g} {unit}   "
+            f"max rho/rho0 {float(st.get('max_density_ratio', 0.0)):.3f}"
+        )
         if gui.button("Run" if self.paused else "Pause"):
             self.paused = not self.paused
         if gui.button("Step"):
@@ -178,7 +184,7 @@ def draw_hud(self, snap) -> None:
             self.show_help = not self.show_help
         gui.text("fluid")
         for key, label in (("fluid.viscosity", "viscosity"), ("fluid.stiffness", "stiffness")):
-            if not self.takes(key):   # dfsph has no stiffness
+            if not self.takes(key):  # dfsph has no stiffness
                 continue
             lo = 0.0 if key == "fluid.viscosity" else 0.1 * self.slider_max[key] / 4.0
             new = gui.slider_float(label, self.params[key], lo, self.slider_max[key])
@@ -188,8 +194,7 @@ def draw_hud(self, snap) -> None:
         if not math.isclose(new, self.params["gravity_y"], abs_tol=1e-9):
             self._set_gravity_y(new)
         gui.text(f"mouse (q / e: radius), cap {self.mouse.max_speed:.2g} m/s")
-        self.mouse.radius = gui.slider_float("radius", self.mouse.radius, self.mouse.radius_min,
-                                             self.mouse.radius_max)
+        self.mouse.radius = gui.slider_float("radius", self.mouse.radius, self.mouse.radius_min, self.mouse.radius_max)
         self.mouse.strength = gui.slider_float("strength", self.mouse.strength, 0.0, 100.0)
         new = gui.checkbox("refinement", self.refinement)
         if new != self.refinement:

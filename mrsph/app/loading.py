@@ -5,6 +5,7 @@ Taichi compiles on the main thread only, so the window cannot draw while a compi
 it draws one frame that says what is coming just before, and answers an Esc pressed
 meanwhile when the compile ends.
 """
+
 from __future__ import annotations
 
 #: Where the message goes: the middle of the window, wide enough for a long scene name.
@@ -20,8 +21,9 @@ def loading_panel(window, size, text: str | None) -> None:
         return
     w, h = size
     gui = window.get_gui()
-    with gui.sub_window("Loading", PANEL_POS[0], PANEL_POS[1],
-                        min(PANEL_SIZE_PX[0] / w, 0.6), min(PANEL_SIZE_PX[1] / h, 0.3)):
+    with gui.sub_window(
+        "Loading", PANEL_POS[0], PANEL_POS[1], min(PANEL_SIZE_PX[0] / w, 0.6), min(PANEL_SIZE_PX[1] / h, 0.3)
+    ):
         gui.text(text, color=TEXT_COLOUR)
         gui.text(ESC_LINE)
 
@@ -32,6 +34,7 @@ def show_loading_frame(window, renderer, text: str, escape, drawn=None) -> bool:
     the last frame (the caller quits). ``drawn()`` is called between drawing and
     showing (the test hook's screenshot)."""
     import taichi as ti
+
     renderer.canvas.set_background_color(tuple(float(c) for c in renderer.style.background))
     loading_panel(window, renderer.size, text)
     if drawn is not None:

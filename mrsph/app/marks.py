@@ -6,6 +6,7 @@ The mouse's circle follows the cursor while it is over the fluid and no drag bel
 the camera or the HUD: in 2D where the cursor is (inside the domain), in 3D where the
 cursor's ray enters the real particles' bounding box, the point a push drag would grab.
 """
+
 from __future__ import annotations
 
 import numpy as np

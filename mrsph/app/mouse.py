@@ -25,6 +25,7 @@ The push's target velocity is clipped to the cap; the pull's target, strength ×
 to the centre, is at most strength × radius, so the pull's strength is lowered until
 that is within the cap.
 """
+
 from __future__ import annotations
 
 import math
@@ -33,8 +34,7 @@ import numpy as np
 
 LEFT, RIGHT, MIDDLE, SHIFT = "left", "right", "middle", "shift"
 # Taichi GGUI key names -> ours, so the window can pass what it reads directly.
-_ALIASES = {"lmb": LEFT, "rmb": RIGHT, "mmb": MIDDLE, "shift": SHIFT, "left": LEFT,
-            "right": RIGHT, "middle": MIDDLE}
+_ALIASES = {"lmb": LEFT, "rmb": RIGHT, "mmb": MIDDLE, "shift": SHIFT, "left": LEFT, "right": RIGHT, "middle": MIDDLE}
 
 #: Time constant of the exponential smoothing of the cursor velocity. 50 ms removes
 #: per-frame jitter at 60 fps while a flick still reaches full speed within ~3 frames.
@@ -69,6 +69,7 @@ def safe_speed(stiffness: float | None, domain_min, domain_max) -> float:
 def _default_factory(**kwargs):
     # Imported lazily: mrsph.scene.interaction imports Taichi, this module must stay light.
     from mrsph.scene.interaction import Disturbance
+
     return Disturbance(**kwargs)
 
 
@@ -82,12 +83,19 @@ class MouseDisturbance:
     ``factory`` builds the disturbance (default: ``mrsph.scene.interaction.Disturbance``).
     """
 
-    def __init__(self, dim: int, radius: float = 0.1, strength: float = DEFAULT_STRENGTH,
-                 radius_min: float = 0.01, radius_max: float = 1.0, max_speed: float = 10.0,
-                 smoothing: float = SMOOTHING_S, factory=None):
+    def __init__(
+        self,
+        dim: int,
+        radius: float = 0.1,
+        strength: float = DEFAULT_STRENGTH,
+        radius_min: float = 0.01,
+        radius_max: float = 1.0,
+        max_speed: float = 10.0,
+        smoothing: float = SMOOTHING_S,
+        factory=None,
+    ):
         if not 0 < radius_min <= radius_max:
-            raise ValueError(f"radius clamps: expected 0 < radius_min <= radius_max "
-                             f"(got {radius_min}, {radius_max})")
+            raise ValueError(f"radius clamps: expected 0 < radius_min <= radius_max (got {radius_min}, {radius_max})")
         self.dim = int(dim)
         self.radius_min, self.radius_max = float(radius_min), float(radius_max)
         self.radius = float(np.clip(radius, radius_min, radius_max))
@@ -98,8 +106,7 @@ class MouseDisturbance:
         self.reset()
 
     @classmethod
-    def for_domain(cls, domain_min, domain_max, stiffness: float | None = None,
-                   **kwargs) -> "MouseDisturbance":
+    def for_domain(cls, domain_min, domain_max, stiffness: float | None = None, **kwargs) -> MouseDisturbance:
         """Defaults scaled to the domain: radius 8 % of its largest side, clamps 1-50 %;
         speed cap :func:`safe_speed` of the fluid's stiffness (the window's settings)."""
         lo, hi = np.asarray(domain_min, float), np.asarray(domain_max, float)
@@ -123,7 +130,7 @@ class MouseDisturbance:
 
     @staticmethod
     def mode_for(buttons) -> str | None:
-        """"push", "pull" or None for a set of held buttons / modifiers."""
+        """ "push", "pull" or None for a set of held buttons / modifiers."""
         held = {_ALIASES.get(str(b).lower(), str(b).lower()) for b in buttons}
         if RIGHT in held or (LEFT in held and SHIFT in held):
             return "pull"
@@ -164,10 +171,14 @@ class MouseDisturbance:
         velocity = self._velocity if mode == "push" else np.zeros(self.dim)
         strength = float(self.strength)
         if mode == "pull" and strength * self.radius > self.max_speed:
-            strength = self.max_speed / self.radius   # target speed at the rim = the cap
-        self.current = self.factory(center=tuple(float(c) for c in pos), radius=float(self.radius),
-                                    strength=strength, mode=mode,
-                                    velocity=tuple(float(c) for c in velocity))
+            strength = self.max_speed / self.radius  # target speed at the rim = the cap
+        self.current = self.factory(
+            center=tuple(float(c) for c in pos),
+            radius=float(self.radius),
+            strength=strength,
+            mode=mode,
+            velocity=tuple(float(c) for c in velocity),
+        )
         return self.current
 
 

@@ -8,6 +8,7 @@ Design"), which stays distinguishable under the common colour-vision deficiencie
 Level 0 is the finest level, so it gets the warm bright orange: where the solver
 refines is where the eye should go.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -47,7 +48,7 @@ _LEVEL_HEX = (
 
 def _hex(h: str) -> tuple[float, float, float]:
     h = h.lstrip("#")
-    return tuple(int(h[i:i + 2], 16) / 255.0 for i in (0, 2, 4))
+    return tuple(int(h[i : i + 2], 16) / 255.0 for i in (0, 2, 4))
 
 
 #: (8, 3) float32; level ``l`` uses row ``l % 8``.
@@ -118,15 +119,19 @@ _G_FOR_SPEED_SCALE = 9.81
 class Style:
     """Scene-level look from the ``[render]`` table: background colour and the scale of
     drawn particle radii (1 = touching discs at the lattice spacing)."""
+
     background: tuple = BACKGROUND
     point_scale: float = 1.0
 
     @classmethod
-    def from_scene(cls, scene) -> "Style":
+    def from_scene(cls, scene) -> Style:
         from .view import scene_setting
+
         bg = scene_setting(scene, "render.background", None)
-        return cls(tuple(float(c) for c in bg) if bg is not None else BACKGROUND,
-                   float(scene_setting(scene, "render.point_scale", 1.0)))
+        return cls(
+            tuple(float(c) for c in bg) if bg is not None else BACKGROUND,
+            float(scene_setting(scene, "render.point_scale", 1.0)),
+        )
 
 
 def level_colour(level: int) -> np.ndarray:
@@ -175,8 +180,9 @@ def grey_out(rgb: np.ndarray) -> np.ndarray:
     return (rgb * (1.0 - VIRTUAL_MIX) + VIRTUAL_GREY * VIRTUAL_MIX).astype(np.float32)
 
 
-def colours(snapshot, mode: str = "level", *, speed_scale: float | None = None,
-            rest_density: float | None = None) -> np.ndarray:
+def colours(
+    snapshot, mode: str = "level", *, speed_scale: float | None = None, rest_density: float | None = None
+) -> np.ndarray:
     """Per-particle colours of a snapshot: (N, 3) float32 in [0, 1].
 
     mode: "level" (palette by refinement level), "kind" (kind codes), "speed"

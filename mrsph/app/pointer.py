@@ -7,6 +7,7 @@ drags go through :class:`~mrsph.app.mouse.MouseDisturbance`, which turns the cur
 world positions into a disturbance; in 3D the cursor moves in the plane facing the
 camera through the point the drag grabbed, so the drag velocity is the cursor's.
 """
+
 from __future__ import annotations
 
 import math
@@ -25,16 +26,17 @@ class Pointer:
     (3D) the plane a push drag moves in."""
 
     def __init__(self):
-        self.prev = None       # cursor (u, v) of the last frame
-        self.owner = None      # "fluid" / "camera" / "pan" / "hud" while a button is held
-        self.plane = None      # 3D: (point, normal) of the plane the push drag moves in
+        self.prev = None  # cursor (u, v) of the last frame
+        self.owner = None  # "fluid" / "camera" / "pan" / "hud" while a button is held
+        self.plane = None  # 3D: (point, normal) of the plane the push drag moves in
 
     def reset(self) -> None:
         """Forget the drag (a new scene)."""
         self.owner, self.plane = None, None
 
-    def update(self, cursor, lmb: bool, rmb: bool, mmb: bool, shift: bool, snap, renderer,
-               mouse, over_hud: bool, dt: float):
+    def update(
+        self, cursor, lmb: bool, rmb: bool, mmb: bool, shift: bool, snap, renderer, mouse, over_hud: bool, dt: float
+    ):
         """One frame: move the camera or feed ``mouse``; returns the disturbance (None
         when the fluid is not being dragged). ``cursor``: (u, v), canvas coordinates;
         ``over_hud``: the cursor is over a HUD panel; ``dt``: wall seconds."""

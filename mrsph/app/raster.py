@@ -12,14 +12,14 @@ Everything is vectorised per group of equal-sized stamps: a group of n particles
 whose discs cover k pixels each becomes one (n, k) index array. No Python loop runs
 per particle, so 30k particles take tens of milliseconds at 960x540.
 """
+
 from __future__ import annotations
 
 import functools
 
 import numpy as np
 
-from . import geometry
-from . import palette
+from . import geometry, palette
 from .palette import Style
 from .view import OrbitCamera, View2D
 
@@ -46,7 +46,7 @@ def _disc(r_q: int):
     sphere normal). Cached: there are only a few distinct radii per frame."""
     r = max(r_q * RADIUS_QUANTUM_PX, MIN_RADIUS_PX)
     k = int(np.ceil(r))
-    dy, dx = np.mgrid[-k:k + 1, -k:k + 1]
+    dy, dx = np.mgrid[-k : k + 1, -k : k + 1]
     inside = dx * dx + dy * dy <= r * r
     if not inside.any():
         inside[k, k] = True
@@ -60,15 +60,24 @@ def _quantise(r_px: np.ndarray) -> np.ndarray:
 
 # 3x5 bitmap glyphs for the legend (drawn by hand; '#' = ink).
 _GLYPHS = {
-    "0": ("###", "#.#", "#.#", "#.#", "###"), "1": (".#.", "##.", ".#.", ".#.", "###"),
-    "2": ("###", "..#", "###", "#..", "###"), "3": ("###", "..#", ".##", "..#", "###"),
-    "4": ("#.#", "#.#", "###", "..#", "..#"), "5": ("###", "#..", "###", "..#", "###"),
-    "6": ("###", "#..", "###", "#.#", "###"), "7": ("###", "..#", ".#.", ".#.", ".#."),
-    "8": ("###", "#.#", "###", "#.#", "###"), "9": ("###", "#.#", "###", "..#", "###"),
-    ".": ("...", "...", "...", "...", ".#."), "=": ("...", "###", "...", "###", "..."),
-    "-": ("...", "...", "###", "...", "..."), " ": ("...", "...", "...", "...", "..."),
-    "L": ("#..", "#..", "#..", "#..", "###"), "t": (".#.", "###", ".#.", ".#.", ".##"),
-    "s": ("...", ".##", "##.", "..#", "##."), "V": ("#.#", "#.#", "#.#", "#.#", ".#."),
+    "0": ("###", "#.#", "#.#", "#.#", "###"),
+    "1": (".#.", "##.", ".#.", ".#.", "###"),
+    "2": ("###", "..#", "###", "#..", "###"),
+    "3": ("###", "..#", ".##", "..#", "###"),
+    "4": ("#.#", "#.#", "###", "..#", "..#"),
+    "5": ("###", "#..", "###", "..#", "###"),
+    "6": ("###", "#..", "###", "#.#", "###"),
+    "7": ("###", "..#", ".#.", ".#.", ".#."),
+    "8": ("###", "#.#", "###", "#.#", "###"),
+    "9": ("###", "#.#", "###", "..#", "###"),
+    ".": ("...", "...", "...", "...", ".#."),
+    "=": ("...", "###", "...", "###", "..."),
+    "-": ("...", "...", "###", "...", "..."),
+    " ": ("...", "...", "...", "...", "..."),
+    "L": ("#..", "#..", "#..", "#..", "###"),
+    "t": (".#.", "###", ".#.", ".#.", ".##"),
+    "s": ("...", ".##", "##.", "..#", "##."),
+    "V": ("#.#", "#.#", "#.#", "#.#", ".#."),
 }
 
 
@@ -79,10 +88,18 @@ class Rasterizer:
         self.width, self.height = int(width), int(height)
 
     # -- public ------------------------------------------------------------------------
-    def render(self, snapshot, color_mode: str = "level", show_virtual: bool = False,
-               camera: OrbitCamera | None = None, legend: bool = True,
-               style: Style | None = None, rest_density: float | None = None, marks=(),
-               surface: bool = False) -> np.ndarray:
+    def render(
+        self,
+        snapshot,
+        color_mode: str = "level",
+        show_virtual: bool = False,
+        camera: OrbitCamera | None = None,
+        legend: bool = True,
+        style: Style | None = None,
+        rest_density: float | None = None,
+        marks=(),
+        surface: bool = False,
+    ) -> np.ndarray:
         """Draw one frame. ``camera`` is used in 3D (default: framed on the domain).
         ``marks`` and ``surface`` as for :meth:`mrsph.app.render.Renderer.draw`."""
         self.marks, self.surface = list(marks or ()), bool(surface)
@@ -125,8 +142,9 @@ class Rasterizer:
         lw = max(LINE_WIDTH_FRACTION * self.height, 1.0)
         for obs in snap.obstacles:
             self._lines_flat(view.world_to_px(geometry.obstacle_segments(obs, 2)), palette.OBSTACLE_EDGE, lw)
-        self._lines_flat(view.world_to_px(geometry.domain_segments(snap.domain_min, snap.domain_max)),
-                       palette.DOMAIN_COLOUR, lw)
+        self._lines_flat(
+            view.world_to_px(geometry.domain_segments(snap.domain_min, snap.domain_max)), palette.DOMAIN_COLOUR, lw
+        )
         if edge is not None and len(edge):
             self._lines_flat(view.world_to_px(edge), palette.WATER_EDGE, lw)
         for mark in self.marks:
@@ -136,11 +154,12 @@ class Rasterizer:
         """2D water view: pixels whose φ (bilinear on the surface grid) reaches the
         level set take the grid's colour; returns the outline segments (world)."""
         from mrsph.io.surface import ISO, marching_squares, volume_fraction
+
         tint = (1.0 - palette.WATER_TINT) * np.asarray(palette.WATER_COLOUR) + palette.WATER_TINT * rgb
         grid = volume_fraction(snap.x, snap.m, snap.rho, snap.level, snap.kind, tint)
         if grid is None:
             return None
-        ys, xs = np.mgrid[0:self.height, 0:self.width]
+        ys, xs = np.mgrid[0 : self.height, 0 : self.width]
         world = view.px_to_world(np.stack([xs.ravel() + 0.5, ys.ravel() + 0.5], axis=1))
         u = (world - grid.origin) / grid.cell
         nx, ny = grid.phi.shape
@@ -148,8 +167,12 @@ class Rasterizer:
         i0 = np.floor(u[ok]).astype(np.int64)
         f = u[ok] - i0
         p = grid.phi
-        phi = ((1 - f[:, 0]) * (1 - f[:, 1]) * p[i0[:, 0], i0[:, 1]] + f[:, 0] * (1 - f[:, 1]) * p[i0[:, 0] + 1, i0[:, 1]]
-               + (1 - f[:, 0]) * f[:, 1] * p[i0[:, 0], i0[:, 1] + 1] + f[:, 0] * f[:, 1] * p[i0[:, 0] + 1, i0[:, 1] + 1])
+        phi = (
+            (1 - f[:, 0]) * (1 - f[:, 1]) * p[i0[:, 0], i0[:, 1]]
+            + f[:, 0] * (1 - f[:, 1]) * p[i0[:, 0] + 1, i0[:, 1]]
+            + (1 - f[:, 0]) * f[:, 1] * p[i0[:, 0], i0[:, 1] + 1]
+            + f[:, 0] * f[:, 1] * p[i0[:, 0] + 1, i0[:, 1] + 1]
+        )
         inside = np.nonzero(ok)[0][phi >= ISO]
         near = np.rint(u[inside]).astype(np.int64)
         self._img[inside] = grid.rgb[near[:, 0], near[:, 1]]
@@ -176,11 +199,12 @@ class Rasterizer:
             hi = np.minimum(np.ceil(np.maximum(np.maximum(a, b), c)).astype(int), [self.width - 1, self.height - 1])
             if np.any(hi < lo):
                 continue
-            ys, xs = np.mgrid[lo[1]:hi[1] + 1, lo[0]:hi[0] + 1]
+            ys, xs = np.mgrid[lo[1] : hi[1] + 1, lo[0] : hi[0] + 1]
             p = np.stack([xs + 0.5, ys + 0.5], axis=-1)
 
-            def edge(u, v):
+            def edge(u, v, p=p):
                 return (v[0] - u[0]) * (p[..., 1] - u[1]) - (v[1] - u[1]) * (p[..., 0] - u[0])
+
             e0, e1, e2 = edge(a, b), edge(b, c), edge(c, a)
             inside = ((e0 >= 0) & (e1 >= 0) & (e2 >= 0)) | ((e0 <= 0) & (e1 <= 0) & (e2 <= 0))
             self._img[(ys[inside] * self.width + xs[inside])] = colour
@@ -221,14 +245,16 @@ class Rasterizer:
                 col = np.broadcast_to(np.asarray(palette.OBSTACLE_FILL, np.float32) * 1.5, (len(pts), 3))
                 frags += self._spheres(cam, pts, np.full(len(pts), r), col, f)
         lw = max(LINE_WIDTH_FRACTION * h, 1.0)
-        frags += self._lines_zbuffered(cam, geometry.domain_segments(snap.domain_min, snap.domain_max),
-                                palette.DOMAIN_COLOUR, lw)
+        frags += self._lines_zbuffered(
+            cam, geometry.domain_segments(snap.domain_min, snap.domain_max), palette.DOMAIN_COLOUR, lw
+        )
         for obs in snap.obstacles:
             if obs.get("shape") == "box":
                 frags += self._lines_zbuffered(cam, geometry.obstacle_segments(obs, 3), palette.OBSTACLE_EDGE, lw)
         for mark in self.marks:
-            frags += self._lines_zbuffered(cam, geometry.mark_segments(mark, 3, cam.basis()[0]),
-                                           palette.MARK_COLOURS[mark.kind], lw)
+            frags += self._lines_zbuffered(
+                cam, geometry.mark_segments(mark, 3, cam.basis()[0]), palette.MARK_COLOURS[mark.kind], lw
+            )
         if not frags:
             return
         idx = np.concatenate([fr[0] for fr in frags])
@@ -252,7 +278,8 @@ class Rasterizer:
             dx, dy, nx, ny = _disc(int(q))
             nz = np.sqrt(np.clip(1.0 - nx * nx - ny * ny, 0.0, 1.0))
             shade = AMBIENT + DIFFUSE * np.maximum(
-                nx * LIGHT_DIR_VIEW[0] + ny * LIGHT_DIR_VIEW[1] + nz * LIGHT_DIR_VIEW[2], 0.0)
+                nx * LIGHT_DIR_VIEW[0] + ny * LIGHT_DIR_VIEW[1] + nz * LIGHT_DIR_VIEW[2], 0.0
+            )
             idx, ok = self._indices(px[sel], dx, dy)
             depth = z[sel][:, None] - r_world[sel][:, None] * nz[None, :]
             col = rgb[sel][:, None, :] * shade[None, :, None].astype(np.float32)
@@ -271,7 +298,7 @@ class Rasterizer:
         col = water[3].reshape(-1, 3, 3).mean(axis=1)
         forward, right, up = cam.basis()
         n_view = np.stack([nrm @ right, nrm @ up, -(nrm @ forward)], axis=1)
-        shade = AMBIENT + DIFFUSE * np.abs(n_view @ LIGHT_DIR_VIEW)      # two-sided, as GGUI draws it
+        shade = AMBIENT + DIFFUSE * np.abs(n_view @ LIGHT_DIR_VIEW)  # two-sided, as GGUI draws it
         size = np.sqrt(np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1))
         px, z = cam.project(c, self.width, self.height)
         front = z > cam.z_near
@@ -341,10 +368,20 @@ class Rasterizer:
         self._text(f"t={float(snap.time):.2f}s", x, y, scale, (0.85, 0.87, 0.9))
 
 
-def rasterize(snapshot, width: int = 960, height: int = 540, color_mode: str = "level",
-              show_virtual: bool = False, camera: OrbitCamera | None = None,
-              legend: bool = True, style: Style | None = None,
-              rest_density: float | None = None, marks=(), surface: bool = False) -> np.ndarray:
+def rasterize(
+    snapshot,
+    width: int = 960,
+    height: int = 540,
+    color_mode: str = "level",
+    show_virtual: bool = False,
+    camera: OrbitCamera | None = None,
+    legend: bool = True,
+    style: Style | None = None,
+    rest_density: float | None = None,
+    marks=(),
+    surface: bool = False,
+) -> np.ndarray:
     """One-shot convenience: render ``snapshot`` into an (height, width, 3) uint8 image."""
-    return Rasterizer(width, height).render(snapshot, color_mode, show_virtual, camera, legend,
-                                            style, rest_density, marks, surface)
+    return Rasterizer(width, height).render(
+        snapshot, color_mode, show_virtual, camera, legend, style, rest_density, marks, surface
+    )

@@ -6,6 +6,7 @@ same palette, framing and furniture. Whether Vulkan works is found out in a chil
 process, because creating a GGUI window on a broken driver can kill the process
 (segfault) instead of raising.
 """
+
 from __future__ import annotations
 
 import os
@@ -14,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .geometry import stirrer_marks
 from .palette import Style
 from .probe import run_probe
-from .geometry import stirrer_marks
 from .view import camera_for_scene, scene_setting
 
 BACKENDS = ("auto", "ggui", "raster")
@@ -56,6 +57,7 @@ def vulkan_available() -> tuple[bool, str]:
 
 def _taichi_ready() -> bool:
     from taichi.lang import impl
+
     return impl.get_runtime().prog is not None
 
 
@@ -67,7 +69,9 @@ class _GguiFrames:
 
     def __init__(self, width, height, style, scene):
         import taichi as ti
+
         from .render import ImguiIniGuard, Renderer
+
         self._ti = ti
         self._ini = ImguiIniGuard()
         # Keep Taichi's per-frame "Dumping image buffer" info lines off the terminal.
@@ -79,14 +83,14 @@ class _GguiFrames:
 
     def render(self, snap, color_mode, show_virtual, rest_density, marks=(), surface=False) -> np.ndarray:
         from .render import image_from_window
+
         if self._first:
             # ImGui sizes its windows on their first frame and draws them from the
             # second: draw a throw-away frame so frame 0 already has its legend.
             self.renderer.draw(snap, color_mode, show_virtual, rest_density=rest_density)
             image_from_window(self.window)
             self._first = False
-        self.renderer.draw(snap, color_mode, show_virtual, rest_density=rest_density, marks=marks,
-                           surface=surface)
+        self.renderer.draw(snap, color_mode, show_virtual, rest_density=rest_density, marks=marks, surface=surface)
         return image_from_window(self.window)
 
     def close(self):
@@ -104,16 +108,19 @@ class _RasterFrames:
 
     def __init__(self, width, height, style, scene):
         from .raster import Rasterizer
+
         self.raster = Rasterizer(width, height)
         self.style, self.scene = style, scene
         self.camera = None
 
     def render(self, snap, color_mode, show_virtual, rest_density, marks=(), surface=False) -> np.ndarray:
         if snap.dim == 3 and self.camera is None:
-            self.camera = camera_for_scene(self.scene, snap.domain_min, snap.domain_max,
-                                           self.raster.width / self.raster.height)
-        return self.raster.render(snap, color_mode, show_virtual, self.camera, True, self.style,
-                                  rest_density, marks, surface)
+            self.camera = camera_for_scene(
+                self.scene, snap.domain_min, snap.domain_max, self.raster.width / self.raster.height
+            )
+        return self.raster.render(
+            snap, color_mode, show_virtual, self.camera, True, self.style, rest_density, marks, surface
+        )
 
     def close(self):
         pass
@@ -144,11 +151,20 @@ def _open_frames(backend, width, height, style, scene):
 class _Mp4Sink:
     def __init__(self, path: Path, fps: float):
         import imageio.v2 as imageio
+
         # libx264 + yuv420p plays everywhere; macro_block_size=1 stops imageio from
         # silently resizing to a multiple of 16 (the caller already made dims even).
-        self.writer = imageio.get_writer(str(path), format="FFMPEG", mode="I", fps=fps,
-                                         codec="libx264", pixelformat="yuv420p", quality=8,
-                                         macro_block_size=1, ffmpeg_log_level="error")
+        self.writer = imageio.get_writer(
+            str(path),
+            format="FFMPEG",
+            mode="I",
+            fps=fps,
+            codec="libx264",
+            pixelformat="yuv420p",
+            quality=8,
+            macro_block_size=1,
+            ffmpeg_log_level="error",
+        )
 
     def append(self, img):
         self.writer.append_data(img)
@@ -166,22 +182,24 @@ class _GifSink:
 
     def close(self):
         import imageio.v3 as iio
+
         if self.frames:
             # duration per frame in ms (Pillow); loop=0 means loop forever.
-            iio.imwrite(self.path, np.stack(self.frames), extension=".gif",
-                        duration=1000.0 / self.fps, loop=0)
+            iio.imwrite(self.path, np.stack(self.frames), extension=".gif", duration=1000.0 / self.fps, loop=0)
         self.frames = []
 
 
 class _PngSink:
     def __init__(self, path: Path, fps: float):
         from mrsph.io.output import clear_frames
+
         self.path, self.i = path, 0
         path.mkdir(parents=True, exist_ok=True)
         clear_frames(path, ("png",))
 
     def append(self, img):
         import imageio.v3 as iio
+
         iio.imwrite(self.path / f"frame_{self.i:05d}.png", img)
         self.i += 1
 
@@ -195,15 +213,25 @@ def _sink_kind(out: Path) -> str:
         return suffix[1:]
     if suffix == "" or out.is_dir():
         return "png"
-    raise ValueError(f"{out}: cannot tell what to write (expected a path ending in .mp4 or .gif, "
-                     f"or a directory for a PNG sequence)")
+    raise ValueError(
+        f"{out}: cannot tell what to write (expected a path ending in .mp4 or .gif, or a directory for a PNG sequence)"
+    )
 
 
 # ----------------------------------------------------------------------------- record
-def record(sim, out, frames: int, width: int | None = None, height: int | None = None,
-           fps: float | None = None, backend: str = "auto", progress: bool = True,
-           color_mode: str = "level", show_virtual: bool = False,
-           surface: bool | None = None) -> Path:
+def record(
+    sim,
+    out,
+    frames: int,
+    width: int | None = None,
+    height: int | None = None,
+    fps: float | None = None,
+    backend: str = "auto",
+    progress: bool = True,
+    color_mode: str = "level",
+    show_virtual: bool = False,
+    surface: bool | None = None,
+) -> Path:
     """Advance ``sim`` and write ``frames`` frames to ``out``; returns the path written.
 
     out: ``*.mp4`` (H.264, yuv420p), ``*.gif`` (loops forever), or a directory
@@ -218,8 +246,9 @@ def record(sim, out, frames: int, width: int | None = None, height: int | None =
     """
     out = Path(out)
     if int(frames) < 1:
-        raise ValueError(f"frames: expected a positive number of frames to record (got {frames}); "
-                         "a recording needs an end")
+        raise ValueError(
+            f"frames: expected a positive number of frames to record (got {frames}); a recording needs an end"
+        )
     frames = int(frames)
     kind = _sink_kind(out)
     scene = getattr(sim, "scene", None)
@@ -230,24 +259,34 @@ def record(sim, out, frames: int, width: int | None = None, height: int | None =
         surface = bool(scene_setting(scene, "render.surface", False))
     if kind == "mp4" and (width % 2 or height % 2):
         even = (width + width % 2, height + height % 2)
-        print(f"mrsph: H.264 (yuv420p) needs even dimensions: recording {even[0]}x{even[1]} "
-              f"instead of {width}x{height}", file=sys.stderr)
+        print(
+            f"mrsph: H.264 (yuv420p) needs even dimensions: recording {even[0]}x{even[1]} instead of {width}x{height}",
+            file=sys.stderr,
+        )
         width, height = even
     if kind != "png":
         out.parent.mkdir(parents=True, exist_ok=True)
 
     from tqdm import tqdm
+
     style = Style.from_scene(scene)
     rest_density = getattr(sim, "rest_density", None)
     source = _open_frames(backend, width, height, style, scene)
     sink = {"mp4": _Mp4Sink, "gif": _GifSink, "png": _PngSink}[kind](out, fps)
-    bar = tqdm(total=frames, file=sys.stderr, disable=not progress, unit="frame",
-               desc=f"{out.name} [{source.name}]", dynamic_ncols=True)
+    bar = tqdm(
+        total=frames,
+        file=sys.stderr,
+        disable=not progress,
+        unit="frame",
+        desc=f"{out.name} [{source.name}]",
+        dynamic_ncols=True,
+    )
     try:
         for i in range(frames):
             snap = sim.snapshot()
-            img = source.render(snap, color_mode, show_virtual, rest_density,
-                                stirrer_marks(scene, float(snap.time)), surface)
+            img = source.render(
+                snap, color_mode, show_virtual, rest_density, stirrer_marks(scene, float(snap.time)), surface
+            )
             sink.append(img)
             bar.update(1)
             if i + 1 < frames:

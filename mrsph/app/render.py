@@ -21,6 +21,7 @@ compile and a memory block Taichi never returns), and draws
 ``canvas.circles`` / ``canvas.lines`` / ``canvas.triangles`` always draw their whole
 field, so unused slots are parked far outside the view (``_PARK``) with radius 0.
 """
+
 from __future__ import annotations
 
 import math
@@ -29,8 +30,7 @@ from pathlib import Path
 import numpy as np
 import taichi as ti
 
-from . import geometry
-from . import palette
+from . import geometry, palette
 from .palette import Style
 from .raster import AMBIENT, DIFFUSE, LINE_WIDTH_FRACTION
 from .view import OrbitCamera, View2D, camera_for_scene, scene_setting
@@ -119,12 +119,12 @@ class Renderer:
         self._line3 = _Buffer(3, _PARK)
         self._line_col = _Buffer(3, 0.0)
         self._shell_pos = _Buffer(3, _PARK)
-        self._mesh: list = []            # 3D water: (vertices, normals, colours) per chunk
+        self._mesh: list = []  # 3D water: (vertices, normals, colours) per chunk
         self._mesh_c = _Buffer(3, 0.0)
         self._area_v = _Buffer(2, _PARK)
         #: wall seconds the last frame spent on the water view's surface (bench reads it)
         self.surface_s = 0.0
-        self._water_cache = None        # (snapshot, colours, surface) of the last frame
+        self._water_cache = None  # (snapshot, colours, surface) of the last frame
         self._shell_key = None
         self._shell_r = 0.0
 
@@ -151,11 +151,12 @@ class Renderer:
         if self.camera is None:
             w, h = self.size
             x0, y0, x1, y1 = self.viewport
-            cam = camera_for_scene(self.scene_settings, snapshot.domain_min, snapshot.domain_max,
-                                   (x1 - x0) * w / max((y1 - y0) * h, 1.0))
+            cam = camera_for_scene(
+                self.scene_settings, snapshot.domain_min, snapshot.domain_max, (x1 - x0) * w / max((y1 - y0) * h, 1.0)
+            )
             if scene_setting(self.scene_settings, "render.camera_position", None) is not None:
                 cam.distance /= x1 - x0
-            centre = x0 + x1 - 1.0      # the viewport's centre, in [-1, 1] across the window
+            centre = x0 + x1 - 1.0  # the viewport's centre, in [-1, 1] across the window
             cam.lateral = centre * math.tan(math.radians(cam.fov) / 2.0) * w / h
             self.camera = cam
         return self.camera
@@ -169,9 +170,16 @@ class Renderer:
             self.style = style
 
     # -- drawing -----------------------------------------------------------------------
-    def draw(self, snapshot, color_mode: str = "level", show_virtual: bool = False,
-             legend: bool = True, rest_density: float | None = None, marks=(),
-             surface: bool = False) -> None:
+    def draw(
+        self,
+        snapshot,
+        color_mode: str = "level",
+        show_virtual: bool = False,
+        legend: bool = True,
+        rest_density: float | None = None,
+        marks=(),
+        surface: bool = False,
+    ) -> None:
         """Draw one frame (call ``window.show()`` or read the image buffer afterwards).
         ``marks``: :class:`~mrsph.app.geometry.Mark` circles to draw over the fluid;
         ``surface``: the water view."""
@@ -206,9 +214,10 @@ class Renderer:
         if water is not None:
             tri, tri_rgb, edge = water[1], water[2], water[3]
             if len(tri):
-                self.canvas.triangles(self._area_v.upload(view.world_to_canvas(tri)),
-                                      per_vertex_color=self._mesh_c.upload(tri_rgb))
-            keep = keep & virt      # the surface stands for the real particles
+                self.canvas.triangles(
+                    self._area_v.upload(view.world_to_canvas(tri)), per_vertex_color=self._mesh_c.upload(tri_rgb)
+                )
+            keep = keep & virt  # the surface stands for the real particles
             self._water_edge = edge
         idx = np.nonzero(keep)[0]
         # Painter's order: virtual first, then coarse to fine, so fine detail is on top.
@@ -217,16 +226,23 @@ class Renderer:
             pos = view.world_to_canvas(np.asarray(snap.x)[idx, :2])
             # per_vertex_radius is a fraction of the window height in GGUI's canvas.
             rad = view.radius_px(np.asarray(snap.radius)[level[idx]]) * self.style.point_scale / h
-            self.canvas.circles(self._pos2.upload(pos), radius=0.0,
-                                per_vertex_color=self._col.upload(rgb[idx]),
-                                per_vertex_radius=self._rad.upload(rad))
+            self.canvas.circles(
+                self._pos2.upload(pos),
+                radius=0.0,
+                per_vertex_color=self._col.upload(rgb[idx]),
+                per_vertex_radius=self._rad.upload(rad),
+            )
         segs, cols = self._outline_segments(snap, 2)
-        self.canvas.lines(self._line2.upload(view.world_to_canvas(segs)), width=LINE_WIDTH_FRACTION,
-                          per_vertex_color=self._line_col.upload(cols))
+        self.canvas.lines(
+            self._line2.upload(view.world_to_canvas(segs)),
+            width=LINE_WIDTH_FRACTION,
+            per_vertex_color=self._line_col.upload(cols),
+        )
 
     def _water(self, snap, rgb):
         """The water view's surface, or None when it is off (timed: surface_s)."""
         import time
+
         self._water_edge = None
         if not self.surface:
             self.surface_s = 0.0
@@ -288,20 +304,32 @@ class Renderer:
                         self._mesh.append(tuple(_Buffer(3, p, MESH_CHUNK) for p in (_PARK, 0.0, 0.0)))
                     part = slice(start, start + MESH_CHUNK)
                     bv, bn, bc = self._mesh[k]
-                    scene.mesh(bv.upload(verts[part]), normals=bn.upload(normals[part]),
-                               per_vertex_color=bc.upload(vrgb[part]), two_sided=True,
-                               vertex_count=len(verts[part]))
+                    scene.mesh(
+                        bv.upload(verts[part]),
+                        normals=bn.upload(normals[part]),
+                        per_vertex_color=bc.upload(vrgb[part]),
+                        two_sided=True,
+                        vertex_count=len(verts[part]),
+                    )
             keep = keep & palette.is_virtual(snap.kind)
         n = int(keep.sum())
         if n:
             rad = np.asarray(snap.radius, np.float64)[np.asarray(snap.level)[keep]] * self.style.point_scale
-            scene.particles(self._pos3.upload(np.asarray(snap.x)[keep]), radius=float(rad.max()),
-                            per_vertex_color=self._col.upload(rgb[keep]),
-                            per_vertex_radius=self._rad.upload(rad), index_count=n)
+            scene.particles(
+                self._pos3.upload(np.asarray(snap.x)[keep]),
+                radius=float(rad.max()),
+                per_vertex_color=self._col.upload(rgb[keep]),
+                per_vertex_radius=self._rad.upload(rad),
+                index_count=n,
+            )
         self._draw_shells(scene, snap)
         segs, cols = self._outline_segments(snap, 3)
-        scene.lines(self._line3.upload(segs), width=LINE_WIDTH_3D,
-                    per_vertex_color=self._line_col.upload(cols), vertex_count=len(segs))
+        scene.lines(
+            self._line3.upload(segs),
+            width=LINE_WIDTH_3D,
+            per_vertex_color=self._line_col.upload(cols),
+            vertex_count=len(segs),
+        )
         self.canvas.scene(scene)
 
     def _draw_shells(self, scene, snap):
@@ -317,17 +345,21 @@ class Renderer:
             self._shell_key = key
         if self._shell_n:
             colour = tuple(min(c * 1.5, 1.0) for c in palette.OBSTACLE_FILL)
-            scene.particles(self._shell_pos.field, radius=self._shell_r, color=colour,
-                            index_count=self._shell_n)
+            scene.particles(self._shell_pos.field, radius=self._shell_r, color=colour, index_count=self._shell_n)
 
 
 def legend_rect(snapshot, color_mode: str, window_size) -> tuple[float, float, float, float]:
     """(x, y, width, height) of the legend as fractions of the window: top-left corner."""
-    lines = 1 + {"level": int(snapshot.levels), "kind": len(palette.KIND_NAMES),
-                 "speed": 3, "density": 4}.get(color_mode, 0)
+    lines = 1 + {"level": int(snapshot.levels), "kind": len(palette.KIND_NAMES), "speed": 3, "density": 4}.get(
+        color_mode, 0
+    )
     w, h = window_size
-    return (LEGEND_MARGIN_PX / w, LEGEND_MARGIN_PX / h, min(LEGEND_WIDTH_PX / w, 0.5),
-            min((LEGEND_CHROME_PX + LEGEND_LINE_PX * lines) / h, 0.9))
+    return (
+        LEGEND_MARGIN_PX / w,
+        LEGEND_MARGIN_PX / h,
+        min(LEGEND_WIDTH_PX / w, 0.5),
+        min((LEGEND_CHROME_PX + LEGEND_LINE_PX * lines) / h, 0.9),
+    )
 
 
 def draw_legend(gui, snapshot, color_mode: str, window_size, rest_density=None) -> None:
@@ -351,8 +383,9 @@ def draw_legend(gui, snapshot, color_mode: str, window_size, rest_density=None) 
             top = palette.default_speed_scale(snapshot.domain_min, snapshot.domain_max)
             gui.text("speed |v|")
             gui.text("0 m/s", color=tuple(float(c) for c in palette.speed_colormap(np.array([0.0]))[0]))
-            gui.text(f"{top:.2f} m/s and above",
-                     color=tuple(float(c) for c in palette.speed_colormap(np.array([1.0]))[0]))
+            gui.text(
+                f"{top:.2f} m/s and above", color=tuple(float(c) for c in palette.speed_colormap(np.array([1.0]))[0])
+            )
         elif color_mode == "density":
             hw = palette.DENSITY_RATIO_HALF_RANGE
             gui.text("density rho / rho0")

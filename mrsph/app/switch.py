@@ -6,6 +6,7 @@ solver (``adaptivity.coupling = "symmetric"`` with "dfsph", say) costs no loadin
 and no compile: the HUD says why in one line and the running simulation goes on.
 Taichi-free, like the rest of the app's logic, so it is tested without a window.
 """
+
 from __future__ import annotations
 
 from .view import scene_setting
@@ -18,6 +19,7 @@ def solver_names() -> tuple[str, ...]:
     """The solvers a scene may name, in the order the switch cycles through them (the
     scene schema's choices of ``fluid.solver``)."""
     from mrsph.scene.config import SCHEMA
+
     return tuple(SCHEMA.keys["fluid"].keys["solver"].choices)
 
 
@@ -42,7 +44,7 @@ def why_not(scene, solver: str) -> str | None:
         return "this simulation has no pressure solver to switch"
     try:
         with_overrides({"fluid.solver": solver})
-    except Exception as e:      # SceneError: the scene's own words, first line
+    except Exception as e:  # SceneError: the scene's own words, first line
         first = (str(e).splitlines() or [type(e).__name__])[0]
         # less the scene's path: "FILE with override fluid.solver: KEY: what (got; expected)"
         _, found, rest = first.partition(" with override fluid.solver: ")

@@ -9,6 +9,7 @@ Conventions
   by (width, height). An image row is ``height - 1 - py``.
 * World y is up in 2D and 3D.
 """
+
 from __future__ import annotations
 
 import math
@@ -31,8 +32,7 @@ class View2D:
     aspect ratio); the domain is centred and the leftover band stays background.
     """
 
-    def __init__(self, domain_min, domain_max, width: int, height: int,
-                 margin: float = MARGIN_FRACTION, region=None):
+    def __init__(self, domain_min, domain_max, width: int, height: int, margin: float = MARGIN_FRACTION, region=None):
         """``region``: (x0, y0, x1, y1) pixel rectangle (y up) to fit the domain into,
         default the whole image; the window passes the area left free by its HUD."""
         self.domain_min = np.asarray(domain_min, dtype=np.float64)[:2]
@@ -79,21 +79,30 @@ class OrbitCamera:
 
     PITCH_LIMIT = math.radians(89.0)  # never exactly +-90: the view basis would degenerate
 
-    def __init__(self, target=(0.0, 0.0, 0.0), distance: float = 3.0, yaw: float = 0.0,
-                 pitch: float = 0.0, fov: float = 45.0):
+    def __init__(
+        self, target=(0.0, 0.0, 0.0), distance: float = 3.0, yaw: float = 0.0, pitch: float = 0.0, fov: float = 45.0
+    ):
         self.target = np.asarray(target, dtype=np.float64).copy()
         self.distance = float(distance)
         self.yaw = float(yaw)
         self.pitch = float(pitch)
         self.fov = float(fov)
-        self.lateral = 0.0   # sideways shift of the view, in distances (see look_at)
+        self.lateral = 0.0  # sideways shift of the view, in distances (see look_at)
         self.min_distance = 1e-3
         self.max_distance = 1e6
 
     # -- construction ----------------------------------------------------------------
     @classmethod
-    def from_box(cls, box_min, box_max, aspect: float = 16 / 9, fov: float = 45.0,
-                 yaw_deg: float = 35.0, pitch_deg: float = 22.0, fill: float = 0.92) -> "OrbitCamera":
+    def from_box(
+        cls,
+        box_min,
+        box_max,
+        aspect: float = 16 / 9,
+        fov: float = 45.0,
+        yaw_deg: float = 35.0,
+        pitch_deg: float = 22.0,
+        fill: float = 0.92,
+    ) -> OrbitCamera:
         """Camera looking at the box centre from a 3/4 view, far enough that the box's
         bounding sphere fits the narrower of the two view angles (times ``fill``)."""
         bmin = np.asarray(box_min, dtype=np.float64)
@@ -102,8 +111,7 @@ class OrbitCamera:
         half_v = math.radians(fov) / 2.0
         half_h = math.atan(math.tan(half_v) * aspect)
         half = min(half_v, half_h) * fill
-        cam = cls((bmin + bmax) / 2.0, radius / math.sin(half), math.radians(yaw_deg),
-                  math.radians(pitch_deg), fov)
+        cam = cls((bmin + bmax) / 2.0, radius / math.sin(half), math.radians(yaw_deg), math.radians(pitch_deg), fov)
         cam.min_distance = radius * 0.05
         cam.max_distance = radius * 50.0
         return cam
@@ -154,8 +162,7 @@ class OrbitCamera:
         """factor < 1 moves closer."""
         self.distance = float(np.clip(self.distance * factor, self.min_distance, self.max_distance))
 
-    def keys(self, left: float, right: float, up: float, down: float, closer: float,
-             farther: float) -> None:
+    def keys(self, left: float, right: float, up: float, down: float, closer: float, farther: float) -> None:
         """Held keys, each given as the seconds it acted this frame: the arrows orbit,
         closer / farther (z / x) zoom."""
         yaw, pitch = (left - right) * ORBIT_KEY_RATE, (up - down) * ORBIT_KEY_RATE
@@ -225,9 +232,9 @@ def box_edges(box_min, box_max) -> np.ndarray:
     lo = np.asarray(box_min, dtype=np.float64)
     hi = np.asarray(box_max, dtype=np.float64)
     d = len(lo)
-    corners = np.array([[hi[k] if (c >> k) & 1 else lo[k] for k in range(d)] for c in range(2 ** d)])
+    corners = np.array([[hi[k] if (c >> k) & 1 else lo[k] for k in range(d)] for c in range(2**d)])
     segs = []
-    for a in range(2 ** d):
+    for a in range(2**d):
         for k in range(d):
             b = a | (1 << k)
             if b != a:

@@ -40,24 +40,23 @@ live-tuned sliders over; a scene that cannot take the other solver says why in t
 
 Test hooks: ``MRSPH_WINDOW_STATS`` and ``MRSPH_WINDOW_SCREENSHOT`` (mrsph.app.hooks).
 """
+
 from __future__ import annotations
 
 import inspect
 import json
-import math
 import os
 import sys
 import time
 
 from . import palette
-from .probe import display_available  # noqa: F401  (mrsph.cli.commands imports it from here)
-from .mouse import MouseDisturbance, safe_speed
-from .pointer import Pointer
+from .hooks import AUTO_SCREENSHOT_FRAME, SCREENSHOT_ENV, STATS_ENV, loading_shot_path, stats_row, write_screenshot
 from .hud import Rates, Speed, draw_hud, hud_rect_px
-from .hooks import (AUTO_SCREENSHOT_FRAME, SCREENSHOT_ENV, STATS_ENV, loading_shot_path, stats_row,
-                    write_screenshot)
 from .loading import loading_panel, show_loading_frame
 from .marks import frame_marks
+from .mouse import MouseDisturbance, safe_speed
+from .pointer import Pointer
+from .probe import display_available  # noqa: F401  (mrsph.cli.commands imports it from here)
 from .switch import next_solver, running_solver, why_not
 from .view import scene_setting
 
@@ -77,6 +76,7 @@ CAMERA_KEYS = ("z", "x")
 #: Keys that flip a flag of the window: the attribute flipped.
 TOGGLE_KEYS = {" ": "paused", "h": "show_help", "u": "show_hud", "v": "show_virtual", "w": "surface"}
 
+
 def _accepts_overrides(make_sim) -> bool:
     """Whether make_sim takes a second argument (the scene overrides)."""
     try:
@@ -84,8 +84,11 @@ def _accepts_overrides(make_sim) -> bool:
     except (TypeError, ValueError):
         return False
     positional = [p for p in params if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)]
-    return len(positional) >= 2 or any(p.kind == p.VAR_POSITIONAL for p in params) \
+    return (
+        len(positional) >= 2
+        or any(p.kind == p.VAR_POSITIONAL for p in params)
         or any(p.name == "overrides" for p in params)
+    )
 
 
 class _App:
@@ -93,7 +96,9 @@ class _App:
 
     def __init__(self, make_sim, scene_name, scene_names, width, height, frame_budget=None):
         import taichi as ti
+
         from .render import ImguiIniGuard, Renderer
+
         self.ti = ti
         self.ini = ImguiIniGuard()
         self.make_sim = make_sim
@@ -121,21 +126,21 @@ class _App:
         self.speed = Speed()
         self.start = time.perf_counter()
         self.last = self.start
-        self.pointer = Pointer()      # who owns a drag (fluid, camera, HUD)
+        self.pointer = Pointer()  # who owns a drag (fluid, camera, HUD)
         self.stats_file = None
         path = os.environ.get(STATS_ENV)
         if path:
             self.stats_file = open(path, "a", encoding="utf-8")
         self.screenshot_path = os.environ.get(SCREENSHOT_ENV)
         self.frames_drawn = 0
-        self.loading_shots = 0        # loading frames saved by the test hook
+        self.loading_shots = 0  # loading frames saved by the test hook
         self.want_screenshot = False
-        self.taps: set = set()        # camera keys pressed since the last frame
-        self.loading = None           # the loading message while a scene loads or compiles
+        self.taps: set = set()  # camera keys pressed since the last frame
+        self.loading = None  # the loading message while a scene loads or compiles
         self.surface = False
-        self.pending = None           # an action of the HUD (scene switch) for the next frame
-        self.overrides: dict = {}     # the window's overrides of the running scene (rebuilds)
-        self.label = scene_name       # what the loading message names: the scene, its solver
+        self.pending = None  # an action of the HUD (scene switch) for the next frame
+        self.overrides: dict = {}  # the window's overrides of the running scene (rebuilds)
+        self.label = scene_name  # what the loading message names: the scene, its solver
         self._on_new_sim()
 
     # -- simulation lifecycle ----------------------------------------------------------
@@ -158,12 +163,13 @@ class _App:
             "gravity_y": float(g[1]) if g is not None else -9.81,
         }
         self.gravity = list(map(float, g)) if g is not None else [0.0, -9.81, 0.0][: snap.dim]
-        self.slider_max = {"fluid.viscosity": max(1.0, 5.0 * self.params["fluid.viscosity"]),
-                           "fluid.stiffness": 4.0 * self.params["fluid.stiffness"]}
+        self.slider_max = {
+            "fluid.viscosity": max(1.0, 5.0 * self.params["fluid.viscosity"]),
+            "fluid.stiffness": 4.0 * self.params["fluid.stiffness"],
+        }
         self.refinement = bool(scene_setting(scene, "adaptivity.enabled", self.sim.levels > 1))
-        self.solver = running_solver(scene)     # None: the stand-in, no solver to switch
-        self.tolerance = scene_setting(scene, "dfsph.density_tolerance", None) \
-            if self.solver == "dfsph" else None
+        self.solver = running_solver(scene)  # None: the stand-in, no solver to switch
+        self.tolerance = scene_setting(scene, "dfsph.density_tolerance", None) if self.solver == "dfsph" else None
         # the keys this simulation tunes live (None: the stand-in, which takes them all)
         self.live = getattr(self.sim, "LIVE_KEYS", None)
         self.frame_dt = 1.0 / float(scene_setting(scene, "run.fps", 30.0))
@@ -184,7 +190,7 @@ class _App:
         if not self._same_precision(name):
             return False
         if not self._show_loading(name, f"loading {label} (compiling the particles' setup ...)"):
-            return False   # Esc: quitting
+            return False  # Esc: quitting
         try:
             sim = self._build(name, overrides)
         except Exception as e:  # a bad scene file must not close the window
@@ -242,13 +248,13 @@ class _App:
         destroys this window's fields: refuse it with the reason instead."""
         try:
             from mrsph.scene.config import load_scene
+
             want = scene_setting(load_scene(name), "particles.precision", None)
         except Exception:
             return True  # let make_sim report the problem
         have = scene_setting(self.sim.scene, "particles.precision", None)
         if want is not None and have is not None and want != have:
-            self.message = (f"{name} needs precision {want} (running {have}): "
-                            f"start the window with that scene instead")
+            self.message = f"{name} needs precision {want} (running {have}): start the window with that scene instead"
             return False
         return True
 
@@ -260,8 +266,9 @@ class _App:
             self._set_param("adaptivity.enabled", bool(enabled))
             self.refinement = bool(enabled)
             return
-        if self._rebuild({"adaptivity.enabled": bool(enabled)},
-                         f"{self.scene_name} with refinement {'on' if enabled else 'off'}"):
+        if self._rebuild(
+            {"adaptivity.enabled": bool(enabled)}, f"{self.scene_name} with refinement {'on' if enabled else 'off'}"
+        ):
             self.refinement = bool(enabled)
 
     def _set_param(self, key, value) -> None:
@@ -271,7 +278,7 @@ class _App:
         except Exception as e:
             self.message = f"{key}: {str(e).splitlines()[0][:160]}"
             return
-        if key == "fluid.stiffness":   # the sound speed, and so the mouse's cap, follow it
+        if key == "fluid.stiffness":  # the sound speed, and so the mouse's cap, follow it
             self.mouse.max_speed = safe_speed(float(value), self.snap.domain_min, self.snap.domain_max)
 
     def _set_gravity_y(self, gy: float) -> None:
@@ -292,7 +299,7 @@ class _App:
             self.fps = 1.0 / dt_wall if self.fps == 0 else 0.9 * self.fps + 0.1 / dt_wall
             if not self._keys():
                 break
-            if self.pending is not None:   # before anything of this frame is drawn
+            if self.pending is not None:  # before anything of this frame is drawn
                 action, self.pending = self.pending, None
                 action()
                 if not self.window.running:
@@ -317,9 +324,14 @@ class _App:
             snap = self.snap
             st = snap.stats or {}
             self.rates.add(float(snap.time), float(st.get("splits", 0)), float(st.get("merges", 0)))
-            self.renderer.draw(snap, self.color_mode, self.show_virtual,
-                               rest_density=getattr(self.sim, "rest_density", None),
-                               marks=self._marks(snap), surface=self.surface)
+            self.renderer.draw(
+                snap,
+                self.color_mode,
+                self.show_virtual,
+                rest_density=getattr(self.sim, "rest_density", None),
+                marks=self._marks(snap),
+                surface=self.surface,
+            )
             draw_hud(self, snap)
             loading_panel(self.window, self.renderer.size, self.loading)
             self._write_stats(snap, d)
@@ -355,7 +367,7 @@ class _App:
             except Exception as e:  # blow-up: stop and say so, keep the window
                 self.paused = True
                 line = (str(e).splitlines() or [type(e).__name__])[0]
-                print(f"error: {line}", file=sys.stderr, flush=True)   # as headless runs say it
+                print(f"error: {line}", file=sys.stderr, flush=True)  # as headless runs say it
                 self.message = f"simulation stopped: {line[:240]} (r: reset)"
             advanced = float(self.sim.time) - t0
             if advanced > 0.0:
@@ -365,20 +377,24 @@ class _App:
             self.step_once = False
             self.dirty = True
         if compiling:
-            self.fresh -= 1        # then a frame advances (and compiles)
+            self.fresh -= 1  # then a frame advances (and compiles)
         elif self.fresh and self.paused:
             self.fresh = 0
 
     def _keys(self) -> bool:
         """Pressed-key events; False when the app should quit."""
         ui = self.ti.ui
-        actions = {"n": self._step_once, "r": self._reset, ui.TAB: self._next_scene,
-                   "c": lambda: setattr(self, "color_mode", palette.next_mode(self.color_mode)),
-                   "q": lambda: self.mouse.scroll(-RADIUS_KEY_NOTCHES),
-                   "e": lambda: self.mouse.scroll(RADIUS_KEY_NOTCHES),
-                   "f": self.renderer.reset_view,
-                   "s": lambda: self.later(self.switch_solver),   # draws loading frames of its own
-                   "p": lambda: setattr(self, "want_screenshot", True)}  # after this frame is drawn
+        actions = {
+            "n": self._step_once,
+            "r": self._reset,
+            ui.TAB: self._next_scene,
+            "c": lambda: setattr(self, "color_mode", palette.next_mode(self.color_mode)),
+            "q": lambda: self.mouse.scroll(-RADIUS_KEY_NOTCHES),
+            "e": lambda: self.mouse.scroll(RADIUS_KEY_NOTCHES),
+            "f": self.renderer.reset_view,
+            "s": lambda: self.later(self.switch_solver),  # draws loading frames of its own
+            "p": lambda: setattr(self, "want_screenshot", True),
+        }  # after this frame is drawn
         for e in self.window.get_events(ui.PRESS):
             k = e.key
             if k == ui.ESCAPE:
@@ -387,7 +403,7 @@ class _App:
             if k in TOGGLE_KEYS:
                 setattr(self, TOGGLE_KEYS[k], not getattr(self, TOGGLE_KEYS[k]))
             elif k in CAMERA_KEYS or k in (ui.LEFT, ui.RIGHT, ui.UP, ui.DOWN):
-                self.taps.add(k)     # latched: acts this frame even if already released
+                self.taps.add(k)  # latched: acts this frame even if already released
             elif k in actions:
                 actions[k]()
         return True
@@ -403,8 +419,10 @@ class _App:
         if self.snap is None or self.snap.dim != 3:
             return
         w, ui = self.window, self.ti.ui
-        held = [max(dt if w.is_pressed(k) else 0.0, TAP_S if k in taps else 0.0)
-                for k in (ui.LEFT, ui.RIGHT, ui.UP, ui.DOWN, "z", "x")]
+        held = [
+            max(dt if w.is_pressed(k) else 0.0, TAP_S if k in taps else 0.0)
+            for k in (ui.LEFT, ui.RIGHT, ui.UP, ui.DOWN, "z", "x")
+        ]
         self.renderer.ensure_camera(self.snap).keys(*held)
 
     def _reset(self) -> None:
@@ -424,8 +442,7 @@ class _App:
     def _show_loading(self, name: str, text: str) -> bool:
         """Draw one frame that says ``text``; False when Esc was pressed (quitting)."""
         self.loading = text
-        if show_loading_frame(self.window, self.renderer, text, self.ti.ui.ESCAPE,
-                              lambda: self._loading_shot(name)):
+        if show_loading_frame(self.window, self.renderer, text, self.ti.ui.ESCAPE, lambda: self._loading_shot(name)):
             return True
         self.window.running = False
         return False
@@ -451,6 +468,7 @@ class _App:
         """Whether the cursor (canvas coords, y up) is over a HUD panel, where clicks
         belong to ImGui and must not stir the fluid."""
         from .render import legend_rect
+
         w, h = self.renderer.size
         x, y = u * w, (1.0 - v) * h  # ImGui: y down from the top
         x0, y0, x1, y1 = self._hud_rect_px()
@@ -463,9 +481,18 @@ class _App:
         """Cursor and buttons -> camera motion (3D) or a disturbance (mrsph.app.pointer)."""
         ti, w = self.ti, self.window
         u, v = w.get_cursor_pos()
-        return self.pointer.update((u, v), w.is_pressed(ti.ui.LMB), w.is_pressed(ti.ui.RMB),
-                                   w.is_pressed(ti.ui.MMB), w.is_pressed(ti.ui.SHIFT), self.snap,
-                                   self.renderer, self.mouse, self._over_hud(u, v), dt)
+        return self.pointer.update(
+            (u, v),
+            w.is_pressed(ti.ui.LMB),
+            w.is_pressed(ti.ui.RMB),
+            w.is_pressed(ti.ui.MMB),
+            w.is_pressed(ti.ui.SHIFT),
+            self.snap,
+            self.renderer,
+            self.mouse,
+            self._over_hud(u, v),
+            dt,
+        )
 
     # -- hooks -------------------------------------------------------------------------
     def _write_stats(self, snap, d) -> None:
@@ -484,8 +511,15 @@ class _App:
     def _screenshot(self) -> None:
         self.message = write_screenshot(self.window, self.screenshot_path)
 
-def run_window(make_sim, scene_name: str, scene_names: list[str], width: int = 1280,
-               height: int = 720, frame_budget: float | None = None) -> None:
+
+def run_window(
+    make_sim,
+    scene_name: str,
+    scene_names: list[str],
+    width: int = 1280,
+    height: int = 720,
+    frame_budget: float | None = None,
+) -> None:
     """Open the interactive window on ``scene_name`` and run until closed (Esc).
 
     ``make_sim(scene_name)`` builds a Simulation (and so initialises Taichi). If it also

@@ -31,6 +31,7 @@ Three kinds of case:
   default frame budget and drawn with the water view, the surface's own time and its
   share of such a frame (issue 32 asks for at most 25 %).
 """
+
 from __future__ import annotations
 
 import json
@@ -54,6 +55,7 @@ KINDS = ("run", "pair", "demo")
 
 class Case(NamedTuple):
     """One benchmark case; ``warm`` and ``interval`` are simulated seconds."""
+
     name: str
     scene: str
     overrides: tuple
@@ -73,12 +75,13 @@ def _cases(full: bool) -> list[Case]:
     quick = [
         Case("dam_break_2d uniform ~10k", "dam_break_2d", ("particles.spacing=0.0035",), 0.1, 0.02),
         Case("dam_break_3d uniform ~30k", "dam_break_3d", ("particles.spacing=0.0092",), 0.2, 0.005),
-        Case("dam_break_obstacle_2d s=3.5mm", "dam_break_obstacle_2d",
-             ("particles.spacing=0.0035",), 0.24, 0.01, "pair"),
-        Case("dam_break_obstacle_3d s=15mm", "dam_break_obstacle_3d",
-             ("particles.spacing=0.015",), 0.2, 0.01, "pair"),
-        Case("dam_break_2d dfsph ~10k", "dam_break_2d",
-             ("particles.spacing=0.0035", "fluid.solver=\"dfsph\""), 0.1, 0.05),
+        Case(
+            "dam_break_obstacle_2d s=3.5mm", "dam_break_obstacle_2d", ("particles.spacing=0.0035",), 0.24, 0.01, "pair"
+        ),
+        Case("dam_break_obstacle_3d s=15mm", "dam_break_obstacle_3d", ("particles.spacing=0.015",), 0.2, 0.01, "pair"),
+        Case(
+            "dam_break_2d dfsph ~10k", "dam_break_2d", ("particles.spacing=0.0035", "fluid.solver=\"dfsph\""), 0.1, 0.05
+        ),
         Case("demo_2d rendered", "demo_2d", (), 1.0 / 30.0, 0.1, "demo"),
         Case("demo_3d rendered", "demo_3d", (), 1.0 / 30.0, 0.1, "demo"),
         Case("pool_3d rendered", "pool_3d", (), 1.0 / 30.0, 0.1, "demo"),
@@ -90,22 +93,48 @@ def _cases(full: bool) -> list[Case]:
         Case("dam_break_3d uniform ~100k", "dam_break_3d", ("particles.spacing=0.0063",), 0.2, 0.01),
         # the same flows with the divergence-free solver: its steps are ~10x longer, so the
         # interval is longer too (a handful of steps would time the launches, not the flow)
-        Case("dam_break_2d dfsph ~50k", "dam_break_2d",
-             ("particles.spacing=0.0016", "fluid.solver=\"dfsph\""), 0.25, 0.05),
-        Case("dam_break_3d dfsph ~100k", "dam_break_3d",
-             ("particles.spacing=0.0063", "fluid.solver=\"dfsph\""), 0.2, 0.03),
-        Case("dam_break_obstacle_2d s=2mm", "dam_break_obstacle_2d",
-             ("particles.spacing=0.002",), 0.24, 0.01, "pair"),
-        Case("dam_break_obstacle_3d s=10mm", "dam_break_obstacle_3d",
-             ("particles.spacing=0.01",), 0.2, 0.01, "pair"),
-        Case("dam_break_obstacle_2d s=2mm L=3", "dam_break_obstacle_2d",
-             ("particles.spacing=0.002", "adaptivity.levels=3"), 0.24, 0.01, "pair"),
-        Case("dam_break_obstacle_3d s=6mm L=3", "dam_break_obstacle_3d",
-             ("particles.spacing=0.006", "adaptivity.levels=3"), 0.2, 0.01, "pair"),
+        Case(
+            "dam_break_2d dfsph ~50k",
+            "dam_break_2d",
+            ("particles.spacing=0.0016", "fluid.solver=\"dfsph\""),
+            0.25,
+            0.05,
+        ),
+        Case(
+            "dam_break_3d dfsph ~100k",
+            "dam_break_3d",
+            ("particles.spacing=0.0063", "fluid.solver=\"dfsph\""),
+            0.2,
+            0.03,
+        ),
+        Case("dam_break_obstacle_2d s=2mm", "dam_break_obstacle_2d", ("particles.spacing=0.002",), 0.24, 0.01, "pair"),
+        Case("dam_break_obstacle_3d s=10mm", "dam_break_obstacle_3d", ("particles.spacing=0.01",), 0.2, 0.01, "pair"),
+        Case(
+            "dam_break_obstacle_2d s=2mm L=3",
+            "dam_break_obstacle_2d",
+            ("particles.spacing=0.002", "adaptivity.levels=3"),
+            0.24,
+            0.01,
+            "pair",
+        ),
+        Case(
+            "dam_break_obstacle_3d s=6mm L=3",
+            "dam_break_obstacle_3d",
+            ("particles.spacing=0.006", "adaptivity.levels=3"),
+            0.2,
+            0.01,
+            "pair",
+        ),
         # the finest pair: the uniform twin has 166k particles (~6 minutes, most of it
         # the uniform run's warm-up)
-        Case("dam_break_obstacle_3d s=5mm L=3", "dam_break_obstacle_3d",
-             ("particles.spacing=0.005", "adaptivity.levels=3"), 0.2, 0.01, "pair"),
+        Case(
+            "dam_break_obstacle_3d s=5mm L=3",
+            "dam_break_obstacle_3d",
+            ("particles.spacing=0.005", "adaptivity.levels=3"),
+            0.2,
+            0.01,
+            "pair",
+        ),
     ]
 
 
@@ -126,30 +155,45 @@ def _rss_mb() -> float:
 
 def fluid_volume(scene) -> float:
     """Volume (area in 2D) of the scene's fluid blocks (they may not overlap obstacles)."""
-    return math.fsum(math.prod(hi - lo for lo, hi in zip(b["min"], b["max"]))
-                     for b in scene.data["fluid"]["blocks"])
+    return math.fsum(math.prod(hi - lo for lo, hi in zip(b["min"], b["max"])) for b in scene.data["fluid"]["blocks"])
 
 
 def _fresh_sim(scene, arch, threads):
     """A Simulation in a fresh Taichi program, stepped once: (sim, seconds taken)."""
     from mrsph import runtime
     from mrsph.simulation import Simulation
-    runtime.reset()   # frees the previous case's fields; each case starts like a new run
+
+    runtime.reset()  # frees the previous case's fields; each case starts like a new run
     t0 = time.perf_counter()
     sim = Simulation(scene, arch=arch, threads=runtime.auto_threads(scene, threads))
     notice = runtime.notice()
-    if notice and notice not in _NOTICES_SHOWN:      # e.g. --arch gpu on a CPU-only machine
+    if notice and notice not in _NOTICES_SHOWN:  # e.g. --arch gpu on a CPU-only machine
         _NOTICES_SHOWN.add(notice)
         print(f"mrsph: {notice}", file=sys.stderr, flush=True)
-    sim.step()        # compiles every kernel of the step (adapt runs on step 0)
+    sim.step()  # compiles every kernel of the step (adapt runs on step 0)
     return sim, time.perf_counter() - t0
 
 
 _NOTICES_SHOWN: set[str] = set()
 
 
-def _row(case_name, scene_name, overrides, scene, sim, kind, warm, interval, walls, steps_l,
-         reals, compile_s, timers, repeats, solve=None) -> dict:
+def _row(
+    case_name,
+    scene_name,
+    overrides,
+    scene,
+    sim,
+    kind,
+    warm,
+    interval,
+    walls,
+    steps_l,
+    reals,
+    compile_s,
+    timers,
+    repeats,
+    solve=None,
+) -> dict:
     """The result row shared by every kind of case; ``solve``, where given, replaces the
     implicit solver's iterations that ``sim.stats()`` holds since its last call."""
     wall = statistics.median(walls)
@@ -158,29 +202,43 @@ def _row(case_name, scene_name, overrides, scene, sim, kind, warm, interval, wal
     st = {**sim.stats(), **(solve or {})}
     total = sum(timers.values()) or 1.0
     return {
-        "case": case_name, "kind": kind, "scene": scene_name, "overrides": list(overrides),
-        "dim": sim.dim, "adaptive": sim.adaptive, "levels": sim.levels, "arch": sim.arch_name,
-        "finest_spacing": sim.s0, "uniform_equivalent": scene.estimate_particles(),
+        "case": case_name,
+        "kind": kind,
+        "scene": scene_name,
+        "overrides": list(overrides),
+        "dim": sim.dim,
+        "adaptive": sim.adaptive,
+        "levels": sim.levels,
+        "arch": sim.arch_name,
+        "finest_spacing": sim.s0,
+        "uniform_equivalent": scene.estimate_particles(),
         "threads": sim.threads or "all",
-        "warm": warm, "interval": interval,
-        "n_real": int(n_real), "n_virtual": st["n_virtual"],
+        "warm": warm,
+        "interval": interval,
+        "n_real": int(n_real),
+        "n_virtual": st["n_virtual"],
         "per_level": [st[f"n_level_{l}"] for l in range(sim.levels)],
         "per_level_virtual": [st[f"n_virtual_level_{l}"] for l in range(sim.levels)],
-        "steps": int(steps), "wall_s": wall, "mean_dt": interval / max(steps, 1),
+        "steps": int(steps),
+        "wall_s": wall,
+        "mean_dt": interval / max(steps, 1),
         "solver": st.get("solver"),
         # an implicit solver's mean iterations a step over the profiled interval
-        **({k: st[k] for k in ("density_iterations", "divergence_iterations")}
-           if sim.pressure.implicit else {}),
-        "steps_per_s": steps / wall, "particle_steps_per_s": n_real * steps / wall,
-        "sim_s_per_wall_s": interval / wall, "compile_s": compile_s,
+        **({k: st[k] for k in ("density_iterations", "divergence_iterations")} if sim.pressure.implicit else {}),
+        "steps_per_s": steps / wall,
+        "particle_steps_per_s": n_real * steps / wall,
+        "sim_s_per_wall_s": interval / wall,
+        "compile_s": compile_s,
         "phase_share": {k: v / total for k, v in timers.items() if v > 0},
-        "rss_mb": _rss_mb(), "peak_mb": _peak_mb(), "repeats": repeats, "walls": walls,
+        "rss_mb": _rss_mb(),
+        "peak_mb": _peak_mb(),
+        "repeats": repeats,
+        "walls": walls,
     }
 
 
 # ----------------------------------------------------------------------------- cases
-def run_case(name, scene_name, overrides, warm, interval, repeats, arch, threads="auto",
-             kind="run") -> dict:
+def run_case(name, scene_name, overrides, warm, interval, repeats, arch, threads="auto", kind="run") -> dict:
     """Time one scene: ``repeats`` consecutive intervals of ``interval`` simulated
     seconds after simulating up to ``warm`` seconds; then one profiled interval."""
     from mrsph.scene.config import load_scene
@@ -197,8 +255,22 @@ def run_case(name, scene_name, overrides, warm, interval, repeats, arch, threads
         reals.append(sim.stats()["n_real"])
     _start_profile(sim)
     sim.advance(interval)
-    return _row(name, scene_name, overrides, scene, sim, kind, warm, interval, walls, steps_l,
-                reals, compile_s, sim.timers, repeats)
+    return _row(
+        name,
+        scene_name,
+        overrides,
+        scene,
+        sim,
+        kind,
+        warm,
+        interval,
+        walls,
+        steps_l,
+        reals,
+        compile_s,
+        sim.timers,
+        repeats,
+    )
 
 
 def solve_iterations(solves) -> dict:
@@ -214,6 +286,7 @@ def _start_profile(sim) -> None:
     """Time each phase from now on. A profiled step calls each phase of the fused kernels
     apart; the first one compiles those variants (seconds), so it is taken untimed."""
     from mrsph.simulation import PHASES
+
     sim.profile = True
     sim.step()
     sim.timers = {k: 0.0 for k in PHASES}
@@ -226,17 +299,24 @@ def pair_summary(adaptive: dict, uniform: dict) -> dict:
     finest spacing and dimension, the first adaptive, the second uniform; otherwise
     the ratios would mean nothing and this raises ValueError.
     """
-    problems = [f"{key} differs (adaptive {adaptive[key]!r}, uniform {uniform[key]!r})"
-                for key in ("dim", "finest_spacing", "warm", "interval") if adaptive[key] != uniform[key]]
+    problems = [
+        f"{key} differs (adaptive {adaptive[key]!r}, uniform {uniform[key]!r})"
+        for key in ("dim", "finest_spacing", "warm", "interval")
+        if adaptive[key] != uniform[key]
+    ]
     if not adaptive["adaptive"] or uniform["adaptive"]:
         problems.append("expected an adaptive row and a uniform row, in that order")
     if problems:
         raise ValueError(f"pair {adaptive['case']!r} / {uniform['case']!r}: " + "; ".join(problems))
     return {
         "pair": adaptive.get("pair", adaptive["case"]),
-        "adaptive_case": adaptive["case"], "uniform_case": uniform["case"],
-        "dim": adaptive["dim"], "finest_spacing": adaptive["finest_spacing"],
-        "levels": adaptive["levels"], "warm": adaptive["warm"], "interval": adaptive["interval"],
+        "adaptive_case": adaptive["case"],
+        "uniform_case": uniform["case"],
+        "dim": adaptive["dim"],
+        "finest_spacing": adaptive["finest_spacing"],
+        "levels": adaptive["levels"],
+        "warm": adaptive["warm"],
+        "interval": adaptive["interval"],
         "speedup": uniform["wall_s"] / adaptive["wall_s"],
         "particle_ratio": uniform["n_real"] / adaptive["n_real"],
         "step_ratio": adaptive["steps"] / uniform["steps"],
@@ -285,8 +365,20 @@ def run_pair(name, scene_name, overrides, warm, interval, repeats, arch, threads
         sim = _restored_sim(scene, arch, threads, state)
         _start_profile(sim)
         sim.advance(interval)
-        row = _row(f"{name} {variant}", scene_name, case_overrides, scene, sim, "pair", warm, interval,
-                   *timed[variant], compile_s, sim.timers, repeats)
+        row = _row(
+            f"{name} {variant}",
+            scene_name,
+            case_overrides,
+            scene,
+            sim,
+            "pair",
+            warm,
+            interval,
+            *timed[variant],
+            compile_s,
+            sim.timers,
+            repeats,
+        )
         row["pair"] = name
         rows.append(row)
     return rows, pair_summary(*rows)
@@ -309,7 +401,7 @@ def run_demo(name, scene_name, overrides, warm, interval, repeats, arch, threads
     t0 = time.perf_counter()
     source = _open_frames("auto", width, height, Style.from_scene(scene), scene)
 
-    solves = []     # (steps, the snapshot's stats): a snapshot takes the solver's counters
+    solves = []  # (steps, the snapshot's stats): a snapshot takes the solver's counters
 
     def frame() -> tuple[int, float]:
         steps = sim.advance_frame()
@@ -320,8 +412,8 @@ def run_demo(name, scene_name, overrides, warm, interval, repeats, arch, threads
         return steps, time.perf_counter() - t
 
     try:
-        source.render(sim.snapshot(), "level", False, sim.rest_density)   # compiles the renderer
-        render_compile_s = time.perf_counter() - t0   # Vulkan probe, window, first frame
+        source.render(sim.snapshot(), "level", False, sim.rest_density)  # compiles the renderer
+        render_compile_s = time.perf_counter() - t0  # Vulkan probe, window, first frame
         while sim.time < warm - 1e-12:
             frame()
         walls, steps_l, reals, renders = [], [], [], []
@@ -339,23 +431,46 @@ def run_demo(name, scene_name, overrides, warm, interval, repeats, arch, threads
         timers = {**sim.timers, "render": render}
     finally:
         source.close()
-    row = _row(name, scene_name, overrides, scene, sim, "demo", warm, n_frames / fps, walls,
-               steps_l, reals, compile_s, timers, repeats, solve_iterations(solves))
+    row = _row(
+        name,
+        scene_name,
+        overrides,
+        scene,
+        sim,
+        "demo",
+        warm,
+        n_frames / fps,
+        walls,
+        steps_l,
+        reals,
+        compile_s,
+        timers,
+        repeats,
+        solve_iterations(solves),
+    )
     volume = fluid_volume(scene)
     reference = (volume / DEMO_REFERENCE_PARTICLES) ** (1.0 / sim.dim)
     wall = row["wall_s"]
-    row.update({
-        "renderer": source.name, "width": width, "height": height, "frames": n_frames,
-        "frames_per_s": n_frames / wall,
-        "render_ms": 1e3 * statistics.median(renders) / n_frames,
-        "render_share": statistics.median(renders) / wall,
-        "render_compile_s": render_compile_s,
-        "surface_ms": 1e3 * surface_s, "window_frame_ms": 1e3 * window_frame_s,
-        "surface_share": surface_s / window_frame_s,
-        "surface_net_ms": 1e3 * surface_net_s,
-        "fluid_volume": volume, "reference_particles": DEMO_REFERENCE_PARTICLES,
-        "reference_spacing": reference, "spacing_ratio": reference / sim.s0,
-    })
+    row.update(
+        {
+            "renderer": source.name,
+            "width": width,
+            "height": height,
+            "frames": n_frames,
+            "frames_per_s": n_frames / wall,
+            "render_ms": 1e3 * statistics.median(renders) / n_frames,
+            "render_share": statistics.median(renders) / wall,
+            "render_compile_s": render_compile_s,
+            "surface_ms": 1e3 * surface_s,
+            "window_frame_ms": 1e3 * window_frame_s,
+            "surface_share": surface_s / window_frame_s,
+            "surface_net_ms": 1e3 * surface_net_s,
+            "fluid_volume": volume,
+            "reference_particles": DEMO_REFERENCE_PARTICLES,
+            "reference_spacing": reference,
+            "spacing_ratio": reference / sim.s0,
+        }
+    )
     return row
 
 
@@ -371,12 +486,15 @@ def _surface_cost(source, sim, repeats) -> tuple[float, float, float]:
     surface is computed again on the same snapshot apart, for its own time. The
     renderer reuses a surface for the same snapshot, so each drawing below gets a copy."""
     import dataclasses
+
     from mrsph.app import palette
     from mrsph.app.geometry import water
+
     from .options import WINDOW_FRAME_BUDGET_MS, frame_budget_arg
+
     budget = frame_budget_arg(WINDOW_FRAME_BUDGET_MS)
     snap = sim.snapshot()
-    source.render(snap, "level", False, sim.rest_density, (), True)    # first use: allocations
+    source.render(snap, "level", False, sim.rest_density, (), True)  # first use: allocations
     compute, frames, net = [], [], []
     for _ in range(max(repeats, 3) * 3):
         t0 = time.perf_counter()
@@ -404,41 +522,53 @@ def _mm(x: float) -> str:
 def _table(rows, pairs=()) -> str:
     """One line per case and a line under it (levels, memory, phases); a pair gets a
     third line after its uniform run, the demo a line with its frame rate."""
-    head = (f"{'case':40s} {'real':>8s} {'virtual':>8s} {'steps/s':>8s} {'Mpart-steps/s':>14s} "
-            f"{'sim s/wall s':>12s} {'compile s':>9s}")
+    head = (
+        f"{'case':40s} {'real':>8s} {'virtual':>8s} {'steps/s':>8s} {'Mpart-steps/s':>14s} "
+        f"{'sim s/wall s':>12s} {'compile s':>9s}"
+    )
     out = [head, "-" * len(head)]
     by_uniform = {p["uniform_case"]: p for p in pairs}
     for r in rows:
-        out.append(f"{r['case']:40s} {r['n_real']:8d} {r['n_virtual']:8d} {r['steps_per_s']:8.1f} "
-                   f"{r['particle_steps_per_s'] / 1e6:14.2f} {r['sim_s_per_wall_s']:12.4f} "
-                   f"{r['compile_s']:9.1f}")
-        shares = ", ".join(f"{k} {100 * v:.0f}%"
-                           for k, v in sorted(r["phase_share"].items(), key=lambda kv: -kv[1])
-                           if v >= 0.005)
+        out.append(
+            f"{r['case']:40s} {r['n_real']:8d} {r['n_virtual']:8d} {r['steps_per_s']:8.1f} "
+            f"{r['particle_steps_per_s'] / 1e6:14.2f} {r['sim_s_per_wall_s']:12.4f} "
+            f"{r['compile_s']:9.1f}"
+        )
+        shares = ", ".join(
+            f"{k} {100 * v:.0f}%" for k, v in sorted(r["phase_share"].items(), key=lambda kv: -kv[1]) if v >= 0.005
+        )
         levels = f"levels {r['per_level']}, " if r["levels"] > 1 else ""
         steps = f"{r['solver']} mean dt {r['mean_dt']:.3g} s" if "mean_dt" in r else ""
         if r.get("density_iterations") is not None:
-            steps += (f", iterations a step: density {r['density_iterations']:.2f}, divergence "
-                      f"{r['divergence_iterations']:.2f}")
+            steps += (
+                f", iterations a step: density {r['density_iterations']:.2f}, divergence "
+                f"{r['divergence_iterations']:.2f}"
+            )
         out.append(f"    {levels}{r['rss_mb']:.0f} MB; {steps + '; ' if steps else ''}phases: {shares}")
         if r["kind"] == "demo":
-            out.append(f"    => {r['frames_per_s']:.2f} rendered frames/s ({r['renderer']}, "
-                       f"{r['width']}x{r['height']}, {r['render_ms']:.0f} ms a frame, "
-                       f"{100 * r['render_share']:.0f}% of it); finest spacing "
-                       f"{_mm(r['finest_spacing'])} vs {_mm(r['reference_spacing'])} for "
-                       f"{r['reference_particles'] // 1000}k uniform particles "
-                       f"({r['spacing_ratio']:.2f}x finer; uniform at the finest spacing: "
-                       f"{r['uniform_equivalent']} particles)")
-            out.append(f"    => water view (w): surface {r['surface_ms']:.1f} ms, "
-                       f"{100 * r['surface_share']:.0f}% of a window frame with it "
-                       f"({r['window_frame_ms']:.0f} ms); drawn with it instead of particles: "
-                       f"{r['surface_net_ms']:+.0f} ms")
+            out.append(
+                f"    => {r['frames_per_s']:.2f} rendered frames/s ({r['renderer']}, "
+                f"{r['width']}x{r['height']}, {r['render_ms']:.0f} ms a frame, "
+                f"{100 * r['render_share']:.0f}% of it); finest spacing "
+                f"{_mm(r['finest_spacing'])} vs {_mm(r['reference_spacing'])} for "
+                f"{r['reference_particles'] // 1000}k uniform particles "
+                f"({r['spacing_ratio']:.2f}x finer; uniform at the finest spacing: "
+                f"{r['uniform_equivalent']} particles)"
+            )
+            out.append(
+                f"    => water view (w): surface {r['surface_ms']:.1f} ms, "
+                f"{100 * r['surface_share']:.0f}% of a window frame with it "
+                f"({r['window_frame_ms']:.0f} ms); drawn with it instead of particles: "
+                f"{r['surface_net_ms']:+.0f} ms"
+            )
         p = by_uniform.get(r["case"])
         if p:
-            out.append(f"    => adaptive vs uniform: {p['speedup']:.2f}x faster, "
-                       f"{p['particle_ratio']:.2f}x fewer real particles, {p['step_ratio']:.2f}x "
-                       f"the steps; multires phases {100 * p['multires_share']:.0f}% of the "
-                       f"adaptive step")
+            out.append(
+                f"    => adaptive vs uniform: {p['speedup']:.2f}x faster, "
+                f"{p['particle_ratio']:.2f}x fewer real particles, {p['step_ratio']:.2f}x "
+                f"the steps; multires phases {100 * p['multires_share']:.0f}% of the "
+                f"adaptive step"
+            )
     if rows:
         out.append(f"peak memory: {max(r['peak_mb'] for r in rows):.0f} MB")
     return "\n".join(out)
@@ -461,9 +591,14 @@ def gpu_name(arches) -> str | None:
     if "cuda" not in arches:
         return None
     import subprocess
+
     try:
-        out = subprocess.run(["nvidia-smi", "--query-gpu=name,memory.total,driver_version",
-                              "--format=csv,noheader"], capture_output=True, text=True, timeout=20)
+        out = subprocess.run(
+            ["nvidia-smi", "--query-gpu=name,memory.total,driver_version", "--format=csv,noheader"],
+            capture_output=True,
+            text=True,
+            timeout=20,
+        )
     except (OSError, subprocess.SubprocessError):
         return None
     lines = out.stdout.strip().splitlines()
@@ -473,11 +608,12 @@ def gpu_name(arches) -> str | None:
 def _scene_problems(cases) -> list[str]:
     """Every problem of the cases' scenes with their overrides, once each (none: [])."""
     from mrsph.scene.config import SceneError, load_scene
+
     problems = []
     for c in cases:
         try:
             load_scene(c.scene, list(c.overrides))
-        except SceneError as e:     # a bad --set is the same problem in every case
+        except SceneError as e:  # a bad --set is the same problem in every case
             problems += [line for line in e.problems if line not in problems]
     return problems
 
@@ -502,23 +638,43 @@ def run_cases(cases, repeats, arch, threads="auto", log=None) -> tuple[list, lis
 
 def main(argv=None) -> int:
     from .options import HelpFormatter, Parser, file_problem, positive_float, positive_int, threads_arg
-    ap = Parser(prog="python3 main.py bench", description=__doc__.splitlines()[0],
-                formatter_class=HelpFormatter)
-    ap.add_argument("--full", action="store_true",
-                    help="the long set: adds 50k 2D and 100k 3D dam breaks and finer pairs")
+
+    ap = Parser(prog="python3 main.py bench", description=__doc__.splitlines()[0], formatter_class=HelpFormatter)
+    ap.add_argument(
+        "--full", action="store_true", help="the long set: adds 50k 2D and 100k 3D dam breaks and finer pairs"
+    )
     ap.add_argument("--repeats", type=positive_int, default=3, help="timed runs per case (median)")
     ap.add_argument("--arch", default="cpu", choices=("auto", "cpu", "gpu"), help="Taichi backend")
-    ap.add_argument("--threads", type=threads_arg, default="auto",
-                    help="CPU threads for the cpu backend (default auto: as the app, one pinned "
-                         "thread for scenes that start under 12k particles in 2D, 4k in 3D, else all cores)")
-    ap.add_argument("--interval-scale", type=positive_float, default=1.0, metavar="F",
-                    help="multiply every warm-up and timed interval by F (0.05: a smoke run)")
+    ap.add_argument(
+        "--threads",
+        type=threads_arg,
+        default="auto",
+        help="CPU threads for the cpu backend (default auto: as the app, one pinned "
+        "thread for scenes that start under 12k particles in 2D, 4k in 3D, else all cores)",
+    )
+    ap.add_argument(
+        "--interval-scale",
+        type=positive_float,
+        default=1.0,
+        metavar="F",
+        help="multiply every warm-up and timed interval by F (0.05: a smoke run)",
+    )
     ap.add_argument("--json", metavar="FILE", help="also write the results as JSON (default: no file)")
-    ap.add_argument("--case", action="append", default=None,
-                    help="run only cases whose name contains this text (repeatable; default: all)")
-    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
-                    help="a scene override added to every chosen case, after the case's own "
-                         "(repeatable), e.g. --set 'fluid.solver=\"dfsph\"' (default: none)")
+    ap.add_argument(
+        "--case",
+        action="append",
+        default=None,
+        help="run only cases whose name contains this text (repeatable; default: all)",
+    )
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        dest="overrides",
+        help="a scene override added to every chosen case, after the case's own "
+        "(repeatable), e.g. --set 'fluid.solver=\"dfsph\"' (default: none)",
+    )
     ap.add_argument("--list", action="store_true", help="list the cases and exit")
     args = ap.parse_args(argv)
     cases = [c for c in _cases(args.full) if not args.case or any(t in c.name for t in args.case)]
@@ -527,35 +683,55 @@ def main(argv=None) -> int:
             print(f"{c.name:40s} {c.kind:5s} {c.scene} {' '.join(c.overrides)}")
         return 0
     if not cases:
-        print(f"python3 main.py bench: no case matches {args.case} (see --list"
-              f"{'' if args.full else ' and --full'})", file=sys.stderr)
+        print(
+            f"python3 main.py bench: no case matches {args.case} (see --list{'' if args.full else ' and --full'})",
+            file=sys.stderr,
+        )
         return 2
     problem = file_problem("--json", Path(args.json)) if args.json else None
-    if problem:     # before the cases run, not after
+    if problem:  # before the cases run, not after
         print(f"python3 main.py bench: {problem}", file=sys.stderr)
         return 2
     scale = args.interval_scale
-    cases = [c._replace(warm=c.warm * scale, interval=c.interval * scale,
-                        overrides=c.overrides + tuple(args.overrides)) for c in cases]
+    cases = [
+        c._replace(warm=c.warm * scale, interval=c.interval * scale, overrides=c.overrides + tuple(args.overrides))
+        for c in cases
+    ]
     problems = _scene_problems(cases)
-    if problems:        # a bad --set, found before the first case compiles
+    if problems:  # a bad --set, found before the first case compiles
         for line in problems:
             print(f"python3 main.py bench: {line}", file=sys.stderr)
         return 2
     optimised = advanced_optimization()
-    if not optimised:   # the default test run sets it (tests/conftest.py)
-        print("python3 main.py bench: warning: TI_ADVANCED_OPTIMIZATION=0: Taichi compiles "
-              "without its optimisation passes, so these timings are not the program's",
-              file=sys.stderr)
-    rows, pairs = run_cases(cases, args.repeats, args.arch, args.threads,
-                            log=lambda m: print(m, file=sys.stderr, flush=True))
+    if not optimised:  # the default test run sets it (tests/conftest.py)
+        print(
+            "python3 main.py bench: warning: TI_ADVANCED_OPTIMIZATION=0: Taichi compiles "
+            "without its optimisation passes, so these timings are not the program's",
+            file=sys.stderr,
+        )
+    rows, pairs = run_cases(
+        cases, args.repeats, args.arch, args.threads, log=lambda m: print(m, file=sys.stderr, flush=True)
+    )
     print(_table(rows, pairs))
     if args.json:
         import platform
+
         with open(args.json, "w") as fh:
-            json.dump({"machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
-                       "gpu": gpu_name({r["arch"] for r in rows}),
-                       "arch": args.arch, "threads": args.threads, "repeats": args.repeats,
-                       "interval_scale": scale, "overrides": args.overrides,
-                       "advanced_optimization": optimised, "cases": rows, "pairs": pairs}, fh, indent=2)
+            json.dump(
+                {
+                    "machine": platform.processor() or platform.machine(),
+                    "cpus": os.cpu_count(),
+                    "gpu": gpu_name({r["arch"] for r in rows}),
+                    "arch": args.arch,
+                    "threads": args.threads,
+                    "repeats": args.repeats,
+                    "interval_scale": scale,
+                    "overrides": args.overrides,
+                    "advanced_optimization": optimised,
+                    "cases": rows,
+                    "pairs": pairs,
+                },
+                fh,
+                indent=2,
+            )
     return 0

@@ -8,6 +8,7 @@ frames and can dump particles and statistics; ``--out`` records a video.
 Exit status: 0 done; 1 the simulation failed (NaN, blow-up); 2 a usage or scene error
 (nothing was run); 130 interrupted (Ctrl-C).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -17,9 +18,22 @@ import time
 import warnings
 from pathlib import Path
 
-from .options import (EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE,
-                      WINDOW_FRAME_BUDGET_MS, HelpFormatter, Parser, dir_problem, file_problem,
-                      fps_arg, frame_budget_arg, pixels_arg, positive_int, threads_arg)
+from .options import (
+    EXIT_FAILED,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    EXIT_USAGE,
+    WINDOW_FRAME_BUDGET_MS,
+    HelpFormatter,
+    Parser,
+    dir_problem,
+    file_problem,
+    fps_arg,
+    frame_budget_arg,
+    pixels_arg,
+    positive_int,
+    threads_arg,
+)
 
 #: Frames recorded when no window can open and no --frames was given (2 s at 30 fps:
 #: about a minute on a 2-core CPU, long enough to see the fluid move and refine).
@@ -33,6 +47,7 @@ NO_END = "error: a headless run needs an end: pass --frames N (or set run.frames
 
 def _default_scene() -> str:
     from mrsph.scene.config import SCENES_DIR
+
     for name in PREFERRED_DEFAULT_SCENES:
         if (SCENES_DIR / f"{name}.toml").is_file():
             return name
@@ -41,101 +56,164 @@ def _default_scene() -> str:
 
 def build_parser() -> argparse.ArgumentParser:
     from mrsph.io.output import FORMATS
+
     parser = Parser(
         prog="python3 main.py",
         description="mrsph: adaptive-resolution SPH fluids in Taichi.\n"
-                    "Opens an interactive window on SCENE (or, with no display, records a\n"
-                    "short video of it); --headless runs it without a window.",
+        "Opens an interactive window on SCENE (or, with no display, records a\n"
+        "short video of it); --headless runs it without a window.",
         epilog="commands:\n"
-               "  python3 main.py list          the scenes in scenes/ with a one-line description\n"
-               "  python3 main.py bench ...     benchmarks (python3 main.py bench --help)\n"
-               "\nexamples:\n"
-               "  python3 main.py dam_break_2d\n"
-               "  python3 main.py dam_break_2d --headless --frames 60 --dump out/dump\n"
-               "  python3 main.py pool_3d --out out/pool.mp4 --frames 150\n"
-               "  python3 main.py dam_break_obstacle_2d --set fluid.viscosity=2.0 --set adaptivity.enabled=false\n"
-               "\nexit status: 0 done, 1 the simulation failed, 2 usage or scene error, "
-               "130 interrupted",
-        formatter_class=HelpFormatter)
-    parser.add_argument("scene", nargs="?", metavar="SCENE", default=_default_scene(),
-                        help="scene name from scenes/ or a path to a .toml file")
-    parser.add_argument("--arch", choices=("auto", "cpu", "gpu"), default="auto",
-                        help="Taichi backend; auto takes a CUDA/Metal GPU if there is one")
-    parser.add_argument("--threads", type=threads_arg, default="auto", metavar="N",
-                        help="CPU threads for the cpu backend, or auto: one thread pinned to "
-                             "one core for scenes that start under 12k particles in 2D, 4k in "
-                             "3D (Taichi's per-loop thread wake-up costs more than it saves "
-                             "there), else all cores (default: auto)")
-    parser.add_argument("--headless", action="store_true",
-                        help="no window: run --frames frames (or run.frames), then stop")
-    parser.add_argument("--frames", type=positive_int, default=None, metavar="N",
-                        help="frames to run (headless: N frames simulated, N + 1 states "
-                             "dumped with t = 0) or record (N video frames, the first at t = 0) "
-                             "(default: the scene's run.frames; "
-                             f"{FALLBACK_FRAMES} for the video made when no window can open)")
-    parser.add_argument("--out", default=None, metavar="FILE",
-                        help="record a video instead: .mp4, .gif, or a directory of PNGs "
-                             "(its frame_*.png of an earlier run are removed first) "
-                             "(default: no recording)")
-    parser.add_argument("--width", type=pixels_arg, default=None, metavar="PX",
-                        help=f"image width (default: the scene's render.width; the window "
-                             f"{WINDOW_SIZE[0]})")
-    parser.add_argument("--height", type=pixels_arg, default=None, metavar="PX",
-                        help=f"image height (default: the scene's render.height; the window "
-                             f"{WINDOW_SIZE[1]})")
-    parser.add_argument("--fps", type=fps_arg, default=None,
-                        help="frames per second of the recorded video (default: the scene's run.fps)")
-    parser.add_argument("--frame-budget", type=frame_budget_arg, default=WINDOW_FRAME_BUDGET_MS,
-                        metavar="MS", help="window only: simulate until the first step that "
-                        "ends past MS milliseconds of wall time, then draw; where a frame's "
-                        "simulated time (1/run.fps) takes longer, the fluid runs in slow "
-                        "motion instead of the window freezing between frames; 0 = whole "
-                        f"frames always (default: {WINDOW_FRAME_BUDGET_MS})")
-    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
-                        help="override a scene key, value as TOML (repeatable), e.g. "
-                             "--set fluid.viscosity=2.0 (default: none)")
-    parser.add_argument("--dump", default=None, metavar="DIR",
-                        help="write every frame's particles and a stats.csv row to DIR "
-                             "(frame files of an earlier run there are removed first) "
-                             "(default: no dump)")
-    parser.add_argument("--dump-format", choices=FORMATS, default="npz",
-                        help="format of the frame files: npz, ply (binary point cloud), vtk (.vtu) "
-                             "or obj (the water's surface mesh)")
-    parser.add_argument("--quiet", action="store_true",
-                        help="no progress bar and no summary line; errors, warnings and "
-                             "notices still show")
+        "  python3 main.py list          the scenes in scenes/ with a one-line description\n"
+        "  python3 main.py bench ...     benchmarks (python3 main.py bench --help)\n"
+        "\nexamples:\n"
+        "  python3 main.py dam_break_2d\n"
+        "  python3 main.py dam_break_2d --headless --frames 60 --dump out/dump\n"
+        "  python3 main.py pool_3d --out out/pool.mp4 --frames 150\n"
+        "  python3 main.py dam_break_obstacle_2d --set fluid.viscosity=2.0 --set adaptivity.enabled=false\n"
+        "\nexit status: 0 done, 1 the simulation failed, 2 usage or scene error, "
+        "130 interrupted",
+        formatter_class=HelpFormatter,
+    )
+    parser.add_argument(
+        "scene",
+        nargs="?",
+        metavar="SCENE",
+        default=_default_scene(),
+        help="scene name from scenes/ or a path to a .toml file",
+    )
+    parser.add_argument(
+        "--arch",
+        choices=("auto", "cpu", "gpu"),
+        default="auto",
+        help="Taichi backend; auto takes a CUDA/Metal GPU if there is one",
+    )
+    parser.add_argument(
+        "--threads",
+        type=threads_arg,
+        default="auto",
+        metavar="N",
+        help="CPU threads for the cpu backend, or auto: one thread pinned to "
+        "one core for scenes that start under 12k particles in 2D, 4k in "
+        "3D (Taichi's per-loop thread wake-up costs more than it saves "
+        "there), else all cores (default: auto)",
+    )
+    parser.add_argument(
+        "--headless", action="store_true", help="no window: run --frames frames (or run.frames), then stop"
+    )
+    parser.add_argument(
+        "--frames",
+        type=positive_int,
+        default=None,
+        metavar="N",
+        help="frames to run (headless: N frames simulated, N + 1 states "
+        "dumped with t = 0) or record (N video frames, the first at t = 0) "
+        "(default: the scene's run.frames; "
+        f"{FALLBACK_FRAMES} for the video made when no window can open)",
+    )
+    parser.add_argument(
+        "--out",
+        default=None,
+        metavar="FILE",
+        help="record a video instead: .mp4, .gif, or a directory of PNGs "
+        "(its frame_*.png of an earlier run are removed first) "
+        "(default: no recording)",
+    )
+    parser.add_argument(
+        "--width",
+        type=pixels_arg,
+        default=None,
+        metavar="PX",
+        help=f"image width (default: the scene's render.width; the window {WINDOW_SIZE[0]})",
+    )
+    parser.add_argument(
+        "--height",
+        type=pixels_arg,
+        default=None,
+        metavar="PX",
+        help=f"image height (default: the scene's render.height; the window {WINDOW_SIZE[1]})",
+    )
+    parser.add_argument(
+        "--fps",
+        type=fps_arg,
+        default=None,
+        help="frames per second of the recorded video (default: the scene's run.fps)",
+    )
+    parser.add_argument(
+        "--frame-budget",
+        type=frame_budget_arg,
+        default=WINDOW_FRAME_BUDGET_MS,
+        metavar="MS",
+        help="window only: simulate until the first step that "
+        "ends past MS milliseconds of wall time, then draw; where a frame's "
+        "simulated time (1/run.fps) takes longer, the fluid runs in slow "
+        "motion instead of the window freezing between frames; 0 = whole "
+        f"frames always (default: {WINDOW_FRAME_BUDGET_MS})",
+    )
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        dest="overrides",
+        help="override a scene key, value as TOML (repeatable), e.g. --set fluid.viscosity=2.0 (default: none)",
+    )
+    parser.add_argument(
+        "--dump",
+        default=None,
+        metavar="DIR",
+        help="write every frame's particles and a stats.csv row to DIR "
+        "(frame files of an earlier run there are removed first) "
+        "(default: no dump)",
+    )
+    parser.add_argument(
+        "--dump-format",
+        choices=FORMATS,
+        default="npz",
+        help="format of the frame files: npz, ply (binary point cloud), vtk (.vtu) or obj (the water's surface mesh)",
+    )
+    parser.add_argument(
+        "--quiet",
+        action="store_true",
+        help="no progress bar and no summary line; errors, warnings and notices still show",
+    )
     return parser
 
 
 # ----------------------------------------------------------------------------- messages
 def _err(line: str) -> None:
     from tqdm import tqdm
+
     tqdm.write(line, file=sys.stderr)
 
 
 def _show_warning(default):
     """A warnings.showwarning that prints RuntimeWarnings as one line, no source line."""
+
     def show(message, category, filename, lineno, file=None, line=None):
         if issubclass(category, RuntimeWarning):
             _err(f"warning: {message}")
         else:
             default(message, category, filename, lineno, file, line)
+
     return show
 
 
 # ----------------------------------------------------------------------------- commands
 def _cmd_list(argv) -> int:
     from mrsph.scene.config import list_scenes
+
     if argv and argv[0] in ("-h", "--help"):
         print("usage: python3 main.py list\n\nThe scenes in scenes/, each with its description.")
         return EXIT_OK
     if argv:
-        print(f"python3 main.py list: error: unrecognized arguments: {' '.join(argv)} "
-              "(list takes none)", file=sys.stderr)
+        print(
+            f"python3 main.py list: error: unrecognized arguments: {' '.join(argv)} (list takes none)", file=sys.stderr
+        )
         return EXIT_USAGE
     scenes = list_scenes()
     if not scenes:
         from mrsph.scene.config import SCENES_DIR
+
         print(f"no scenes in {SCENES_DIR}", file=sys.stderr)
         return EXIT_OK
     width = max(len(name) for name, _ in scenes)
@@ -146,10 +224,10 @@ def _cmd_list(argv) -> int:
 
 def _cmd_bench(argv) -> int:
     if importlib.util.find_spec("mrsph.cli.bench") is None:
-        print("mrsph: benchmarks are not available in this version (mrsph/cli/bench.py is missing)",
-              file=sys.stderr)
+        print("mrsph: benchmarks are not available in this version (mrsph/cli/bench.py is missing)", file=sys.stderr)
         return EXIT_USAGE
     from . import bench
+
     status = bench.main(list(argv))
     return EXIT_OK if status is None else int(status)
 
@@ -160,8 +238,10 @@ def _out_kind_problem(out: str) -> str | None:
         return file_problem("--out", path)
     if path.suffix == "" or path.is_dir():
         return dir_problem("--out", path)
-    return (f"error: --out {out}: cannot tell what to write (expected a path ending in .mp4 "
-            f"or .gif, or a directory for PNG frames)")
+    return (
+        f"error: --out {out}: cannot tell what to write (expected a path ending in .mp4 "
+        f"or .gif, or a directory for PNG frames)"
+    )
 
 
 class _Dumper:
@@ -169,16 +249,17 @@ class _Dumper:
 
     def __init__(self, directory, fmt, dim, levels):
         from mrsph.io.output import DUMP_SUFFIXES, StatsWriter, clear_frames
+
         self.directory, self.fmt, self.dim = Path(directory), fmt, dim
-        clear_frames(self.directory, DUMP_SUFFIXES)    # of any format: all are ours
+        clear_frames(self.directory, DUMP_SUFFIXES)  # of any format: all are ours
         self.stats = StatsWriter(self.directory / "stats.csv", dim, levels)
         self.last_row: dict | None = None
 
     def dump(self, snap) -> None:
         from mrsph.io.output import write_frame
-        parts = {"x": snap.x, "v": snap.v, "m": snap.m, "rho": snap.rho,
-                 "level": snap.level, "kind": snap.kind}
-        if snap.p is not None:      # a stand-in without a pressure dumps zeros
+
+        parts = {"x": snap.x, "v": snap.v, "m": snap.m, "rho": snap.rho, "level": snap.level, "kind": snap.kind}
+        if snap.p is not None:  # a stand-in without a pressure dumps zeros
             parts["p"] = snap.p
         write_frame(self.directory, snap.frame, parts, self.dim, self.fmt)
         self.stats.write(snap.stats)
@@ -206,6 +287,7 @@ class _DumpingSim:
 def _make_sim(scene, args):
     from mrsph import runtime
     from mrsph.simulation import Simulation
+
     sim = Simulation(scene, arch=args.arch, threads=runtime.auto_threads(scene, args.threads))
     notice = runtime.notice()
     if notice:
@@ -215,14 +297,22 @@ def _make_sim(scene, args):
 
 def _run_headless(sim, frames: int, args) -> int:
     from tqdm import tqdm
+
     dumper = _Dumper(args.dump, args.dump_format, sim.dim, sim.levels) if args.dump else None
     steps = 0
     t0 = time.perf_counter()
     try:
         if dumper:
             dumper.dump(sim.snapshot())
-        with tqdm(total=frames, file=sys.stderr, disable=args.quiet, unit="frame",
-                  desc=sim.scene.name, dynamic_ncols=True, leave=False) as bar:
+        with tqdm(
+            total=frames,
+            file=sys.stderr,
+            disable=args.quiet,
+            unit="frame",
+            desc=sim.scene.name,
+            dynamic_ncols=True,
+            leave=False,
+        ) as bar:
             for _ in range(frames):
                 steps += sim.advance_frame()
                 if dumper:
@@ -235,14 +325,17 @@ def _run_headless(sim, frames: int, args) -> int:
     row = dumper.last_row if dumper else sim.stats()
     if not args.quiet:
         where = f"; dumped to {args.dump}" if args.dump else ""
-        print(f"{sim.scene.name}: {frames} frame{'s' if frames != 1 else ''}, {sim.time:.4g} s simulated in {wall:.3g} s "
-              f"wall ({steps} steps); {row['n_real']} real / {row['n_virtual']} virtual "
-              f"particles, total mass {row['total_mass']:.6g} kg{where}")
+        print(
+            f"{sim.scene.name}: {frames} frame{'s' if frames != 1 else ''}, {sim.time:.4g} s simulated in {wall:.3g} s "
+            f"wall ({steps} steps); {row['n_real']} real / {row['n_virtual']} virtual "
+            f"particles, total mass {row['total_mass']:.6g} kg{where}"
+        )
     return EXIT_OK
 
 
 def _record(sim, out, frames: int, args) -> Path:
     from mrsph.app.record import record
+
     if Path(out).is_file():
         _err(f"mrsph: {out} exists; it is replaced")
     target = sim
@@ -250,8 +343,7 @@ def _record(sim, out, frames: int, args) -> Path:
     if dumper:
         target = _DumpingSim(sim, dumper)
     try:
-        return record(target, out, frames, width=args.width, height=args.height, fps=args.fps,
-                      progress=not args.quiet)
+        return record(target, out, frames, width=args.width, height=args.height, fps=args.fps, progress=not args.quiet)
     finally:
         if dumper:
             dumper.close()
@@ -259,15 +351,20 @@ def _record(sim, out, frames: int, args) -> Path:
 
 def _run_window_or_video(scene, args) -> int:
     from mrsph.app.window import display_available
+
     ok, why = display_available()
     if ok:
         from mrsph.app.window import run_window
+
         if args.dump:
             _err("mrsph: --dump applies to headless runs and recordings; the window does not dump")
         if args.frames is not None:
-            _err("mrsph: --frames applies to headless runs and recordings; the window runs "
-                 "until it is closed (add --headless to run N frames)")
+            _err(
+                "mrsph: --frames applies to headless runs and recordings; the window runs "
+                "until it is closed (add --headless to run N frames)"
+            )
         from mrsph.scene.config import SCENES_DIR, list_scenes, load_scene
+
         names = [name for name, _ in list_scenes()]
         # the window offers the scenes of scenes/ by name; a scene from elsewhere by path
         own = Path(scene.path).resolve() == (SCENES_DIR / f"{scene.name}.toml").resolve()
@@ -279,6 +376,7 @@ def _run_window_or_video(scene, args) -> int:
         # scene: another count re-initialises Taichi, which frees the window's fields
         # under it (a scene switch from a small scene to a large one crashed the window)
         from mrsph import runtime
+
         fixed = argparse.Namespace(**{**vars(args), "threads": runtime.auto_threads(scene, args.threads)})
 
         def make_sim(name, overrides=None):
@@ -289,8 +387,14 @@ def _run_window_or_video(scene, args) -> int:
                 s = s.with_overrides(overrides)
             return _make_sim(s, fixed)
 
-        run_window(make_sim, first, names, args.width or WINDOW_SIZE[0], args.height or WINDOW_SIZE[1],
-                   frame_budget=args.frame_budget)
+        run_window(
+            make_sim,
+            first,
+            names,
+            args.width or WINDOW_SIZE[0],
+            args.height or WINDOW_SIZE[1],
+            frame_budget=args.frame_budget,
+        )
         return EXIT_OK
     frames = args.frames or FALLBACK_FRAMES
     out = FALLBACK_DIR / f"{scene.name}.mp4"
@@ -300,6 +404,7 @@ def _run_window_or_video(scene, args) -> int:
         return EXIT_USAGE
     _err(f"mrsph: no window ({why}); recording {frames} frames to {out} instead")
     from mrsph.simulation import SimulationError
+
     sim = _make_sim(scene, args)
     try:
         path = _record(sim, out, frames, args)
@@ -316,11 +421,11 @@ def _run_window_or_video(scene, args) -> int:
 
 def _run(args) -> int:
     from mrsph.scene.config import load_scene
+
     scene = load_scene(args.scene, args.overrides)
     # a window does not dump: its --dump folder is made only once no window opens
     dumps = args.dump and (args.headless or args.out)
-    for problem in (args.out and _out_kind_problem(args.out),
-                    dumps and dir_problem("--dump", Path(args.dump))):
+    for problem in (args.out and _out_kind_problem(args.out), dumps and dir_problem("--dump", Path(args.dump))):
         if problem:
             _err(problem)
             return EXIT_USAGE
@@ -345,11 +450,14 @@ def main(argv=None) -> int:
     if argv and argv[0] == "bench":
         return _cmd_bench(argv[1:])
     from mrsph.scene.config import SceneError
+
     args = build_parser().parse_args(argv)
     if args.scene in ("list", "bench") and not Path(args.scene).exists():
         # "--quiet list": the commands come first, before any option
-        _err(f"python3 main.py: error: '{args.scene}' is a command: it comes first "
-             f"(python3 main.py {args.scene} ...), before any option")
+        _err(
+            f"python3 main.py: error: '{args.scene}' is a command: it comes first "
+            f"(python3 main.py {args.scene} ...), before any option"
+        )
         return EXIT_USAGE
     with warnings.catch_warnings():
         warnings.simplefilter("once", RuntimeWarning)

@@ -7,6 +7,7 @@ The bottom floor of the command line: it imports neither :mod:`mrsph.cli.command
 :mod:`mrsph.cli.bench` (so ``cli -> bench -> options`` and ``app -> options`` hold no circle),
 and nothing from Taichi.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -56,8 +57,9 @@ def pixels_arg(text: str) -> int:
     except ValueError:
         value = None
     if value is None or not PIXELS[0] <= value <= PIXELS[1]:
-        raise argparse.ArgumentTypeError(f"expected an integer number of pixels in "
-                                         f"[{PIXELS[0]}, {PIXELS[1]}] (got {text!r})")
+        raise argparse.ArgumentTypeError(
+            f"expected an integer number of pixels in [{PIXELS[0]}, {PIXELS[1]}] (got {text!r})"
+        )
     return value
 
 
@@ -74,12 +76,13 @@ def positive_float(text: str) -> float:
 def fps_arg(text: str) -> float:
     """--fps: a number of frames per second within config.FPS_RANGE."""
     from mrsph.scene.config import FPS_RANGE
+
     lo, hi = FPS_RANGE
     try:
         value = float(text)
     except ValueError:
         value = math.nan
-    if not lo <= value <= hi:     # NaN fails too
+    if not lo <= value <= hi:  # NaN fails too
         raise argparse.ArgumentTypeError(f"expected a number in [{lo:g}, {hi:g}] (got {text})")
     return value
 
@@ -91,8 +94,7 @@ def frame_budget_arg(text: str) -> float | None:
     except ValueError:
         value = math.nan
     if not (value >= 0 and math.isfinite(value)):
-        raise argparse.ArgumentTypeError(f"expected a finite number of milliseconds >= 0 "
-                                         f"(got {text!r})")
+        raise argparse.ArgumentTypeError(f"expected a finite number of milliseconds >= 0 (got {text!r})")
     return value / 1000.0 if value > 0 else None
 
 
@@ -101,8 +103,6 @@ class Parser(argparse.ArgumentParser):
 
     def error(self, message):
         self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
-
-
 
 
 class HelpFormatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):

@@ -22,6 +22,7 @@ the window's water view) as a Wavefront OBJ triangle mesh for Blender and the li
 3D, a closed mesh with vertex normals, wound outward; 2D, the filled area as triangles
 in the plane z = 0. Vertices are shared between triangles (merged to 1e-9 m).
 """
+
 from __future__ import annotations
 
 import csv
@@ -48,13 +49,12 @@ def clear_frames(directory, suffixes) -> int:
     d = Path(directory)
     if not d.is_dir():
         return 0
-    pattern = re.compile(r"frame_\d{5,}\.(?:%s)" % "|".join(map(re.escape, suffixes)))   # FRAME_NAME
+    pattern = re.compile(r"frame_\d{5,}\.(?:" + "|".join(map(re.escape, suffixes)) + ")")  # FRAME_NAME
     old = [f for f in d.iterdir() if pattern.fullmatch(f.name) and f.is_file()]
     for f in old:
         f.unlink()
     if old:
-        warnings.warn(f"{d}: removed {len(old)} frame file(s) of an earlier run", RuntimeWarning,
-                      stacklevel=2)
+        warnings.warn(f"{d}: removed {len(old)} frame file(s) of an earlier run", RuntimeWarning, stacklevel=2)
     return len(old)
 
 
@@ -127,8 +127,7 @@ def _write_ply(path: Path, a: dict) -> None:
         rec[name] = _pad3(a["v"])[:, k]
     for name in ("m", "rho", "p", "level", "kind"):
         rec[name] = a[name]
-    header = ["ply", "format binary_little_endian 1.0", "comment written by mrsph",
-              f"element vertex {n}"]
+    header = ["ply", "format binary_little_endian 1.0", "comment written by mrsph", f"element vertex {n}"]
     header += [f"property {_PLY_TYPES[dt]} {name}" for name, dt in fields]
     header += ["end_header"]
     with open(path, "wb") as f:
@@ -162,6 +161,7 @@ def read_ply(path) -> dict:
 
 def _write_obj(path: Path, a: dict, dim: int) -> None:
     from .surface import surface
+
     found = surface(a["x"], a["m"], a["rho"], a["level"], a["kind"], dim)
     lines = ["# fluid surface written by mrsph (mrsph/io/surface.py)", "o fluid"]
     if found is not None and len(found[1]):
@@ -186,6 +186,7 @@ def _write_obj(path: Path, a: dict, dim: int) -> None:
 
 def _write_vtu(path: Path, a: dict) -> None:
     import meshio
+
     n = len(a["x"])
     points = _pad3(a["x"]).astype(np.float64)
     cells = [meshio.CellBlock("vertex", np.arange(n, dtype=np.int64).reshape(n, 1))]
@@ -195,15 +196,25 @@ def _write_vtu(path: Path, a: dict) -> None:
     # An empty frame (a pour before its first particle) is written uncompressed, so that
     # no zero-length zlib block appears; ParaView opens it, meshio's reader cannot read
     # empty meshes back at all.
-    meshio.Mesh(points, cells, point_data=point_data).write(
-        path, file_format="vtu", compression="zlib" if n else None)
+    meshio.Mesh(points, cells, point_data=point_data).write(path, file_format="vtu", compression="zlib" if n else None)
 
 
 # ------------------------------------------------------------------------- stats.csv
 #: Columns a stats row may carry beyond the base ones, in the order they are written;
 #: per-level columns come in level order. Any other key follows, sorted by name.
-_EXTRA_ORDER = ("n_virtual_level_*", "n_transient", "solver", "density_iterations", "divergence_iterations",
-                "density_error", "unconverged", "splits", "merges", "absorbed", "refused")
+_EXTRA_ORDER = (
+    "n_virtual_level_*",
+    "n_transient",
+    "solver",
+    "density_iterations",
+    "divergence_iterations",
+    "density_error",
+    "unconverged",
+    "splits",
+    "merges",
+    "absorbed",
+    "refused",
+)
 
 
 def stats_columns(dim: int, levels: int) -> list[str]:
@@ -221,8 +232,8 @@ def _extra_columns(keys, base: list[str]) -> list[str]:
     for pattern in _EXTRA_ORDER:
         if pattern.endswith("*"):
             prefix = pattern[:-1]
-            found = [k for k in rest if k.startswith(prefix) and k[len(prefix):].isdigit()]
-            ordered += sorted(found, key=lambda k: int(k[len(prefix):]))
+            found = [k for k in rest if k.startswith(prefix) and k[len(prefix) :].isdigit()]
+            ordered += sorted(found, key=lambda k: int(k[len(prefix) :]))
         elif pattern in rest:
             ordered.append(pattern)
     return ordered + sorted(k for k in rest if k not in ordered)
@@ -267,8 +278,9 @@ class StatsWriter:
         missing = [k for k in self.base if k not in row]
         unknown = [k for k in row if k not in self.columns]
         if missing or unknown:
-            raise ValueError(f"{self.path}: stats row does not match the header "
-                             f"(missing {missing}, not in the header {unknown})")
+            raise ValueError(
+                f"{self.path}: stats row does not match the header (missing {missing}, not in the header {unknown})"
+            )
         self._csv.writerow([_cell(row.get(k)) for k in self.columns])
         self._file.flush()
 

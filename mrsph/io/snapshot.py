@@ -3,6 +3,7 @@
 Kept free of Taichi so that the window, the renderers and their tests can use it
 without a simulation (see ``mrsph/app/fake.py``).
 """
+
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -11,6 +12,7 @@ import numpy as np
 @dataclass
 class Snapshot:
     """One frame (fields documented in docs/ARCHITECTURE.md)."""
+
     dim: int
     levels: int
     time: float
@@ -26,4 +28,4 @@ class Snapshot:
     domain_max: np.ndarray
     obstacles: list = field(default_factory=list)
     stats: dict = field(default_factory=dict)
-    p: np.ndarray | None = None     # pressure, Pa (None: a stand-in without one)
+    p: np.ndarray | None = None  # pressure, Pa (None: a stand-in without one)

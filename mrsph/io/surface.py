@@ -28,6 +28,7 @@ by ``--dump-format obj``; it reads particles and never changes the simulation.
    gave the same surface to within a cell with ~4x the triangles, too slow for the
    window's every frame (pool_3d: 25 200 triangles in 67 ms; surface nets 6 650 in 8 ms).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -56,6 +57,7 @@ class Grid:
     """A scalar field on a regular grid: ``phi[i, j(, k)]`` at ``origin + (i, j, k) * cell``;
     ``rgb`` (same shape + (3,)) the volume-weighted mean colour, or None; ``colour`` (3,)
     the one colour of every particle when they all have the same (then ``rgb`` is None)."""
+
     origin: np.ndarray
     cell: float
     phi: np.ndarray
@@ -89,7 +91,7 @@ def volume_fraction(x, m, rho, level, kind=None, rgb=None) -> Grid | None:
     col = uniform = None
     if rgb is not None:
         col = np.asarray(rgb, np.float64)[real]
-        if np.all(col == col[0]):          # one colour (one level, or a flat colour mode)
+        if np.all(col == col[0]):  # one colour (one level, or a flat colour mode)
             col, uniform = None, col[0].copy()
     levels = np.unique(level)
     by_level = [level == l for l in levels] if len(levels) > 1 else [slice(None)]
@@ -100,10 +102,10 @@ def volume_fraction(x, m, rho, level, kind=None, rgb=None) -> Grid | None:
     while np.prod(np.ceil((hi - lo) / cell) + 1) > MAX_NODES[dim]:
         cell *= 1.25
     shape = tuple(int(c) for c in np.ceil((hi - lo) / cell) + 1)
-    channels = 1 if col is None else 4                       # volume, then volume x colour
+    channels = 1 if col is None else 4  # volume, then volume x colour
     acc = np.zeros(shape + (channels,))
     for sel, s_l in zip(by_level, spacing):
-        w = vol[sel, None] / cell ** dim
+        w = vol[sel, None] / cell**dim
         if col is not None:
             w = np.concatenate([w, w * col[sel]], axis=1)
         sigma = SIGMA_SPACINGS * s_l / cell
@@ -128,9 +130,9 @@ def _deposit(u, w, shape) -> np.ndarray:
     dim, k = len(shape), w.shape[1]
     i0 = np.floor(u).astype(np.int64)
     f = u - i0
-    strides = np.array([int(np.prod(shape[a + 1:])) for a in range(dim)])
+    strides = np.array([int(np.prod(shape[a + 1 :])) for a in range(dim)])
     base = np.clip(i0, 0, np.array(shape) - 2) @ strides
-    corners = 2 ** dim
+    corners = 2**dim
     idx = np.empty((corners, len(u)), np.int64)
     frac = np.empty((corners, len(u)))
     for corner in range(corners):
@@ -168,7 +170,7 @@ def _blur(a: np.ndarray, sigma: float) -> np.ndarray:
             hi = [slice(None)] * a.ndim
             lo[axis], hi[axis] = slice(0, n - k), slice(k, n)
             lo, hi = tuple(lo), tuple(hi)
-            out[hi] += taps[r + k] * a[lo]       # taps are symmetric
+            out[hi] += taps[r + k] * a[lo]  # taps are symmetric
             out[lo] += taps[r + k] * a[hi]
         a = out
     return a
@@ -180,11 +182,23 @@ def _blur(a: np.ndarray, sigma: float) -> np.ndarray:
 #: corner k inside. Each case: its filled polygons, counter-clockwise; the saddles
 #: 5 and 10 have a "separate" and a "joined" variant (index 16, 17).
 _SQUARE_POLYS = {
-    1: [[0, 4, 7]], 2: [[4, 1, 5]], 3: [[0, 1, 5, 7]], 4: [[5, 2, 6]],
-    5: [[0, 4, 7], [5, 2, 6]], 6: [[4, 1, 2, 6]], 7: [[0, 1, 2, 6, 7]], 8: [[7, 6, 3]],
-    9: [[0, 4, 6, 3]], 10: [[4, 1, 5], [7, 6, 3]], 11: [[0, 1, 5, 6, 3]], 12: [[7, 5, 2, 3]],
-    13: [[0, 4, 5, 2, 3]], 14: [[4, 1, 2, 3, 7]], 15: [[0, 1, 2, 3]],
-    16: [[0, 4, 5, 2, 6, 7]], 17: [[4, 1, 5, 6, 3, 7]],
+    1: [[0, 4, 7]],
+    2: [[4, 1, 5]],
+    3: [[0, 1, 5, 7]],
+    4: [[5, 2, 6]],
+    5: [[0, 4, 7], [5, 2, 6]],
+    6: [[4, 1, 2, 6]],
+    7: [[0, 1, 2, 6, 7]],
+    8: [[7, 6, 3]],
+    9: [[0, 4, 6, 3]],
+    10: [[4, 1, 5], [7, 6, 3]],
+    11: [[0, 1, 5, 6, 3]],
+    12: [[7, 5, 2, 3]],
+    13: [[0, 4, 5, 2, 3]],
+    14: [[4, 1, 2, 3, 7]],
+    15: [[0, 1, 2, 3]],
+    16: [[0, 4, 5, 2, 6, 7]],
+    17: [[4, 1, 5, 6, 3, 7]],
 }
 
 
@@ -192,7 +206,7 @@ def marching_squares(grid: Grid, iso: float = ISO):
     """Filled contour of ``grid.phi >= iso``: (triangles (3T, 2), colours (3T, 3) or None,
     outline segments (2S, 2)) in world coordinates."""
     phi = grid.phi
-    c = np.stack([phi[:-1, :-1], phi[1:, :-1], phi[1:, 1:], phi[:-1, 1:]], axis=-1)   # corners 0..3
+    c = np.stack([phi[:-1, :-1], phi[1:, :-1], phi[1:, 1:], phi[:-1, 1:]], axis=-1)  # corners 0..3
     inside = c >= iso
     case = inside[..., 0] | (inside[..., 1] << 1) | (inside[..., 2] << 2) | (inside[..., 3] << 3)
     case = case.astype(np.int8)
@@ -202,15 +216,15 @@ def marching_squares(grid: Grid, iso: float = ISO):
     code = case.ravel()[mixed]
     cm = c.reshape(-1, 4)[mixed]
     saddle = ((code == 5) | (code == 10)) & (cm.mean(axis=1) >= iso)
-    code = np.where(saddle, code + np.where(code == 5, 11, 7), code)         # 5 -> 16, 10 -> 17
-    pts = _square_points(grid, cm, ij, iso)                                  # (n, 8, 2)
+    code = np.where(saddle, code + np.where(code == 5, 11, 7), code)  # 5 -> 16, 10 -> 17
+    pts = _square_points(grid, cm, ij, iso)  # (n, 8, 2)
     order = np.argsort(code, kind="stable")
     bounds = np.searchsorted(code[order], np.arange(19))
     tris, segs = [], []
     for k, polys in _SQUARE_POLYS.items():
         if k == 15:
             continue
-        rows = order[bounds[k]:bounds[k + 1]]
+        rows = order[bounds[k] : bounds[k + 1]]
         if len(rows) == 0:
             continue
         p = pts[rows]
@@ -236,16 +250,16 @@ def _inside_quads(grid: Grid, inside) -> list[np.ndarray]:
     colours, sampled at the strips' ends, are the same)."""
     if grid.rgb is not None:
         q = np.rint(np.clip(grid.rgb, 0.0, 1.0) * 255.0).astype(np.int16)
-        along = np.all(q[:-1] == q[1:], axis=-1)                 # node i, i+1 of a row alike
-        flat = along[:, :-1] & along[:, 1:]                      # both rows of the cell
+        along = np.all(q[:-1] == q[1:], axis=-1)  # node i, i+1 of a row alike
+        flat = along[:, :-1] & along[:, 1:]  # both rows of the cell
     else:
         flat = np.ones_like(inside)
     strip = inside & flat
-    padded = np.zeros((strip.shape[1], strip.shape[0] + 2), np.int8)     # rows (y), cells (x)
+    padded = np.zeros((strip.shape[1], strip.shape[0] + 2), np.int8)  # rows (y), cells (x)
     padded[:, 1:-1] = strip.T
     step = np.diff(padded, axis=1)
-    j0, i0 = np.nonzero(step == 1)          # first cell of each run
-    _, i1 = np.nonzero(step == -1)          # one past its last cell (row-major: paired)
+    j0, i0 = np.nonzero(step == 1)  # first cell of each run
+    _, i1 = np.nonzero(step == -1)  # one past its last cell (row-major: paired)
     single = np.stack(np.nonzero(inside & ~flat), axis=1)
     lo = np.concatenate([np.stack([i0, j0], axis=1), single]).astype(np.float64)
     width = np.concatenate([i1 - i0, np.ones(len(single))])
@@ -303,20 +317,20 @@ def surface_nets(grid: Grid, iso: float = ISO):
     cubes = shape - 1
     inside = phi >= iso
     n_cubes = int(np.prod(cubes))
-    acc = np.zeros((n_cubes, 7))            # position (3), −∇φ (3), crossings (1)
+    acc = np.zeros((n_cubes, 7))  # position (3), −∇φ (3), crossings (1)
     quads = []
     for a in range(3):
         lo = [slice(None)] * 3
         hi = [slice(None)] * 3
         lo[a], hi[a] = slice(0, -1), slice(1, None)
         crossed = inside[tuple(lo)] != inside[tuple(hi)]
-        e = np.stack(np.nonzero(crossed), axis=1)                                # edge starts
+        e = np.stack(np.nonzero(crossed), axis=1)  # edge starts
         if len(e) == 0:
             continue
         f = e.copy()
         f[:, a] += 1
         v0, v1 = phi[tuple(e.T)], phi[tuple(f.T)]
-        t = (iso - v0) / (v1 - v0)                  # crossed: v1 != v0
+        t = (iso - v0) / (v1 - v0)  # crossed: v1 != v0
         p = grid.origin + (e + 0.0) * grid.cell
         p[:, a] += t * grid.cell
         g0, g1 = _grad_at(phi, e, grid.cell), _grad_at(phi, f, grid.cell)

@@ -40,7 +40,7 @@ class Absorption:
         this counts in (an absorption is a merge too)."""
         self.pool, self.g, self.lev, self.fade = parts.pool, parts.grids, parts.lev, parts.fade
         self.below = float(parts.scene["adaptivity"]["absorb_below"])
-        self.on = self.below > 0.0      # 0: light groups merge like any other
+        self.on = self.below > 0.0  # 0: light groups merge like any other
         # the receiver takes the group's mass-weighted means but keeps its place (moved,
         # receivers at a 3D dam-break front were pulled onto the remnants ahead of them:
         # the front ran 11 % ahead of the uniform run's, 1.6 % when they stay)
@@ -62,8 +62,9 @@ class Absorption:
     def _may_receive(self, j, ctx):
         """Whether j may take a light group (ctx: level c, the group's mass, the cap)."""
         p = ti.static(self.pool.p)
-        return is_real(p[j].kind) and p[j].level == ti.cast(ctx[0], ti.i32) and \
-            ti.cast(p[j].m, ti.f64) + ctx[1] <= ctx[2]
+        return (
+            is_real(p[j].kind) and p[j].level == ti.cast(ctx[0], ti.i32) and ti.cast(p[j].m, ti.f64) + ctx[1] <= ctx[2]
+        )
 
     @ti.func
     def run(self, c):
@@ -89,7 +90,7 @@ class Absorption:
                         acc += p[ch].m * fld[ch]
                     fld[best] = acc / total
                 p[best].m = total
-                if (p[best].kind & ROLE_CHILD) != 0:      # its virtual parent weighs its group
+                if (p[best].kind & ROLE_CHILD) != 0:  # its virtual parent weighs its group
                     vp = p[best].parent
                     p[vp].m = ti.cast(self.pool.group_mass(vp), float)
                 self.fade.touch(p[best].x, c)

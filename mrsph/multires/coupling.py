@@ -23,6 +23,7 @@ import taichi as ti
 
 from mrsph.sph.kernels import poly6
 from mrsph.sph.particles import DEAD, ROLE_PARENT, VIRTUAL_CHILD, VIRTUAL_PARENT, is_real, is_virtual
+
 from .limiter import VirtualMassLimiter
 
 
@@ -30,6 +31,7 @@ class Pass(NamedTuple):
     """One of a step's passes over the pool, ``(n)`` its only argument: ``timer`` names the
     phase it is timed in, ``kernel`` launches it alone, ``func`` is the same work as a
     device function for a launch that runs several phases."""
+
     timer: str
     kernel: object
     func: object
@@ -38,6 +40,7 @@ class Pass(NamedTuple):
 @ti.data_oriented
 class Uniform:
     """No adaptivity: one level, every particle of the nominal mass m0."""
+
     mode = "none"
     variational = symmetric = limit_virtual = False
     reaction = None
@@ -48,8 +51,8 @@ class Uniform:
     def __init__(self, parts):
         self.dim = parts.dim
         self.pool, self.lev, self.nb = parts.pool, parts.lev, parts.neighbours
-        self.forces = None      # set by the Simulation (the symmetric coupling's reactions)
-        self.density = None     # likewise (the limiter's neighbour search)
+        self.forces = None  # set by the Simulation (the symmetric coupling's reactions)
+        self.density = None  # likewise (the limiter's neighbour search)
 
     # ------------------------------------------------------------------ host hooks
     def reset(self) -> None:
@@ -126,7 +129,7 @@ class Adaptive(Uniform):
     def __init__(self, parts, offsets):
         super().__init__(parts)
         a = parts.scene["adaptivity"]
-        self.offsets = offsets          # the virtual children's sampling offsets (topology)
+        self.offsets = offsets  # the virtual children's sampling offsets (topology)
         self.spring_rate = ti.field(float, shape=())
         self.spring_rate[None] = float(a["spring_rate"])
         self.limit_virtual = bool(a["limit_virtual_density"])
@@ -140,8 +143,10 @@ class Adaptive(Uniform):
         # the density pass (timed as density), and sets the virtual masses (coupling work)
         if self.limiter is None:
             return ()
-        return (Pass("density", self.density.list_fine, self.density.list_fine_func),
-                Pass("virtual_coupling", self.limiter.limit, self.limiter.limit_func))
+        return (
+            Pass("density", self.density.list_fine, self.density.list_fine_func),
+            Pass("virtual_coupling", self.limiter.limit, self.limiter.limit_func),
+        )
 
     @ti.func
     def sum_mass(self, j):
@@ -246,6 +251,7 @@ class Variational(Adaptive):
     keeps the extra damping. In a resting pool with a refined box it moves less than the
     symmetric form, whose virtual pressures come from virtual densities that reach 1.3 ρ0
     where virtual children overlap each other and the walls (docs/dam-front.md)."""
+
     mode = "variational"
     variational = True
 
@@ -334,6 +340,7 @@ class Symmetric(Adaptive):
     level whenever P carries virtual children, and through the virtual parent only when P
     has none (``skip2``, ``Levels.reach2``). Virtual parents always give the coarse side
     its density."""
+
     mode = "symmetric"
     symmetric = True
 
@@ -341,8 +348,7 @@ class Symmetric(Adaptive):
         return (Pass("virtual_coupling", self.virtual_coupling, self.virtual_coupling_func),)
 
     @ti.func
-    def _coupling_visit(self, j, i, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(),
-                        acc: ti.template()):
+    def _coupling_visit(self, j, i, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
         """Virtual particle j and candidate i: the reaction on j of the force on a real i,
         and i's interpolation weight for j's velocity. ctx: h, cs, cv, μ, reach², poly6
         constant; acc: (reaction, Σ w u, Σ w)."""
@@ -377,12 +383,14 @@ class Symmetric(Adaptive):
             if is_virtual(kj):
                 l = p[j].level
                 xj = p[j].x
-                ctx = ti.Vector([self.lev.h[l], self.lev.spiky[l], self.lev.visc[l], mu,
-                                 self.lev.reach2[l], self.lev.poly6[l]])
+                ctx = ti.Vector(
+                    [self.lev.h[l], self.lev.spiky[l], self.lev.visc[l], mu, self.lev.reach2[l], self.lev.poly6[l]]
+                )
                 acc = ti.Vector.zero(float, 2 * self.dim + 1)
                 eye = ti.Matrix.identity(float, self.dim)
-                self.nb.candidates(j, xj, eye, xj, xj, False, l, self.nb.is_listed(j), False,
-                                   self._coupling_visit, ctx, acc)
+                self.nb.candidates(
+                    j, xj, eye, xj, xj, False, l, self.nb.is_listed(j), False, self._coupling_visit, ctx, acc
+                )
                 reaction = ti.Vector([acc[k] for k in ti.static(range(self.dim))])
                 vsum = ti.Vector([acc[self.dim + k] for k in ti.static(range(self.dim))])
                 wsum = acc[2 * self.dim]

@@ -100,9 +100,9 @@ import taichi as ti
 from mrsph.sph.particles import is_real
 
 # ``touched`` bits during an adaptivity pass's level pair (c − 1, c)
-REMEASURE = 1      # a real particle whose neighbourhood changed
+REMEASURE = 1  # a real particle whose neighbourhood changed
 FINER_CHANGED = 2  # a level-c particle that split or took virtual children: the level-f
-                   # particles within h_c see more mass
+# particles within h_c see more mass
 
 
 @ti.data_oriented
@@ -112,7 +112,7 @@ class SplitFade:
     (every function a no-op, every ``drho`` 0) without adaptivity or with ``split_fade``
     = 0."""
 
-    ATTRIBUTES = ("drho", "rho_ref")     # the pool's attributes it alone reads
+    ATTRIBUTES = ("drho", "rho_ref")  # the pool's attributes it alone reads
 
     def __init__(self, parts):
         a = parts.scene["adaptivity"]

@@ -25,14 +25,14 @@ class Gathering:
 
     def __init__(self, parts, counters, event: int):
         a = parts.scene["adaptivity"]
-        self.dim, self.nmax = parts.dim, 2 ** parts.dim
+        self.dim, self.nmax = parts.dim, 2**parts.dim
         self.pool, self.g, self.lev = parts.pool, parts.grids, parts.lev
         self.fade = parts.fade
         self.release_factor = float(a["release_factor"])
         self.gather_factor = float(a["gather_factor"])
         self.gather_span = float(a["gather_span"])
         self.gather_coarse_only = bool(a["gather_coarse_only"])
-        self.counters, self.event = counters, event    # the topology's event counters
+        self.counters, self.event = counters, event  # the topology's event counters
         self.partner = ti.field(ti.i32, shape=self.pool.capacity)
 
     @ti.func
@@ -90,8 +90,7 @@ class Gathering:
         keep = self.gather_span * self.release_factor * self.lev.h[c - 1]
         for i in range(n):
             self.partner[i] = -1
-            if p[i].kind == VIRTUAL_PARENT and p[i].level == c and p[i].nchild < self.nmax \
-                    and self._may_gather(i, c):
+            if p[i].kind == VIRTUAL_PARENT and p[i].level == c and p[i].nchild < self.nmax and self._may_gather(i, c):
                 ctx = ti.Vector([ti.cast(i, float), ti.cast(c, float), keep])
                 self.partner[i] = self.g.nearest(p[i].x, c, reach * reach, p.x, self._may_pair, ctx)
 
@@ -100,8 +99,13 @@ class Gathering:
         """Whether virtual parent i (ctx: i, c, the spread to keep) may propose j."""
         p = ti.static(self.pool.p)
         i, c = ti.cast(ctx[0], ti.i32), ti.cast(ctx[1], ti.i32)
-        return j != i and p[j].kind == VIRTUAL_PARENT and p[i].nchild + p[j].nchild <= self.nmax \
-            and self._may_gather(j, c) and self._union_spread(i, j) <= ctx[2]
+        return (
+            j != i
+            and p[j].kind == VIRTUAL_PARENT
+            and p[i].nchild + p[j].nchild <= self.nmax
+            and self._may_gather(j, c)
+            and self._union_spread(i, j) <= ctx[2]
+        )
 
     @ti.func
     def _accept(self, n, c):
@@ -123,5 +127,5 @@ class Gathering:
                 p[i].nchild = ni + nj
                 p[j].nchild = 0
                 p[j].kind = DEAD
-                self.fade.touch(p[i].x, c)     # the coarse level sees one heavier there
+                self.fade.touch(p[i].x, c)  # the coarse level sees one heavier there
                 ti.atomic_add(self.counters[self.event], 1)

@@ -41,7 +41,7 @@ class VirtualMassLimiter:
     def __init__(self, parts):
         self.dim, self.levels = parts.dim, parts.levels
         self.pool, self.grids, self.lev, self.nb = parts.pool, parts.grids, parts.lev, parts.neighbours
-        self.fade = parts.fade      # densities as the pressure reads them (fade.py)
+        self.fade = parts.fade  # densities as the pressure reads them (fade.py)
         self.rest_density = float(parts.scene["fluid"]["rest_density"])
         self.tolerance = float(parts.scene["adaptivity"]["virtual_density_tolerance"])
         # per slot, for one step: the least share a virtual child got; 1 between calls
@@ -49,8 +49,7 @@ class VirtualMassLimiter:
         self.virtual_share.fill(1.0)
 
     @ti.func
-    def _share_term(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(),
-                    acc: ti.template()):
+    def _share_term(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
         """Particle j's part of (Σ m_j W over the level's particles other than virtual
         children, Σ m̂_j W over its virtual children with m̂_j = 2^-d of the parent's mass,
         Σ m̂_j W ρ_parent) at xq. ctx: h², poly6 constant."""
@@ -65,22 +64,20 @@ class VirtualMassLimiter:
                 w = poly6(r2, h2, c6)
                 if p[j].kind == VIRTUAL_CHILD:
                     par = p[j].parent
-                    wv = p[par].m / ti.static(2 ** self.dim) * w
+                    wv = p[par].m / ti.static(2**self.dim) * w
                     acc += ti.Vector([0.0, wv, wv * self.fade.seen(par)])
                 else:
                     acc += ti.Vector([p[j].m * w, 0.0, 0.0])
 
     @ti.func
-    def _image_shares(self, i, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(),
-                      acc: ti.template()):
+    def _image_shares(self, i, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
         """One image's share sums (its own sum): i and i's list for a domain-wall image of
         a listed particle, else the grid. ctx: h², poly6 constant, level, listed."""
         listed = ctx[3] != 0.0
         if ti.static(check):
             listed = False
         sub = ti.Vector.zero(float, 3)
-        self.nb.candidates(i, xq, L, p0, nrm, check, ti.cast(ctx[2], ti.i32), listed, True,
-                           self._share_term, ctx, sub)
+        self.nb.candidates(i, xq, L, p0, nrm, check, ti.cast(ctx[2], ti.i32), listed, True, self._share_term, ctx, sub)
         acc += sub
 
     @ti.func
@@ -112,8 +109,11 @@ class VirtualMassLimiter:
                 self.nb.candidates(i, xi, eye, xi, xi, False, l, listed, True, self._share_term, ctx, acc)
                 self.nb.images(i, h, self._image_shares, ctx, acc)
                 if acc[1] > 0.0:
-                    target = self.fade.excess(i) + ti.max(acc[2] / acc[1] * ti.static(1.0 + self.tolerance),
-                                                          self.fade.seen(i), ti.static(self.rest_density))
+                    target = self.fade.excess(i) + ti.max(
+                        acc[2] / acc[1] * ti.static(1.0 + self.tolerance),
+                        self.fade.seen(i),
+                        ti.static(self.rest_density),
+                    )
                     share = ti.min(ti.max((target - acc[0]) / acc[1], 0.0), 1.0)
                     if share < 1.0:
                         if listed:
@@ -130,5 +130,5 @@ class VirtualMassLimiter:
                                         ti.atomic_min(self.virtual_share[j], share)
         for j in range(n):
             if p[j].kind == VIRTUAL_CHILD:
-                p[j].m = self.virtual_share[j] * p[p[j].parent].m / ti.static(2 ** self.dim)
+                p[j].m = self.virtual_share[j] * p[p[j].parent].m / ti.static(2**self.dim)
             self.virtual_share[j] = 1.0

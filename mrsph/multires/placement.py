@@ -20,7 +20,7 @@ import taichi as ti
 
 from mrsph.sph.particles import DEAD, is_real
 
-FRESH = 32         # scratch flag of a real child made by a split in this pass (one of topology's)
+FRESH = 32  # scratch flag of a real child made by a split in this pass (one of topology's)
 
 # The longest move of a new child in one iteration of ``_settle_fresh``, in fine spacings:
 # a Newton step on a density that is not linear over a spacing overshoots. Measured on the
@@ -33,14 +33,14 @@ SETTLE_STEP = 0.25
 class Placement:
     def __init__(self, parts):
         a = parts.scene["adaptivity"]
-        self.dim, self.nmax = parts.dim, 2 ** parts.dim
+        self.dim, self.nmax = parts.dim, 2**parts.dim
         self.pool, self.g, self.lev, self.nb = parts.pool, parts.grids, parts.lev, parts.neighbours
         self.boundary = parts.boundary
         self.rest_density = float(parts.scene["fluid"]["rest_density"])
         self.relax_iterations = int(a["split_relax_iterations"])
         self.relax_distance = float(a["split_min_distance"])
         self.settle_tolerance = float(a["split_density_tolerance"])
-        self.fresh = ti.field(ti.i32, shape=self.pool.capacity)   # children split this pass
+        self.fresh = ti.field(ti.i32, shape=self.pool.capacity)  # children split this pass
         self.n_fresh = ti.field(ti.i32, shape=())
 
     @ti.func
@@ -242,15 +242,15 @@ class Placement:
                 xi = p[i].x
                 zero = ti.Vector.zero(float, self.dim)
                 rho, grad = self._fresh_density(xi, f, h2, c6, zero, zero, False)
-                for mask in range(1, 2 ** self.dim):
+                for mask in range(1, 2**self.dim):
                     ok, xr, sgn = b.domain_image(xi, h, mask)
-                    if ok:       # d(x_image)/dx_i = diag(sgn)
+                    if ok:  # d(x_image)/dx_i = diag(sgn)
                         r_img, g_img = self._fresh_density(xr, f, h2, c6, zero, zero, False)
                         rho += r_img
                         for k in ti.static(range(self.dim)):
                             grad[k] += sgn[k] * g_img[k]
                 ok, xo, nrm = b.obstacle_image(xi, h)
-                if ok:           # d(x_image)/dx_i = I − 2 n nᵀ
+                if ok:  # d(x_image)/dx_i = I − 2 n nᵀ
                     r_img, g_img = self._fresh_density(xo, f, h2, c6, 0.5 * (xi + xo), nrm, True)
                     rho += r_img
                     grad += g_img - 2.0 * nrm.dot(g_img) * nrm

@@ -94,21 +94,39 @@ import itertools
 import numpy as np
 import taichi as ti
 
+from mrsph.sph.particles import (
+    DEAD,
+    REGULAR,
+    ROLE_CHILD,
+    ROLE_PARENT,
+    VIRTUAL_CHILD,
+    VIRTUAL_PARENT,
+    is_real,
+    merge_mass_mean,
+    split_inherited,
+)
+
 from .absorb import Absorption
 from .gather import Gathering
-from .placement import FRESH, Placement   # FRESH: real child made by a split in this pass
-from mrsph.sph.particles import (DEAD, REGULAR, ROLE_CHILD, ROLE_PARENT, VIRTUAL_CHILD,
-                        VIRTUAL_PARENT, is_real, merge_mass_mean, split_inherited)
+from .placement import FRESH, Placement  # FRESH: real child made by a split in this pass
 
 # scratch bits in ``flags`` during one level pair of a pass
-NEAR_FINE = 1      # real level-c particle with a real level-f particle within h_c
-NEAR_COARSE = 2    # real level-f particle with a real level-c particle within h_c
-MUST_SPLIT = 4     # level-c particle with a real particle ≥ 2 levels finer within h_c: a real
-                   # one must split, a virtual parent must not merge
-VP_ANCHORED = 8    # virtual parent with a real particle of its own level within its support
-RELEASED = 16      # virtual parent whose group is being released (claimed atomically)
+NEAR_FINE = 1  # real level-c particle with a real level-f particle within h_c
+NEAR_COARSE = 2  # real level-f particle with a real level-c particle within h_c
+MUST_SPLIT = 4  # level-c particle with a real particle ≥ 2 levels finer within h_c: a real
+# one must split, a virtual parent must not merge
+VP_ANCHORED = 8  # virtual parent with a real particle of its own level within its support
+RELEASED = 16  # virtual parent whose group is being released (claimed atomically)
 NEAR_REGULAR = 64  # real level-c particle with a regular (uncoupled) level-f particle within h_c
-_FLAGS = (NEAR_FINE, NEAR_COARSE, MUST_SPLIT, VP_ANCHORED, RELEASED, FRESH, NEAR_REGULAR)   # distinct bits (a test holds it)
+_FLAGS = (
+    NEAR_FINE,
+    NEAR_COARSE,
+    MUST_SPLIT,
+    VP_ANCHORED,
+    RELEASED,
+    FRESH,
+    NEAR_REGULAR,
+)  # distinct bits (a test holds it)
 
 # The share of the pool that splits and new parent roles leave free, for the virtual
 # parents a merge starts from (``_couple_fine``). Without it, a pool filled by splits
@@ -121,7 +139,7 @@ MERGE_RESERVE = 1.0 / 32.0
 # below write it by hand, as the merge's means need it, so an attribute given either rule
 # must be written there too (a test holds that the mass is the only one).
 COUNTERS = ("splits", "merges", "released", "gathered", "absorbed")
-EV_SPLITS, EV_MERGES, EV_RELEASED, EV_GATHERED, EV_ABSORBED = range(len(COUNTERS))   # indices into them
+EV_SPLITS, EV_MERGES, EV_RELEASED, EV_GATHERED, EV_ABSORBED = range(len(COUNTERS))  # indices into them
 
 
 def sampling_offsets(dim: int):
@@ -142,14 +160,14 @@ class Multires:
         self.levels = parts.levels
         self.lev, self.nb = parts.lev, parts.neighbours
         self.criteria, self.boundary, self.disturbances = parts.criteria, parts.boundary, parts.disturbances
-        self.fade = parts.fade      # the compression of split children, faded out (fade.py)
+        self.fade = parts.fade  # the compression of split children, faded out (fade.py)
         self.rest_density = float(parts.scene["fluid"]["rest_density"])
-        self.nmax = 2 ** self.dim
-        self.reserve = int(MERGE_RESERVE * self.pool.capacity)    # slots splits leave free
+        self.nmax = 2**self.dim
+        self.reserve = int(MERGE_RESERVE * self.pool.capacity)  # slots splits leave free
         a = parts.scene["adaptivity"]
         self.hysteresis = float(a["hysteresis"])
         self.release_factor = float(a["release_factor"])
-        self.merge_min = int(a["merge_min_children"])   # 0 resolved by the config
+        self.merge_min = int(a["merge_min_children"])  # 0 resolved by the config
         self.merge_remnants = bool(a["merge_remnants"])
         self.split_near_regular = bool(a["split_near_regular"])
         self.relax_by_density = a["split_relax"] == "density"
@@ -160,9 +178,9 @@ class Multires:
         # them, once an ``advance`` (a read and a clear after every pass cost ~50 µs)
         self.counters = ti.field(ti.i64, shape=len(COUNTERS))
         self._taken = np.zeros(len(COUNTERS), np.int64)
-        self.place = Placement(parts)   # where the children of this pass's splits go
+        self.place = Placement(parts)  # where the children of this pass's splits go
         self.gather = Gathering(parts, self.counters, EV_GATHERED)
-        self.absorb = Absorption(parts, self.counters, EV_MERGES, EV_ABSORBED)   # groups too light to merge
+        self.absorb = Absorption(parts, self.counters, EV_MERGES, EV_ABSORBED)  # groups too light to merge
 
     # ------------------------------------------------------------------ host driver
     def adapt(self, time: float) -> None:
@@ -234,8 +252,7 @@ class Multires:
     def _wanted(self, n):
         for i in range(n):
             if self.pool.p[i].kind != DEAD:
-                self.pool.p[i].lam = self.criteria.wanted(
-                    self.pool.p[i].x, self.boundary, self.disturbances)
+                self.pool.p[i].lam = self.criteria.wanted(self.pool.p[i].x, self.boundary, self.disturbances)
 
     @ti.func
     def _flags(self, n, c):
@@ -253,8 +270,7 @@ class Multires:
                     lo, hi = self.g.row(base, o, c)
                     for j in range(lo, hi):
                         d2 = (xi - p[j].x).norm_sqr()
-                        if ki != VIRTUAL_PARENT and li <= c - 2 and p[j].kind == VIRTUAL_PARENT \
-                                and d2 < hc * hc:
+                        if ki != VIRTUAL_PARENT and li <= c - 2 and p[j].kind == VIRTUAL_PARENT and d2 < hc * hc:
                             # merging this group would put a level-c particle next to one
                             # two levels finer: the same balance that forces splits
                             ti.atomic_or(p[j].flags, MUST_SPLIT)
@@ -321,8 +337,9 @@ class Multires:
             if is_real(k) and p[i].level == c and (k & ROLE_CHILD) == 0:
                 near_regular = False
                 if ti.static(self.split_near_regular):
-                    near_regular = (k & ROLE_PARENT) != 0 and (p[i].flags & NEAR_REGULAR) != 0 \
-                        and p[i].lam <= c + self.hysteresis
+                    near_regular = (
+                        (k & ROLE_PARENT) != 0 and (p[i].flags & NEAR_REGULAR) != 0 and p[i].lam <= c + self.hysteresis
+                    )
                 if p[i].lam < c - self.hysteresis or (p[i].flags & MUST_SPLIT) != 0 or near_regular:
                     ok = True
                     if k == REGULAR:
@@ -336,7 +353,7 @@ class Multires:
                                 self.pool.children[i, q] = ch
                             p[i].nchild = self.nmax
                     if ok:
-                        rho_seen = self.fade.seen(i)   # what its pressure read
+                        rho_seen = self.fade.seen(i)  # what its pressure read
                         # (transient parent: its virtual children become real)
                         for q in range(self.nmax):
                             ch = self.pool.children[i, q]
@@ -347,7 +364,7 @@ class Multires:
                             # down (``limiter.VirtualMassLimiter``)
                             p[ch].m = p[i].m / self.nmax
                             p[ch].flags = FRESH
-                            self.fade.born(ch, rho_seen)   # (ρ0 at least: see fade.py)
+                            self.fade.born(ch, rho_seen)  # (ρ0 at least: see fade.py)
                             self.place.fresh[ti.atomic_add(self.place.n_fresh[None], 1)] = ch
                         self.place.fit(i, s_f)
                         self.fade.clear(i)
@@ -400,8 +417,12 @@ class Multires:
             k = p[i].kind
             # §6: near a real coarse particle, or (so that a region that is fine all
             # through can coarsen once nothing wants it fine) wanting the coarse level
-            if is_real(k) and p[i].level == c - 1 and (k & ROLE_CHILD) == 0 and \
-                    ((p[i].flags & NEAR_COARSE) != 0 or p[i].lam > c + self.hysteresis):
+            if (
+                is_real(k)
+                and p[i].level == c - 1
+                and (k & ROLE_CHILD) == 0
+                and ((p[i].flags & NEAR_COARSE) != 0 or p[i].lam > c + self.hysteresis)
+            ):
                 vp = self.pool.claim(1)
                 if vp >= 0:
                     for fld in ti.static(self._fields(split_inherited())):
@@ -432,16 +453,20 @@ class Multires:
             least = self.merge_min
             if ti.static(self.merge_remnants) and (p[i].flags & VP_ANCHORED) != 0:
                 least = 1
-            if p[i].kind == VIRTUAL_PARENT and p[i].level == c and \
-                    (k == self.nmax or (k >= least and self.gather.partner[i] == -1)) \
-                    and p[i].lam > c + self.hysteresis and (p[i].flags & MUST_SPLIT) == 0:
+            if (
+                p[i].kind == VIRTUAL_PARENT
+                and p[i].level == c
+                and (k == self.nmax or (k >= least and self.gather.partner[i] == -1))
+                and p[i].lam > c + self.hysteresis
+                and (p[i].flags & MUST_SPLIT) == 0
+            ):
                 ok = True
                 for q in range(p[i].nchild):
                     if (p[self.pool.children[i, q]].kind & ROLE_PARENT) != 0:
                         ok = False
                 if ok and ti.static(self.absorb.on):
                     if self.absorb.takes(i, c):
-                        ok = False      # too light to stand alone: given to a neighbour
+                        ok = False  # too light to stand alone: given to a neighbour
                 if ok:
                     mass = ti.cast(self.pool.group_mass(i), float)
                     rho_seen = self.fade.group_seen(i) / mass
@@ -455,6 +480,6 @@ class Multires:
                     p[i].m = mass
                     p[i].parent = -1
                     p[i].kind = REGULAR
-                    self.fade.born(i, rho_seen)     # what its group's pressure read (fade.py)
+                    self.fade.born(i, rho_seen)  # what its group's pressure read (fade.py)
                     self.fade.touch(p[i].x, c)
                     ti.atomic_add(self.counters[EV_MERGES], 1)

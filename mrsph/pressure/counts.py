@@ -2,7 +2,7 @@
 step, the last density error, and the solves that stopped at their maximum iterations
 beyond the scene's tolerance, counted and warned about once a run, never silent."""
 
-DENSITY, DIVERGENCE = 0, 1      # the two solves
+DENSITY, DIVERGENCE = 0, 1  # the two solves
 SOLVE_NAMES = ("density", "divergence")
 MAX_KEYS = ("max_iterations", "divergence_max_iterations")
 
@@ -22,7 +22,7 @@ class SolveCounts:
         self._warned = False
 
     def _clear(self) -> None:
-        self.iterations = [0, 0]    # DENSITY, DIVERGENCE
+        self.iterations = [0, 0]  # DENSITY, DIVERGENCE
         self.steps = 0
         self.unconverged = 0
 
@@ -37,14 +37,19 @@ class SolveCounts:
             self.unconverged += 1
             if not self._warned:
                 self._warned = True
-                self.warn(f"dfsph: the {SOLVE_NAMES[which]} solve stopped at dfsph.{MAX_KEYS[which]} = "
-                          f"{self.max_iterations[which]} before reaching its tolerance "
-                          f"{self.tolerance[which]:g} (counted in stats as unconverged; warned once)")
+                self.warn(
+                    f"dfsph: the {SOLVE_NAMES[which]} solve stopped at dfsph.{MAX_KEYS[which]} = "
+                    f"{self.max_iterations[which]} before reaching its tolerance "
+                    f"{self.tolerance[which]:g} (counted in stats as unconverged; warned once)"
+                )
 
     def take(self) -> dict:
         steps = max(self.steps, 1)
-        out = {"density_iterations": self.iterations[DENSITY] / steps,
-               "divergence_iterations": self.iterations[DIVERGENCE] / steps,
-               "density_error": self.last_error, "unconverged": self.unconverged}
+        out = {
+            "density_iterations": self.iterations[DENSITY] / steps,
+            "divergence_iterations": self.iterations[DIVERGENCE] / steps,
+            "density_error": self.last_error,
+            "unconverged": self.unconverged,
+        }
         self._clear()
         return out

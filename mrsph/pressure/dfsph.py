@@ -48,6 +48,7 @@ import taichi as ti
 
 from mrsph.sph.neighbours import ImageNeighbours
 from mrsph.sph.particles import is_real, is_virtual
+
 from .counts import DENSITY, DIVERGENCE, SolveCounts
 from .eos import sound_speed
 from .tolerance import DONE, RUNS, Stopping
@@ -70,7 +71,7 @@ ITERATIONS_PER_LAUNCH = 1
 # with more image pairs than this sums them on the fly.
 IMAGE_PAIRS = {2: 32, 3: 64}
 
-WARM = 2      # what a sweep (``_sweep``) runs: a solve's iteration (DENSITY, DIVERGENCE), or the warm start
+WARM = 2  # what a sweep (``_sweep``) runs: a solve's iteration (DENSITY, DIVERGENCE), or the warm start
 
 
 @ti.data_oriented
@@ -93,8 +94,7 @@ class StoredPairs:
         self.img_n = ti.field(ti.i32, shape=cap)
 
     @ti.func
-    def listed_pair(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(),
-                    acc: ti.template()):
+    def listed_pair(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
         """The factor pass's visit of the q-th listed neighbour (q counted in acc's last
         slot): its part of the factor sums, m_j ∇W_ij kept in ``gw``."""
         ok, g = self.grad(i, j, xq, L, p0, nrm, check, ctx)
@@ -107,8 +107,7 @@ class StoredPairs:
         acc[self.dim + 1] += 1.0
 
     @ti.func
-    def image_pair(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(),
-                   acc: ti.template()):
+    def image_pair(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
         """The factor pass's visit of an image pair: its part of the factor sums, kept."""
         ok, g = self.grad(i, j, xq, L, p0, nrm, check, ctx)
         if ok:
@@ -145,29 +144,28 @@ class StoredPairs:
 class DFSPH:
     live_keys = ()
     implicit = True
-    one_launch = False      # its solves decide on the host when to stop
+    one_launch = False  # its solves decide on the host when to stop
 
     def __init__(self, parts):
         cfg = parts.scene["dfsph"]
         self.dim, self.adaptive = parts.dim, parts.adaptive
         self.pool, self.lev, self.nb, self.coupling = parts.pool, parts.lev, parts.neighbours, parts.coupling
-        self.fade = parts.fade    # a split child's target is rho0 + drho (multires/fade.py)
+        self.fade = parts.fade  # a split child's target is rho0 + drho (multires/fade.py)
         self.rest_density = float(parts.scene["fluid"]["rest_density"])
         self.cfl = float(cfg["cfl"])
         self.stop = Stopping(cfg, self.rest_density)
         self.divergence = bool(cfg["divergence_solve"])
         self.warm_start = float(cfg["warm_start"])
-        self.warm_share = ti.field(float, shape=())     # in a field, not compiled in
+        self.warm_share = ti.field(float, shape=())  # in a field, not compiled in
         self.warm_share[None] = self.warm_start
         fl = parts.scene["fluid"]
         self._damping_c = sound_speed(float(fl["stiffness"]), fl["eos"])
         cap = parts.pool.capacity
         self.alpha = ti.field(float, shape=cap)
-        self.kept = StoredPairs(parts.pool, self.dim, parts.neighbours.max_neighbours,
-                                self._grad, self._add_factor)
-        self.kappa = ti.field(float, shape=cap)      # this iteration's κ_i
-        self.ksum = ti.field(float, shape=cap)       # Σ κ_i over the density solve
-        self.err = ti.field(ti.f64, shape=())        # Σ of the real particles' errors
+        self.kept = StoredPairs(parts.pool, self.dim, parts.neighbours.max_neighbours, self._grad, self._add_factor)
+        self.kappa = ti.field(float, shape=cap)  # this iteration's κ_i
+        self.ksum = ti.field(float, shape=cap)  # Σ κ_i over the density solve
+        self.err = ti.field(ti.f64, shape=())  # Σ of the real particles' errors
         self.n_real = ti.field(ti.i32, shape=())
         # the visits of each image's candidates, for Neighbours.images
         self._factor_images = ImageNeighbours(self.nb, self.kept.image_pair)
@@ -213,7 +211,7 @@ class DFSPH:
         pass
 
     @ti.func
-    def pair_factor(self, i, inv):      # no pressure in the pair forces: the solves push
+    def pair_factor(self, i, inv):  # no pressure in the pair forces: the solves push
         pass
 
     @ti.func
@@ -290,8 +288,7 @@ class DFSPH:
         return l, self.lev.h[l], ti.Vector([self.lev.h[l], self.lev.spiky[l], self.coupling.skip2(i, l)])
 
     @ti.func
-    def _factor_pair(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(),
-                     acc: ti.template()):
+    def _factor_pair(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
         ok, g = self._grad(i, j, xq, L, p0, nrm, check, ctx)
         if ok:
             self._add_factor(i, j, self.pool.p[j].m * g, g, acc)
@@ -353,8 +350,9 @@ class DFSPH:
             for q in range(self.nb.count[i]):
                 rate += (vi - p[self.nb.lists[i, q]].v).dot(self.kept.gw[i, q])
         else:
-            self.nb.grid_candidates(i, p[i].x, ti.Matrix.identity(float, self.dim), p[i].x, p[i].x,
-                                    False, l, self._rate_pair, ctx, rate)
+            self.nb.grid_candidates(
+                i, p[i].x, ti.Matrix.identity(float, self.dim), p[i].x, p[i].x, False, l, self._rate_pair, ctx, rate
+            )
         if self.kept.images_kept(i):
             rate = self.kept.image_rate(i, rate)
         else:
@@ -377,18 +375,18 @@ class DFSPH:
                 acc += f
                 self.coupling.hand_reaction(j, -mi * f)
         else:
-            self.nb.grid_candidates(i, p[i].x, ti.Matrix.identity(float, self.dim), p[i].x, p[i].x,
-                                    False, l, self._push_own, ctx, acc)
+            self.nb.grid_candidates(
+                i, p[i].x, ti.Matrix.identity(float, self.dim), p[i].x, p[i].x, False, l, self._push_own, ctx, acc
+            )
         if self.kept.images_kept(i):
-            for k in range(self.kept.img_n[i]):       # the walls are external: nothing handed on
+            for k in range(self.kept.img_n[i]):  # the walls are external: nothing handed on
                 acc += (ki + self._shown(self.kept.img_j[i, k])) * self.kept.img_g[i, k]
         else:
             self.nb.images(i, h, self._push_images.visit, ctx, acc)
         return acc
 
     @ti.func
-    def _rate_pair(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(),
-                   acc: ti.template()):
+    def _rate_pair(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
         """m_j (u_i − u_j')·∇W_ij, u_j' = L u_j."""
         ok, g = self._grad(i, j, xq, L, p0, nrm, check, ctx)
         if ok:
@@ -407,8 +405,7 @@ class DFSPH:
         return p[j].m * (self.kappa[i] / p[i].rho + self._shown(j)) * g
 
     @ti.func
-    def _push_own(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(),
-                  acc: ti.template()):
+    def _push_own(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
         """Own-level neighbour: its part of the velocity change, and the reaction of a
         virtual j handed to its owners (as a force, m_i times the velocity change)."""
         ok, g = self._grad(i, j, xq, L, p0, nrm, check, ctx)
@@ -418,8 +415,7 @@ class DFSPH:
             self.coupling.hand_reaction(j, -self.pool.p[i].m * f)
 
     @ti.func
-    def _push_image(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(),
-                    acc: ti.template()):
+    def _push_image(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
         """A mirror image: the wall is external, nothing is handed on."""
         ok, g = self._grad(i, j, xq, L, p0, nrm, check, ctx)
         if ok:
@@ -444,8 +440,7 @@ class DFSPH:
                     self.coupling.follow_owners(j)
 
     @ti.kernel
-    def _sweep(self, n: ti.i32, dt: ti.f64, mode: ti.i32, tol: ti.f64, min_it: ti.i32,
-               max_it: ti.i32) -> ti.i32:
+    def _sweep(self, n: ti.i32, dt: ti.f64, mode: ti.i32, tol: ti.f64, min_it: ti.i32, max_it: ti.i32) -> ti.i32:
         """One kernel for the three sweeps over the fluid, ``mode`` a runtime argument: a
         Jacobi iteration of the density or the divergence solve (``ITERATIONS_PER_LAUNCH``
         of them), or the density solve's warm start. Each measures the rate of the current
@@ -473,13 +468,15 @@ class DFSPH:
                 if state[RUNS] and is_real(p[i].kind):
                     rate = self._rate(i)
                     if mode == DENSITY:
-                        e = ti.max(p[i].rho + h_dt * rate - rho0 - self.fade.excess(i), 0.0)   # ρ* − ρ0, compression only
+                        e = ti.max(
+                            p[i].rho + h_dt * rate - rho0 - self.fade.excess(i), 0.0
+                        )  # ρ* − ρ0, compression only
                         self.kappa[i] = e * self.alpha[i] / (h_dt * h_dt)
                         self.err[None] += ti.cast(e, ti.f64)
-                        if e > peak[None]:     # a float max is a compare-and-swap loop
+                        if e > peak[None]:  # a float max is a compare-and-swap loop
                             ti.atomic_max(peak[None], e)
                     elif mode == DIVERGENCE:
-                        e = ti.max(rate, 0.0)                              # Dρ/Dt, compression only
+                        e = ti.max(rate, 0.0)  # Dρ/Dt, compression only
                         self.kappa[i] = e * self.alpha[i]
                         self.err[None] += ti.cast(e * h_dt, ti.f64)
                     else:

@@ -36,7 +36,7 @@ def sound_speed(k: float, eos: str) -> float:
     """Sound speed at rest, for the CFL condition; the same for both by construction."""
     if eos not in EOS_NAMES:
         raise ValueError(f"fluid.eos: expected one of {EOS_NAMES} (got {eos!r})")
-    return k ** 0.5
+    return k**0.5
 
 
 def density_at_pressure(p: float, rho0: float, k: float, eos: str, gamma: float) -> float:
@@ -44,12 +44,13 @@ def density_at_pressure(p: float, rho0: float, k: float, eos: str, gamma: float)
     (host side, for the hydrostatic initial state)."""
     if eos == "tait":
         return rho0 * (1.0 + gamma * p / (rho0 * k)) ** (1.0 / gamma)
-    sound_speed(k, eos)          # rejects an unknown name
+    sound_speed(k, eos)  # rejects an unknown name
     return rho0 + p / k
 
 
-def hydrostatic_heights(depths, height: float, g: float, rho0: float, k: float, eos: str,
-                        gamma: float, samples: int = 2048):
+def hydrostatic_heights(
+    depths, height: float, g: float, rho0: float, k: float, eos: str, gamma: float, samples: int = 2048
+):
     """Where a column of fluid ``height`` deep, laid out on a uniform lattice at ρ0,
     sits once it is compressed to hydrostatic equilibrium.
 
@@ -64,6 +65,6 @@ def hydrostatic_heights(depths, height: float, g: float, rho0: float, k: float, 
     ratio = np.array([rho0 / density_at_pressure(rho0 * g * d, rho0, k, eos, gamma) for d in grid])
     # cumulative integral from the bottom (D = height) up: z(D) = ∫_D^height ratio
     seg = 0.5 * (ratio[1:] + ratio[:-1]) * np.diff(grid)
-    from_top = np.concatenate([[0.0], np.cumsum(seg)])          # ∫_0^D ratio
+    from_top = np.concatenate([[0.0], np.cumsum(seg)])  # ∫_0^D ratio
     z_grid = from_top[-1] - from_top
     return np.interp(np.asarray(depths, float), grid, z_grid)

@@ -24,9 +24,9 @@ class RestTolerance:
     a scene's values do not compile the solver's kernels again."""
 
     def __init__(self, cfg: dict, density_tolerance: float):
-        self.share = ti.field(ti.f64, shape=())     # m / slow_flow, from ``note_step``
-        self.floor = ti.field(ti.f64, shape=())     # rest_tolerance, at most the scene's
-        self.slow = ti.field(ti.f64, shape=())      # slow_flow
+        self.share = ti.field(ti.f64, shape=())  # m / slow_flow, from ``note_step``
+        self.floor = ti.field(ti.f64, shape=())  # rest_tolerance, at most the scene's
+        self.slow = ti.field(ti.f64, shape=())  # slow_flow
         self.share[None] = 1.0
         self.floor[None] = min(float(cfg["rest_tolerance"]), density_tolerance)
         self.slow[None] = float(cfg["slow_flow"])
@@ -56,11 +56,11 @@ class Stopping:
         self.min_iterations = (int(cfg["min_iterations"]), int(cfg["divergence_min_iterations"]))
         self.max_iterations = (int(cfg["max_iterations"]), int(cfg["divergence_max_iterations"]))
         self.rest = RestTolerance(cfg, self.tolerance[DENSITY])
-        self.limit = ti.field(float, shape=())      # the largest error allowed, ρ* − ρ0
+        self.limit = ti.field(float, shape=())  # the largest error allowed, ρ* − ρ0
         self.limit[None] = float(cfg["max_density_error"]) * rest_density
         self.state = ti.field(ti.i32, shape=4)
-        self.error = ti.field(ti.f64, shape=())     # the last iteration's average error
-        self.peak = ti.field(float, shape=())       # its largest error (density solve)
+        self.error = ti.field(ti.f64, shape=())  # the last iteration's average error
+        self.peak = ti.field(float, shape=())  # its largest error (density solve)
 
     def args(self, which: int) -> tuple:
         """The kernel arguments of solve ``which``: tolerance, min and max iterations."""
@@ -78,7 +78,7 @@ class Stopping:
         self.error[None] = avg
         its = self.state[ITERS]
         stop = tol if which != DENSITY else self.rest.of(tol)
-        peak_ok = self.peak[None] <= self.limit[None]       # 0 in the divergence solve
+        peak_ok = self.peak[None] <= self.limit[None]  # 0 in the divergence solve
         if avg <= stop and its >= min_it and peak_ok:
             self.state[DONE] = 1
             self.state[RUNS] = 0

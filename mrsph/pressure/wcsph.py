@@ -15,13 +15,13 @@ from .eos import pressure, sound_speed
 @ti.data_oriented
 class WCSPH:
     live_keys = ("fluid.stiffness",)
-    implicit = False        # no solve: the pressure is explicit, from the density
-    one_launch = True       # no host work in its hooks: a step can be one launch (fused.py)
+    implicit = False  # no solve: the pressure is explicit, from the density
+    one_launch = True  # no host work in its hooks: a step can be one launch (fused.py)
 
     def __init__(self, parts):
         fl = parts.scene["fluid"]
         self.pool, self.coupling, self.lev = parts.pool, parts.coupling, parts.lev
-        self.fade = parts.fade    # a split child's pressure reads rho - drho (multires/fade.py)
+        self.fade = parts.fade  # a split child's pressure reads rho - drho (multires/fade.py)
         self.rest_density = float(fl["rest_density"])
         self.eos = fl["eos"]
         self.tait = self.eos == "tait"
@@ -57,8 +57,7 @@ class WCSPH:
         pass
 
     def take_stats(self) -> dict:
-        return {"density_iterations": 0.0, "divergence_iterations": 0.0, "density_error": None,
-                "unconverged": 0}
+        return {"density_iterations": 0.0, "divergence_iterations": 0.0, "density_error": None, "unconverged": 0}
 
     def reset_counters(self) -> None:
         pass
@@ -75,7 +74,9 @@ class WCSPH:
     @ti.func
     def density_done(self, i):
         p = ti.static(self.pool.p)
-        p[i].p = pressure(p[i].rho - self.fade.excess(i), self.rest_density, self.k[None], self.gamma, self.tait, self.clamp)
+        p[i].p = pressure(
+            p[i].rho - self.fade.excess(i), self.rest_density, self.k[None], self.gamma, self.tait, self.clamp
+        )
 
     @ti.func
     def pair_factor(self, i, inv):

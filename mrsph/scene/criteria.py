@@ -29,8 +29,7 @@ TYPES = {"region": 0, "obstacles": 1, "disturbance": 2}
 
 @ti.data_oriented
 class Criteria:
-    def __init__(self, dim: int, specs: list, band: float, background: float, paths=None,
-                 first_path: int = 0):
+    def __init__(self, dim: int, specs: list, band: float, background: float, paths=None, first_path: int = 0):
         """``paths`` (``interaction.Paths``) holds, from ``first_path`` on, the path of
         each region that has one, in the order of ``specs``."""
         assert len(specs) <= MAX_CRITERIA, "too many criteria (the scene check refuses them)"

@@ -6,8 +6,9 @@ the inflow velocity (METHOD.md §1, Eq. 21: the inflow's external force).
 import numpy as np
 import taichi as ti
 
-from .config import emitter_disc
 from mrsph.sph.particles import is_real
+
+from .config import emitter_disc
 
 
 @ti.data_oriented
@@ -40,7 +41,7 @@ class Emitters:
     def reset(self) -> None:
         self.on = [False] * len(self.specs)
         self.nozzle_on.fill(0)
-        self.progress = [0.0] * len(self.specs)   # distance flowed since the last layer
+        self.progress = [0.0] * len(self.specs)  # distance flowed since the last layer
 
     def any_on(self) -> bool:
         return any(self.on)
@@ -88,6 +89,8 @@ class Emitters:
                     if self.nozzle_on[e]:
                         d = p[i].x - self.nozzle_c[e]
                         along = d.dot(self.nozzle_n[e])
-                        if ti.abs(along) < self.nozzle_len[e] and \
-                                (d - along * self.nozzle_n[e]).norm() <= self.nozzle_r[e]:
+                        if (
+                            ti.abs(along) < self.nozzle_len[e]
+                            and (d - along * self.nozzle_n[e]).norm() <= self.nozzle_r[e]
+                        ):
                             p[i].v = self.nozzle_u[e]

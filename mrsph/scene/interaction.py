@@ -21,7 +21,7 @@ import taichi as ti
 
 from mrsph.limits import MAX_STIRRERS
 
-MAX_DISTURBANCES = 1 + MAX_STIRRERS   # slot 0 is the mouse's, the others the scene's stirrers
+MAX_DISTURBANCES = 1 + MAX_STIRRERS  # slot 0 is the mouse's, the others the scene's stirrers
 MOUSE_SLOT = 0
 MODES = ("push", "pull")
 
@@ -43,10 +43,11 @@ class Disturbance:
             raise ValueError(f"Disturbance.radius: expected a finite number > 0 (got {self.radius})")
         if not (math.isfinite(self.strength) and self.strength >= 0):
             raise ValueError(f"Disturbance.strength: expected a finite number >= 0 (got {self.strength})")
-        if len(self.velocity) not in (0, len(self.center)) or \
-                not all(math.isfinite(c) for c in self.velocity):
-            raise ValueError(f"Disturbance.velocity: expected () or {len(self.center)} finite "
-                             f"numbers, as many as the centre has (got {self.velocity})")
+        if len(self.velocity) not in (0, len(self.center)) or not all(math.isfinite(c) for c in self.velocity):
+            raise ValueError(
+                f"Disturbance.velocity: expected () or {len(self.center)} finite "
+                f"numbers, as many as the centre has (got {self.velocity})"
+            )
 
 
 def path_sample(path, t: float, loop: bool):
@@ -99,14 +100,14 @@ class Paths:
         t0, t1 = self.times[k, 0], self.times[k, n - 1]
         s = t
         if self.loop[k] and t1 > t0:
-            s = t0 + (s - t0) % (t1 - t0)     # floored, as Python's
+            s = t0 + (s - t0) % (t1 - t0)  # floored, as Python's
         pos = self.points[k, 0]
         vel = ti.Vector.zero(ti.f64, self.dim)
         if s >= t1:
             pos = self.points[k, n - 1]
         elif s > t0:
             j = 0
-            for q in range(n - 1):          # the last waypoint at or before s
+            for q in range(n - 1):  # the last waypoint at or before s
                 if self.times[k, q] <= s:
                     j = q
             span = self.times[k, j + 1] - self.times[k, j]
@@ -140,7 +141,7 @@ class Disturbances:
             return
         if len(d.center) != self.dim:
             raise ValueError(f"Disturbance.center: expected {self.dim} numbers (got {d.center})")
-        vel = d.velocity or (0.0,) * self.dim    # __post_init__: () or as long as the centre
+        vel = d.velocity or (0.0,) * self.dim  # __post_init__: () or as long as the centre
         self.center[slot] = list(map(float, d.center))
         self.velocity[slot] = list(map(float, vel))
         self.radius[slot] = float(d.radius)

@@ -7,8 +7,8 @@ import numpy as np
 import taichi as ti
 
 from mrsph.limits import LATTICE_EPS
-from mrsph.sph.particles import REGULAR
 from mrsph.pressure.eos import hydrostatic_heights
+from mrsph.sph.particles import REGULAR
 
 
 @ti.data_oriented
@@ -20,8 +20,8 @@ class Seeder:
         self.capacity = parts.pool.capacity
         self.rest_density = float(fl["rest_density"])
         self.eos, self.gamma = fl["eos"], float(fl["gamma"])
-        self.gravity = gravity          # a field of the integrator's
-        self.stiffness = stiffness      # () -> k, the pressure solver's
+        self.gravity = gravity  # a field of the integrator's
+        self.stiffness = stiffness  # () -> k, the pressure solver's
 
     def block_lattices(self, lo, hi) -> list[tuple[int, np.ndarray]]:
         """(level, lattice points) filling the block [lo, hi] with the fluid of a uniform
@@ -38,15 +38,15 @@ class Seeder:
         for level in range(self.levels - 1, -1, -1):
             s = s0 * 2**level
             finer = []
-            eps = LATTICE_EPS * s0 / s    # the uniform run's tolerance, in cells of s
+            eps = LATTICE_EPS * s0 / s  # the uniform run's tolerance, in cells of s
             for blo, bhi in boxes:
                 counts = np.floor((bhi - blo) / s + eps).astype(int)
                 if level > 0 and counts.min() == 0:
-                    finer.append((blo, bhi))      # not one whole cell: all of it goes finer
+                    finer.append((blo, bhi))  # not one whole cell: all of it goes finer
                     continue
                 out.append((level, lattice(blo, counts, s)))
                 covered = blo + counts * s
-                for k in range(self.dim):         # box minus covered box, as disjoint slabs
+                for k in range(self.dim):  # box minus covered box, as disjoint slabs
                     if bhi[k] - covered[k] > LATTICE_EPS * s0:
                         slo, shi = blo.copy(), bhi.copy()
                         slo[k] = covered[k]
@@ -77,8 +77,9 @@ class Seeder:
         heights = corners @ up
         top, bottom = float(heights.max()), float(heights.min())
         along = xs @ up
-        z = hydrostatic_heights(top - along, top - bottom, gn, self.rest_density,
-                                self.stiffness(), self.eos, self.gamma)
+        z = hydrostatic_heights(
+            top - along, top - bottom, gn, self.rest_density, self.stiffness(), self.eos, self.gamma
+        )
         return xs + np.outer(bottom + z - along, up)
 
     def hydrostatic_pressure(self, xs: np.ndarray, lo, hi) -> np.ndarray:
@@ -107,14 +108,19 @@ class Seeder:
             self.pool.refused[None] += len(xs) - take
         if take > 0:
             ps = np.zeros(take) if ps is None else ps[:take]
-            self._append_kernel(np.ascontiguousarray(xs[:take], dtype=np.float64),
-                                np.ascontiguousarray(vs[:take], dtype=np.float64),
-                                np.ascontiguousarray(ps, dtype=np.float64), level, n0)
+            self._append_kernel(
+                np.ascontiguousarray(xs[:take], dtype=np.float64),
+                np.ascontiguousarray(vs[:take], dtype=np.float64),
+                np.ascontiguousarray(ps, dtype=np.float64),
+                level,
+                n0,
+            )
         return take
 
     @ti.kernel
-    def _append_kernel(self, xs: ti.types.ndarray(), vs: ti.types.ndarray(), ps: ti.types.ndarray(),
-                       level: ti.i32, n0: ti.i32):
+    def _append_kernel(
+        self, xs: ti.types.ndarray(), vs: ti.types.ndarray(), ps: ti.types.ndarray(), level: ti.i32, n0: ti.i32
+    ):
         m = self.lev.m[level]
         for r in range(xs.shape[0]):
             i = n0 + r

@@ -10,7 +10,6 @@ size or spacing, so the same response holds at every resolution level.
 import numpy as np
 import taichi as ti
 
-
 from mrsph.limits import MAX_OBSTACLES
 
 

@@ -34,8 +34,8 @@ class Density:
         self.dim, self.levels = parts.dim, parts.levels
         self.pool, self.grids, self.lev = parts.pool, parts.grids, parts.lev
         self.nb, self.coupling, self.fade = parts.neighbours, parts.coupling, parts.fade
-        self.forces = None          # set by the Simulation once built (pair factors)
-        self.pressure = None        # likewise (density_done)
+        self.forces = None  # set by the Simulation once built (pair factors)
+        self.pressure = None  # likewise (density_done)
         self.limit_virtual = parts.coupling.limit_virtual
 
     @ti.func
@@ -53,7 +53,7 @@ class Density:
         p = ti.static(self.pool.p)
         rho = 0.0
         count = 0
-        last = ti.static(self.nb.max_neighbours)   # the spare slot past the list
+        last = ti.static(self.nb.max_neighbours)  # the spare slot past the list
         base = self.grids.around(xq, l)
         for o in ti.grouped(ti.ndrange(*self.grids.row_axes)):
             lo, hi = self.grids.row(base, o, l)
@@ -79,8 +79,7 @@ class Density:
         return rho * c6 * self.coupling.sum_scale()
 
     @ti.func
-    def _add_image_term(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(),
-                        acc: ti.template()):
+    def _add_image_term(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
         """m_j W(xq − x_j) where j counts for the image xq (ctx: h², the image is read
         from a list). A listed image's sum, or an obstacle image's, skips the candidates
         out of reach; a domain image scanned from the grid adds them as zeros."""
@@ -102,17 +101,17 @@ class Density:
                 acc += self.coupling.sum_mass(j) * poly6(r2, h2, 1.0)
 
     @ti.func
-    def _image_density(self, i, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(),
-                       acc: ti.template()):
+    def _image_density(self, i, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
         """One image's density: its own sum over i and i's list (domain walls, listed) or
         the grid around it, added to ``acc`` (ctx: h², listed, poly6 constant, level)."""
         listed = ctx[1] != 0.0
         if ti.static(check):
-            listed = False      # an obstacle image's neighbours are not i's: the grid
+            listed = False  # an obstacle image's neighbours are not i's: the grid
         rho = 0.0
         sub = ti.Vector([ctx[0], ti.cast(listed, float)])
-        self.nb.candidates(i, xq, L, p0, nrm, check, ti.cast(ctx[3], ti.i32), listed, True,
-                           self._add_image_term, sub, rho)
+        self.nb.candidates(
+            i, xq, L, p0, nrm, check, ti.cast(ctx[3], ti.i32), listed, True, self._add_image_term, sub, rho
+        )
         acc += rho * ctx[2] * self.coupling.sum_scale()
 
     @ti.kernel
@@ -134,7 +133,7 @@ class Density:
             scanned = 0
             if i0 + K <= n:
                 scanned = self._scan_cluster(i0, True)
-            for q in range(K):      # not unrolled
+            for q in range(K):  # not unrolled
                 i = i0 + q
                 if i < n and self.fine_real(i) and not (scanned >> q) & 1:
                     l, h, h2, c6 = self.support(i)
@@ -161,13 +160,13 @@ class Density:
             scanned = 0
             if i0 + K <= n:
                 scanned = self._scan_cluster(i0, False)
-            for q in range(K):      # not unrolled: one copy of the code below
+            for q in range(K):  # not unrolled: one copy of the code below
                 i = i0 + q
                 if i < n and not self.coupling.density_skip(i):
                     l, h, h2, c6 = self.support(i)
                     rho = 0.0
                     if (scanned >> q) & 1:
-                        rho = p[i].rho          # its sum, left there by the cluster's scan
+                        rho = p[i].rho  # its sum, left there by the cluster's scan
                     elif self._listed_already(i):
                         rho = self._listed_density(i, p[i].x, h2, c6)
                     else:
@@ -214,7 +213,7 @@ class Density:
         writes go to the spare slot."""
         p = ti.static(self.pool.p)
         K = ti.static(DENSITY_CLUSTER[self.dim])
-        D = ti.static(self.dim - 1)     # the axis along the rows
+        D = ti.static(self.dim - 1)  # the axis along the rows
         l = p[i0].level
         base = self.grids.around(p[i0].x, l)
         ok = True
@@ -243,7 +242,7 @@ class Density:
         if ok and found:
             h = self.lev.h[l]
             h2, c6 = h * h, self.lev.poly6[l]
-            last = ti.static(self.nb.max_neighbours)   # the spare slot past the list
+            last = ti.static(self.nb.max_neighbours)  # the spare slot past the list
             base[D] = lo_c
             span = hi_c - lo_c + ti.static(2 * self.grids.reach + 1)
             xs = ti.Matrix.rows([p[i0 + q].x for q in ti.static(range(K))])

@@ -31,7 +31,7 @@ class Forces:
         self.dim, self.adaptive = parts.dim, parts.adaptive
         self.pool, self.grids, self.lev = parts.pool, parts.grids, parts.lev
         self.nb, self.coupling, self.pressure = parts.neighbours, parts.coupling, pressure
-        self.integrator = None      # set by the Simulation (a uniform run's fused accelerations)
+        self.integrator = None  # set by the Simulation (a uniform run's fused accelerations)
         self.mu = ti.field(float, shape=())
         self.set_param("fluid.viscosity", fl["viscosity"])
         # alpha c of the artificial viscosity (c the solver's damping speed, which follows k)
@@ -47,7 +47,7 @@ class Forces:
         self.av_coef[None] = self.av_alpha * self.pressure.damping_speed()
 
     def set_param(self, key: str, value) -> None:
-        self.viscosity = float(value)       # the host's copy, for the viscous time-step bound
+        self.viscosity = float(value)  # the host's copy, for the viscous time-step bound
         self.mu[None] = self.viscosity
 
     @ti.func
@@ -81,12 +81,11 @@ class Forces:
         mm = self.coupling.sum_mass(i) * self.coupling.sum_mass(j)
         rho_bar = 0.5 * (p[i].rho + p[j].rho)
         soft = rn * rn + AV_EPS * h * h
-        inv = 1.0 / (rn * rho_bar * soft)        # = 1 / (|r| ρ̄ (r² + ε h²))
+        inv = 1.0 / (rn * rho_bar * soft)  # = 1 / (|r| ρ̄ (r² + ε h²))
         d = h - rn
-        grad = -3.0 * cs * d * d * (rho_bar * soft * inv)    # ∇W_spiky = grad · r
+        grad = -3.0 * cs * d * d * (rho_bar * soft * inv)  # ∇W_spiky = grad · r
         approach = ti.min((vi - vj).dot(r), 0.0)
-        along = (self.pressure.pair_term(i, j, grad)
-                 + self.av_coef[None] * h * approach * (-3.0 * cs * d * d * inv))
+        along = self.pressure.pair_term(i, j, grad) + self.av_coef[None] * h * approach * (-3.0 * cs * d * d * inv)
         visc = mu * cv * d * self.inv_rho[i] * self.inv_rho[j]
         return mm * (along * r + visc * (vj - vi))
 
@@ -113,8 +112,7 @@ class Forces:
         return f
 
     @ti.func
-    def _own_pair(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(),
-                  acc: ti.template()):
+    def _own_pair(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
         """Force on real particle i from same-level particle j (zero beyond h, or when the
         pair meets elsewhere, see ``coupling.interacts``); a virtual j hands the reaction
         on to its owners (variational coupling). ctx: h, cs, cv, μ, skip²."""
@@ -128,8 +126,7 @@ class Forces:
         acc += f
 
     @ti.func
-    def _image_pair(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(),
-                    acc: ti.template()):
+    def _image_pair(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
         """Force on i from the mirror image of j: xq is i's image and L the reflection's
         linear part, so x_i − x_j' = L (xq − x_j) and u_j' = L u_j."""
         p = ti.static(self.pool.p)
@@ -143,17 +140,15 @@ class Forces:
         acc += self._masked(ok, i, j, p[i].v, L @ p[j].v, L @ rq, r2, h, ctx[1], ctx[2], ctx[3])
 
     @ti.func
-    def _image_force(self, i, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(),
-                     acc: ti.template()):
+    def _image_force(self, i, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
         """The force from one image of i's neighbourhood (its own sum): over i and i's
         list for a domain-wall image of a listed particle, else the grid around xq.
         ctx: h, cs, cv, μ, skip², level, listed."""
         listed = ctx[6] != 0.0
         if ti.static(check):
-            listed = False      # an obstacle image's neighbours are not i's: the grid
+            listed = False  # an obstacle image's neighbours are not i's: the grid
         f = ti.Vector.zero(float, self.dim)
-        self.nb.candidates(i, xq, L, p0, nrm, check, ti.cast(ctx[5], ti.i32), listed, True,
-                           self._image_pair, ctx, f)
+        self.nb.candidates(i, xq, L, p0, nrm, check, ti.cast(ctx[5], ti.i32), listed, True, self._image_pair, ctx, f)
         acc += f
 
     @ti.kernel
@@ -173,7 +168,7 @@ class Forces:
         p = ti.static(self.pool.p)
         mu = self.mu[None]
         g = self.integrator.gravity[None]
-        mm = self.coupling.sum_scale() * self.coupling.sum_scale()   # m_i m_j, when every pair term left it out
+        mm = self.coupling.sum_scale() * self.coupling.sum_scale()  # m_i m_j, when every pair term left it out
         if ti.static(self.fused_accelerations):
             self.integrator.clear_reductions()
         for i in range(n):
@@ -183,8 +178,17 @@ class Forces:
                 h = self.lev.h[l]
                 xi = p[i].x
                 listed = self.nb.is_listed(i)
-                ctx = ti.Vector([h, self.lev.spiky[l], self.lev.visc[l], mu,
-                                 self.coupling.skip2(i, l), ti.cast(l, float), ti.cast(listed, float)])
+                ctx = ti.Vector(
+                    [
+                        h,
+                        self.lev.spiky[l],
+                        self.lev.visc[l],
+                        mu,
+                        self.coupling.skip2(i, l),
+                        ti.cast(l, float),
+                        ti.cast(listed, float),
+                    ]
+                )
                 eye = ti.Matrix.identity(float, self.dim)
                 self.nb.candidates(i, xi, eye, xi, xi, False, l, listed, False, self._own_pair, ctx, f)
                 self.nb.images(i, h, self._image_force, ctx, f)

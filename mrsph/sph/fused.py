@@ -26,14 +26,15 @@ import taichi as ti
 
 @ti.data_oriented
 class FusedStep:
-    def __init__(self, grids, pool, coupling, density, forces, integrator, disturbances, paths,
-                 stirrers: int):
+    def __init__(self, grids, pool, coupling, density, forces, integrator, disturbances, paths, stirrers: int):
         self.grids, self.pool, self.coupling = grids, pool, coupling
         self.density, self.forces, self.integrator = density, forces, integrator
         self.disturbances, self.paths, self.stirrers = disturbances, paths, stirrers
         if len(integrator.launches) != 1:
-            raise ValueError("FusedStep: the integrator's end of the step is not one launch "
-                             "(an implicit solver solves in it); use the phase-by-phase step")
+            raise ValueError(
+                "FusedStep: the integrator's end of the step is not one launch "
+                "(an implicit solver solves in it); use the phase-by-phase step"
+            )
 
     def run(self, max_dt: float | None, stirred: int, t: float) -> float:
         """One step from time t; returns dt, or -1 when the step did not go (nothing moved;
@@ -41,8 +42,18 @@ class FusedStep:
         return self._step(*self.integrator.step_args(max_dt, stirred), t, self.stirrers)
 
     @ti.kernel
-    def _step(self, c_sound: float, stirred: ti.i32, cfl: ti.f64, force_factor: ti.f64, cap: ti.f64,
-              dt_min: ti.f64, max_dt: ti.f64, t: ti.f64, stirrers: ti.i32) -> ti.f64:
+    def _step(
+        self,
+        c_sound: float,
+        stirred: ti.i32,
+        cfl: ti.f64,
+        force_factor: ti.f64,
+        cap: ti.f64,
+        dt_min: ti.f64,
+        max_dt: ti.f64,
+        t: ti.f64,
+        stirrers: ti.i32,
+    ) -> ti.f64:
         n = self.grids.sort_func(self.pool)
         for ps in ti.static(self.coupling.before_density()):
             ps.func(n)
@@ -52,8 +63,9 @@ class FusedStep:
         self.forces.run_func(n, c_sound, stirred)
         for ps in ti.static(self.coupling.after_forces()):
             ps.func(n)
-        dt = self.integrator.end_step_func(n, c_sound, stirred, cfl, force_factor, cap, dt_min, max_dt,
-                                           ti.static(self.integrator.launches[0]))
+        dt = self.integrator.end_step_func(
+            n, c_sound, stirred, cfl, force_factor, cap, dt_min, max_dt, ti.static(self.integrator.launches[0])
+        )
         # no stirrer moves when the step did not go (its count is then 0: a loop's bound,
         # not an ``if`` around it, which would run the loop on one thread)
         self.disturbances.follow_func(self.paths, 1, stirrers * self.integrator.step_go[None], t + dt)

@@ -44,8 +44,17 @@ CELLS_PER_SUPPORT = {2: (1, 2), 3: (1, 1, 4)}
 
 @ti.data_oriented
 class LevelGrids:
-    def __init__(self, dim: int, levels: int, domain_min, domain_max, h0: float, capacity: int,
-                 cells_per_support: int | tuple = 1, parallel: bool = False):
+    def __init__(
+        self,
+        dim: int,
+        levels: int,
+        domain_min,
+        domain_max,
+        h0: float,
+        capacity: int,
+        cells_per_support: int | tuple = 1,
+        parallel: bool = False,
+    ):
         self.dim = dim
         # the sort's ranks and prefix sum: serial (the same order every run; the fastest
         # on a CPU) or parallel (a GPU runs a serial loop on one of its threads)
@@ -54,17 +63,16 @@ class LevelGrids:
         ks = (cells_per_support,) * dim if isinstance(cells_per_support, int) else cells_per_support
         if len(ks) != dim:
             raise ValueError(f"cells_per_support: expected one number or {dim}, got {cells_per_support!r}")
-        self.ks = ks = tuple(int(k) for k in ks)   # cells per support radius, per axis
-        self.reach = ks[-1]                        # ... along the rows (the last axis)
-        self.row_axes = tuple((-k, k + 1) for k in ks[:-1])   # offsets of a block's rows
+        self.ks = ks = tuple(int(k) for k in ks)  # cells per support radius, per axis
+        self.reach = ks[-1]  # ... along the rows (the last axis)
+        self.row_axes = tuple((-k, k + 1) for k in ks[:-1])  # offsets of a block's rows
         lo = np.asarray(domain_min, dtype=np.float64)
         hi = np.asarray(domain_max, dtype=np.float64)
         self.h = [h0 * 2**l for l in range(levels)]
         self.cell_size = [np.array([h / k for k in ks]) for h in self.h]
         res, offsets, total = [], [], 0
         for l in range(levels):
-            r = [int(math.ceil((hi[a] - lo[a]) / self.cell_size[l][a])) + 2 * PAD_SUPPORTS * ks[a]
-                 for a in range(dim)]
+            r = [int(math.ceil((hi[a] - lo[a]) / self.cell_size[l][a])) + 2 * PAD_SUPPORTS * ks[a] for a in range(dim)]
             res.append(r)
             offsets.append(total)
             total += int(np.prod(r))
@@ -265,7 +273,7 @@ class LevelGrids:
             if k != self.sorted_key[i]:
                 self.moved[None] = 1
         if not self.moved[None]:
-            n = 0           # the loops below do nothing
+            n = 0  # the loops below do nothing
         if ti.static(self.parallel):
             self._rank_and_scan_parallel(n)
         else:
@@ -293,6 +301,6 @@ class LevelGrids:
                 pool.p.kind[j] = DEAD
                 pool.p.parent[j] = -1
                 pool.p.nchild[j] = 0
-        pool.n[None] = alive          # unmoved: the last sort's count, which is n
+        pool.n[None] = alive  # unmoved: the last sort's count, which is n
         self.sorted_n[None] = alive
         return alive

@@ -25,7 +25,7 @@ from .particles import is_real, is_virtual
 # (In f32, |a| overflows already from 1.8e19 m/s², as its square passes the float range.)
 ACCEL_OVERFLOW = 1e30
 
-REDUCTION_BLOCKS = 256   # blocks of the time-step reduction (see ``accelerations``)
+REDUCTION_BLOCKS = 256  # blocks of the time-step reduction (see ``accelerations``)
 
 # Parts of ``end_step``: one launch runs them all, a profiled step one a call; an implicit
 # pressure solver solves between the kick and the drift (two launches).
@@ -43,13 +43,13 @@ class Integrator:
 
     def __init__(self, parts, pressure, viscosity):
         ph = self.physics = parts.scene["physics"]
-        self.viscosity = viscosity      # () -> μ on the host, as last set (``Forces``)
+        self.viscosity = viscosity  # () -> μ on the host, as last set (``Forces``)
         self.dim, self.adaptive = parts.dim, parts.adaptive
         self.pool, self.lev, self.boundary = parts.pool, parts.lev, parts.boundary
-        self.fade = parts.fade      # a split child's density offset decays with the steps
+        self.fade = parts.fade  # a split child's density offset decays with the steps
         self.coupling, self.disturbances, self.pressure = parts.coupling, parts.disturbances, pressure
         self.rest_density = float(parts.scene["fluid"]["rest_density"])
-        self.fused_accelerations = not self.adaptive     # see forces.Forces.run
+        self.fused_accelerations = not self.adaptive  # see forces.Forces.run
         self.gravity = ti.Vector.field(self.dim, float, shape=())
         self.gravity[None] = list(map(float, ph["gravity"]))
         # physics.max_speed: a real particle faster than this is reported as a blow-up
@@ -70,7 +70,7 @@ class Integrator:
         # (the stats row's dt; read once a frame, by ``chosen_dt``)
         self.bound_dt = ti.field(ti.f64, shape=())
         advect = END_ADVECT if self.adaptive else 0
-        if pressure.implicit:   # the pressure solve between the kick and the drift
+        if pressure.implicit:  # the pressure solve between the kick and the drift
             self.launches = (END_TIMESTEP | END_KICK, END_DRIFT | END_BOUNDARIES | advect)
         else:
             self.launches = (END_TIMESTEP | END_INTEGRATE | END_BOUNDARIES | advect,)
@@ -170,8 +170,18 @@ class Integrator:
             self.fade.decay(i, ti.cast(self.step_dt[None], float))
 
     @ti.kernel
-    def end_step(self, n: ti.i32, c_sound: float, stirred: ti.i32, cfl: ti.f64, force_factor: ti.f64,
-                 cap: ti.f64, dt_min: ti.f64, max_dt: ti.f64, parts: ti.template()) -> ti.f64:
+    def end_step(
+        self,
+        n: ti.i32,
+        c_sound: float,
+        stirred: ti.i32,
+        cfl: ti.f64,
+        force_factor: ti.f64,
+        cap: ti.f64,
+        dt_min: ti.f64,
+        max_dt: ti.f64,
+        parts: ti.template(),
+    ) -> ti.f64:
         return self.end_step_func(n, c_sound, stirred, cfl, force_factor, cap, dt_min, max_dt, parts)
 
     @ti.func
@@ -209,7 +219,7 @@ class Integrator:
                     dt = 0.5 * max_dt
             self.step_dt[None] = ti.min(dt, max_dt)
             if ti.static(self.pressure.implicit):
-                self.pressure.note_step(cfl_lim * self.step_dt[None])   # spacings moved, at most
+                self.pressure.note_step(cfl_lim * self.step_dt[None])  # spacings moved, at most
             out = self.step_dt[None]
             if not self.step_go[None]:
                 out = -1.0
@@ -250,11 +260,11 @@ class Integrator:
         cap = float(ph["dt_max"])
         strength = self.disturbances.max_strength()
         if strength > 0:
-            cap = min(cap, 0.5 / strength)   # the disturbance relaxation stays stable
+            cap = min(cap, 0.5 / strength)  # the disturbance relaxation stays stable
         mu = self.viscosity()
         viscous_dt = math.inf
         if mu > 0:
-            viscous_dt = float(ph["viscous_factor"]) * self.lev.h0 ** 2 * self.rest_density / mu
+            viscous_dt = float(ph["viscous_factor"]) * self.lev.h0**2 * self.rest_density / mu
             cap = min(cap, viscous_dt)
         return cap, viscous_dt
 
@@ -263,11 +273,17 @@ class Integrator:
         max_dt), ``max_dt`` None for no cut to a frame's end."""
         ph = self.physics
         cap, _ = self.bounds()
-        return (self.pressure.signal_speed(), stirred, self.pressure.cfl_number(ph), float(ph["force_factor"]),
-                cap, float(ph["dt_min"]), math.inf if max_dt is None else float(max_dt))
+        return (
+            self.pressure.signal_speed(),
+            stirred,
+            self.pressure.cfl_number(ph),
+            float(ph["force_factor"]),
+            cap,
+            float(ph["dt_min"]),
+            math.inf if max_dt is None else float(max_dt),
+        )
 
-    def finish(self, n: int, max_dt: float | None, stirred: int, phase, profile: bool,
-               where) -> float:
+    def finish(self, n: int, max_dt: float | None, stirred: int, phase, profile: bool, where) -> float:
         """Accelerations, the time step, integration, boundaries and (adaptive runs) the
         virtual particles' advection: one kernel launch, integration and boundaries in one
         loop, or when profiling one call a phase (``phase(name, fn, *args)``), each timed
@@ -278,18 +294,21 @@ class Integrator:
         for k, launch in enumerate(self.launches):
             if k > 0:
                 if dt < 0.0:
-                    break           # the step does not go: reported below
+                    break  # the step does not go: reported below
                 self.pressure.solve(n, dt, phase)
             if profile:
                 # One launch a part, so that each is timed; the fixed cost of a launch (its
                 # arguments, result and sync), timed on an empty one, is charged once, to
                 # the time step, as the fused launch pays it once.
                 fixed = phase(None, self.end_step, *args, 0)
-                for name, part in (("timestep", END_TIMESTEP), ("integrate", launch & END_INTEGRATE),
-                                   ("boundaries", END_BOUNDARIES), ("virtual_advect", END_ADVECT)):
+                for name, part in (
+                    ("timestep", END_TIMESTEP),
+                    ("integrate", launch & END_INTEGRATE),
+                    ("boundaries", END_BOUNDARIES),
+                    ("virtual_advect", END_ADVECT),
+                ):
                     if part and part & launch:
-                        out = phase(name, self.end_step, *args, part,
-                                    overhead=0.0 if part == END_TIMESTEP else fixed)
+                        out = phase(name, self.end_step, *args, part, overhead=0.0 if part == END_TIMESTEP else fixed)
                         if part == END_TIMESTEP:
                             dt = out
             else:
@@ -309,15 +328,17 @@ class Integrator:
         if bad > 0:
             self.report_bad(int(first_bad), int(bad), where)
         mu = self.viscosity()
-        if not stable_dt >= float(ph["dt_min"]):     # as the kernel decided (NaN included)
+        if not stable_dt >= float(ph["dt_min"]):  # as the kernel decided (NaN included)
             if viscous_dt < float(ph["dt_min"]):
                 raise SimulationError(
                     f"{where}: the viscous time-step bound "
                     f"{viscous_dt:.3g} s is below physics.dt_min = {ph['dt_min']:g} s: "
-                    f"fluid.viscosity = {mu:g} Pa s is too high for this resolution")
+                    f"fluid.viscosity = {mu:g} Pa s is too high for this resolution"
+                )
             raise SimulationError(
                 f"{where}: time step {stable_dt:.3g} s is below "
-                f"physics.dt_min = {ph['dt_min']:g} s: {self.dt_cause(stable_dt, force_lim)}")
+                f"physics.dt_min = {ph['dt_min']:g} s: {self.dt_cause(stable_dt, force_lim)}"
+            )
         raise AssertionError("a step that did not go left no reason in step_report")
 
     def dt_cause(self, dt: float, force_lim: float) -> str:
@@ -329,25 +350,34 @@ class Integrator:
         c = self.pressure.signal_speed()
         strength = self.disturbances.max_strength()
         if strength > 0 and dt >= 0.999 * 0.5 / strength:
-            return (f"the disturbance bound 0.5/strength sets it (strength {strength:.3g} 1/s, "
-                    "the mouse's or a stirrer's): lower that strength or physics.dt_min")
+            return (
+                f"the disturbance bound 0.5/strength sets it (strength {strength:.3g} 1/s, "
+                "the mouse's or a stirrer's): lower that strength or physics.dt_min"
+            )
         force_dt = float(ph["force_factor"]) / math.sqrt(force_lim) if force_lim > 0 else math.inf
         if dt >= 0.999 * force_dt:
-            return (f"the force bound sets it (largest |a|/h = {force_lim:.3g} 1/s^2): the fluid "
-                    "is blowing up; lower the disturbance strength or physics.cfl")
+            return (
+                f"the force bound sets it (largest |a|/h = {force_lim:.3g} 1/s^2): the fluid "
+                "is blowing up; lower the disturbance strength or physics.cfl"
+            )
         rate = float(ph["cfl"]) / dt
-        speed = rate * self.lev.h0 - c            # |u| if the fastest particle is at level 0
+        speed = rate * self.lev.h0 - c  # |u| if the fastest particle is at level 0
         if speed <= 0.01 * c:
-            return (f"the sound speed sqrt(fluid.stiffness) = {c:.3g} m/s sets it (physics.cfl "
-                    f"h / c, h0 = {self.lev.h0:.3g} m); lower fluid.stiffness or physics.dt_min")
-        return (f"the CFL bound sets it ((c + |u|)/h = {rate:.3g} 1/s with c = {c:.3g} m/s: a "
-                f"particle at about {speed:.3g} m/s if at the finest level): the fluid is "
-                "blowing up; lower the disturbance strength or physics.cfl")
+            return (
+                f"the sound speed sqrt(fluid.stiffness) = {c:.3g} m/s sets it (physics.cfl "
+                f"h / c, h0 = {self.lev.h0:.3g} m); lower fluid.stiffness or physics.dt_min"
+            )
+        return (
+            f"the CFL bound sets it ((c + |u|)/h = {rate:.3g} 1/s with c = {c:.3g} m/s: a "
+            f"particle at about {speed:.3g} m/s if at the finest level): the fluid is "
+            "blowing up; lower the disturbance strength or physics.cfl"
+        )
 
     def report_bad(self, i: int, count: int, where: str):
         def vec(field):
             val = field[i]
             return np.asarray(val.to_numpy() if hasattr(val, "to_numpy") else val, float)
+
         x, v, a = vec(self.pool.p.x), vec(self.pool.p.v), vec(self.pool.p.a)
         limit = float(self.physics["max_speed"])
         speed = np.linalg.norm(v)
@@ -355,11 +385,12 @@ class Integrator:
             what = "NaN/Inf velocity or acceleration"
         elif speed > limit:
             what = f"speed {speed:.4g} m/s above physics.max_speed = {limit:g} m/s"
-        else:   # |a| >= ACCEL_OVERFLOW, or |a|² past the float's range (f32: |a| > 1.8e19)
+        else:  # |a| >= ACCEL_OVERFLOW, or |a|² past the float's range (f32: |a| > 1.8e19)
             what = f"acceleration {np.linalg.norm(a):.4g} m/s^2, past what the step can take"
         raise SimulationError(
             f"{where}: {count} particle(s) with NaN/Inf velocity "
             f"or acceleration, an acceleration of {ACCEL_OVERFLOW:g} m/s^2 or more, or a speed "
             f"above physics.max_speed; first: particle {i}, "
             f"level {int(self.pool.p.level[i])}, "
-            f"kind {int(self.pool.p.kind[i])}, x = {np.round(x, 4).tolist()}: {what}")
+            f"kind {int(self.pool.p.kind[i])}, x = {np.round(x, 4).tolist()}: {what}"
+        )

@@ -32,15 +32,18 @@ import taichi as ti
 def constants(h: float, dim: int) -> dict[str, float]:
     """Normalisation constants of the three kernels for support ``h`` in ``dim`` D."""
     if dim == 2:
-        return {"poly6": 4.0 / (math.pi * h**8), "spiky": 10.0 / (math.pi * h**5),
-                "visc": 40.0 / (math.pi * h**5)}
+        return {"poly6": 4.0 / (math.pi * h**8), "spiky": 10.0 / (math.pi * h**5), "visc": 40.0 / (math.pi * h**5)}
     if dim == 3:
-        return {"poly6": 315.0 / (64.0 * math.pi * h**9), "spiky": 15.0 / (math.pi * h**6),
-                "visc": 45.0 / (math.pi * h**6)}
+        return {
+            "poly6": 315.0 / (64.0 * math.pi * h**9),
+            "spiky": 15.0 / (math.pi * h**6),
+            "visc": 45.0 / (math.pi * h**6),
+        }
     raise ValueError(f"dim must be 2 or 3 (got {dim})")
 
 
 # --- Taichi ----------------------------------------------------------------------------
+
 
 @ti.func
 def poly6(r2, h2, c_poly6):
@@ -63,6 +66,7 @@ def visc_lap(rn, h, c_visc):
 
 
 # --- numpy twins (reference for tests and host-side set-up) ----------------------------
+
 
 def poly6_np(r, h, dim):
     r = np.asarray(r, dtype=np.float64)
@@ -92,7 +96,7 @@ def viscosity_np(r, h, dim):
     if dim == 2:
         w = c * (h * (r * r - h * h) / 4.0 - (r**3 - h**3) / 9.0 - (h**3 / 6.0) * np.log(r / h))
     else:
-        w = (15.0 / (2.0 * math.pi * h**3)) * (-r**3 / (2 * h**3) + r * r / (h * h) + h / (2 * r) - 1.0)
+        w = (15.0 / (2.0 * math.pi * h**3)) * (-(r**3) / (2 * h**3) + r * r / (h * h) + h / (2 * r) - 1.0)
     return np.where(r < h, w, 0.0)
 
 

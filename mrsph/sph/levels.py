@@ -24,8 +24,9 @@ class Levels:
     """h, s, m and the kernel constants of each level, as fields (read in kernels) and as
     host numbers (``h0``, ``s0``, ``m0``)."""
 
-    def __init__(self, dim: int, count: int, spacing: float, support: float, rest_density: float,
-                 symmetric_coupling: bool):
+    def __init__(
+        self, dim: int, count: int, spacing: float, support: float, rest_density: float, symmetric_coupling: bool
+    ):
         self.dim, self.count = dim, count
         self.s0 = float(spacing)
         self.h0 = float(support) * self.s0
@@ -35,7 +36,7 @@ class Levels:
         self.s = ti.field(float, shape=count)
         self.m = ti.field(float, shape=count)
         self.poly6 = ti.field(float, shape=count)
-        self.spiky = ti.field(float, shape=count)   # divided by the lattice calibration
+        self.spiky = ti.field(float, shape=count)  # divided by the lattice calibration
         self.visc = ti.field(float, shape=count)
         # squared distance within which a transient parent of level l meets a virtual
         # parent's children through its own virtual children (symmetric coupling only,

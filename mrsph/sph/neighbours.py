@@ -26,7 +26,7 @@ fluid compressed ~3×) falls back to the grid everywhere (``is_listed``).
 
 import taichi as ti
 
-from mrsph.limits import MAX_NEIGHBOURS   # the lists' length, which bounds the pool
+from mrsph.limits import MAX_NEIGHBOURS  # the lists' length, which bounds the pool
 
 
 @ti.data_oriented
@@ -48,8 +48,21 @@ class Neighbours:
         return self.count[i] <= ti.static(self.max_neighbours)
 
     @ti.func
-    def candidates(self, i, xq, L, p0, nrm, check: ti.template(), l, listed, with_self: ti.template(),
-                   visit: ti.template(), ctx: ti.template(), acc: ti.template()):
+    def candidates(
+        self,
+        i,
+        xq,
+        L,
+        p0,
+        nrm,
+        check: ti.template(),
+        l,
+        listed,
+        with_self: ti.template(),
+        visit: ti.template(),
+        ctx: ti.template(),
+        acc: ti.template(),
+    ):
         """``visit(i, j, xq, L, p0, nrm, check, ctx, acc)`` for each candidate j of level l
         near xq (x_i or one of its images, with the image's context, see ``images``): i's
         list when ``listed`` (i itself first with ``with_self``), else the grid block's
@@ -67,16 +80,28 @@ class Neighbours:
     # copy of a visit inlined into a kernel costs compile time (about a second each for
     # the implicit solver's, docs/performance.md).
     @ti.func
-    def listed_candidates(self, i, xq, L, p0, nrm, check: ti.template(), with_self: ti.template(),
-                          visit: ti.template(), ctx: ti.template(), acc: ti.template()):
+    def listed_candidates(
+        self,
+        i,
+        xq,
+        L,
+        p0,
+        nrm,
+        check: ti.template(),
+        with_self: ti.template(),
+        visit: ti.template(),
+        ctx: ti.template(),
+        acc: ti.template(),
+    ):
         if ti.static(with_self):
             visit(i, i, xq, L, p0, nrm, check, ctx, acc)
         for q in range(self.count[i]):
             visit(i, self.lists[i, q], xq, L, p0, nrm, check, ctx, acc)
 
     @ti.func
-    def grid_candidates(self, i, xq, L, p0, nrm, check: ti.template(), l, visit: ti.template(),
-                        ctx: ti.template(), acc: ti.template()):
+    def grid_candidates(
+        self, i, xq, L, p0, nrm, check: ti.template(), l, visit: ti.template(), ctx: ti.template(), acc: ti.template()
+    ):
         base = self.grids.around(xq, l)
         for o in ti.grouped(ti.ndrange(*self.grids.row_axes)):
             lo, hi = self.grids.row(base, o, l)
@@ -89,7 +114,7 @@ class Neighbours:
         of its walls (``check`` False) and for its obstacle image (``check`` True, p0 and
         nrm the obstacle's tangent plane)."""
         xi = self.pool.p[i].x
-        for mask in range(1, 2 ** self.dim):
+        for mask in range(1, 2**self.dim):
             ok, xr, sgn = self.boundary.domain_image(xi, h, mask)
             if ok:
                 Ld = ti.Matrix.zero(float, self.dim, self.dim)
@@ -136,5 +161,6 @@ class ImageNeighbours:
 
     @ti.func
     def visit(self, i, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
-        self.nb.candidates(i, xq, L, p0, nrm, check, self.nb.pool.p[i].level, self.nb.is_listed(i),
-                           True, self.pair, ctx, acc)
+        self.nb.candidates(
+            i, xq, L, p0, nrm, check, self.nb.pool.p[i].level, self.nb.is_listed(i), True, self.pair, ctx, acc
+        )

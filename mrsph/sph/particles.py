@@ -12,13 +12,13 @@ from dataclasses import dataclass
 import taichi as ti
 
 # Kind codes (also written to dumps; documented in docs/output.md).
-REGULAR = 0           # real, no virtual partner
+REGULAR = 0  # real, no virtual partner
 TRANSIENT_PARENT = 1  # real level n+1 particle carrying 2^d virtual children of level n
-TRANSIENT_CHILD = 2   # real level n particle linked to a virtual parent of level n+1
-TRANSIENT_BOTH = 3    # real, both of the above at once (a thin band between three levels)
-VIRTUAL_CHILD = 4     # virtual level n particle owned by a transient parent
-VIRTUAL_PARENT = 5    # virtual level n+1 particle standing for up to 2^d transient children
-DEAD = -1             # free slot, removed by the next sort
+TRANSIENT_CHILD = 2  # real level n particle linked to a virtual parent of level n+1
+TRANSIENT_BOTH = 3  # real, both of the above at once (a thin band between three levels)
+VIRTUAL_CHILD = 4  # virtual level n particle owned by a transient parent
+VIRTUAL_PARENT = 5  # virtual level n+1 particle standing for up to 2^d transient children
+DEAD = -1  # free slot, removed by the next sort
 
 # Bits of the real kinds: a real particle may hold either transient role or both.
 ROLE_PARENT = 1
@@ -34,13 +34,14 @@ class Attribute:
     on_merge: "mass_mean" (mass-weighted mean of the group), "sum", "own".
     A sort moves every ``carried`` attribute; links (``parent``, children) are remapped.
     """
+
     name: str
-    shape: str          # "vector" (dim floats), "float", "int"
+    shape: str  # "vector" (dim floats), "float", "int"
     unit: str
     doc: str
     on_split: str = "inherit"
     on_merge: str = "mass_mean"
-    carried: bool = True     # moved by the sort (False: rewritten each step before use)
+    carried: bool = True  # moved by the sort (False: rewritten each step before use)
 
 
 ATTRIBUTES = (
@@ -50,22 +51,38 @@ ATTRIBUTES = (
     Attribute("m", "float", "kg", "mass", on_split="divide", on_merge="sum"),
     Attribute("rho", "float", "kg/m³", "density (Eq. 7, own level only)"),
     Attribute("p", "float", "Pa", "pressure from the equation of state"),
-    Attribute("drho", "float", "kg/m³", "what a split's child reads above rho_ref that its "
-              "pressure leaves out (rho - drho); 0 for any other particle (multires/fade.py)",
-              "own", "own"),
-    Attribute("rho_ref", "float", "kg/m³", "a split child's reference density: its parent's, "
-              "rho0 at least (read only where drho is not 0)", "own", "own"),
+    Attribute(
+        "drho",
+        "float",
+        "kg/m³",
+        "what a split's child reads above rho_ref that its "
+        "pressure leaves out (rho - drho); 0 for any other particle (multires/fade.py)",
+        "own",
+        "own",
+    ),
+    Attribute(
+        "rho_ref",
+        "float",
+        "kg/m³",
+        "a split child's reference density: its parent's, rho0 at least (read only where drho is not 0)",
+        "own",
+        "own",
+    ),
     Attribute("lam", "float", "level", "wanted level from the refinement criteria"),
     Attribute("level", "int", "", "resolution level, 0 = finest", "own", "own"),
     Attribute("kind", "int", "", "kind code (REGULAR … VIRTUAL_PARENT, DEAD)", "own", "own"),
-    Attribute("parent", "int", "", "transient child → its virtual parent; "
-              "virtual child → its transient parent; else -1", "own", "own"),
+    Attribute(
+        "parent",
+        "int",
+        "",
+        "transient child → its virtual parent; virtual child → its transient parent; else -1",
+        "own",
+        "own",
+    ),
     Attribute("slot", "int", "", "virtual child: index of its sampling offset", "own", "own"),
     Attribute("nchild", "int", "", "transient parent / virtual parent: children count", "own", "own"),
     Attribute("flags", "int", "", "scratch bits of the adaptivity pass", "own", "own", carried=False),
 )
-
-
 
 
 def split_inherited() -> list[str]:
@@ -111,8 +128,8 @@ class ParticlePool:
         """``unused``: attributes no pass of this run reads (the split fade's when it is
         off), which the sort then does not move."""
         self.dim = dim
-        self.capacity = storage_slots(capacity)   # at least what was asked (see there)
-        self.max_children = 2 ** dim
+        self.capacity = storage_slots(capacity)  # at least what was asked (see there)
+        self.max_children = 2**dim
         vec = ti.types.vector(dim, float)
         members = {}
         for a in ATTRIBUTES:
@@ -122,13 +139,16 @@ class ParticlePool:
         self.tmp = self.record.field(shape=self.capacity, layout=ti.Layout.SOA)
         # (live, spare) member fields of what a sort moves: all but the per-step scratch
         # that is rewritten before it is read
-        self.carried = tuple((getattr(self.p, a.name), getattr(self.tmp, a.name))
-                             for a in ATTRIBUTES if a.carried and a.name not in unused)
+        self.carried = tuple(
+            (getattr(self.p, a.name), getattr(self.tmp, a.name))
+            for a in ATTRIBUTES
+            if a.carried and a.name not in unused
+        )
         # children[i, :nchild[i]] are i's children; entries past nchild are never read
         self.children = ti.field(ti.i32, shape=(self.capacity, self.max_children))
         self.tmp_children = ti.field(ti.i32, shape=(self.capacity, self.max_children))
-        self.n = ti.field(ti.i32, shape=())          # slots in use, holes included
-        self.refused = ti.field(ti.i32, shape=())    # claims refused for lack of capacity
+        self.n = ti.field(ti.i32, shape=())  # slots in use, holes included
+        self.refused = ti.field(ti.i32, shape=())  # claims refused for lack of capacity
         self.clear()
 
     @ti.kernel
