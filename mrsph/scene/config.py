@@ -32,7 +32,12 @@ from mrsph.limits import (
     MAX_STIRRERS,
 )
 
-SCENES_DIR = Path(__file__).resolve().parents[2] / "scenes"
+# The scene files: the checkout's scenes/ at the repository's root, or, in an installed
+# package (pip install .), the copy pyproject.toml puts in mrsph/scenes.
+_PACKAGE = Path(__file__).resolve().parents[1]
+SCENES_DIR = next(
+    (d for d in (_PACKAGE.parent / "scenes", _PACKAGE / "scenes") if d.is_dir()), _PACKAGE.parent / "scenes"
+)
 
 REQUIRED = object()  # default of a key that the scene must give
 
