@@ -1,34 +1,22 @@
-"""The simulation: ``Simulation`` builds the parts of the method and ``step()`` runs its
-phases in order (METHOD.md §1–6):
+"""The simulation: ``Simulation`` builds the parts of the method in the order they
+depend on each other, each handed what it uses, and lists the passes of one time step
+in the method's order (``_passes``, METHOD.md §1–6), which ``step()`` runs
+(``sph/step.py``: pass by pass, or as one launch where the solver allows it):
 
-    emit → adapt (criteria, split/merge) → neighbour grids → [virtual masses] → density
-         → [virtual state] → [DFSPH: factors, divergence solve] → forces
-         → [virtual coupling] → accelerations and time step → kick → [DFSPH: density solve]
-         → drift → boundaries → advect virtual → nozzles
+    emit → adapt (criteria, split/merge) → grid → [virtual masses] → density
+      → [virtual state] → [solver: after the density] → forces → [virtual reactions]
+      → time step → kick → [solver: on the kicked velocities] → drift and collide
+      → [solver: on the drifted positions] → virtual advection → stirrers → nozzles
 
-Where each phase lives (docs/ARCHITECTURE.md draws it):
-
-- ``levels.py``: per-level constants; ``neighbours.py``: the neighbour visitor and lists;
-- ``density.py``: density (Eq. 7) and the neighbour lists;
-- ``pressure/``: the pressure solver (``wcsph``: equation of state, pair pressure term);
-- ``forces.py``: the pair forces (the solver's pressure term, viscosity Eq. 19,
-  artificial viscosity);
-- ``integrator.py``: accelerations (body forces, disturbances), time step, kick, drift,
-  collide, and the error reports;
-- ``multires/``: the adaptivity pass (``topology.py``) and the level coupling
-  (``coupling.py``, ``limiter.py``), whose hooks the passes call;
-- ``seeding.py``, ``emitters.py``: particles in.
-
-Each phase is one or a few Taichi kernels and can be timed on its own
-(``Simulation(…, profile=True)``, used by ``python3 main.py bench``); unprofiled, a
-weakly compressible step runs everything after the adaptivity pass as one launch
-(``fused.py``).
+Where each part lives (docs/ARCHITECTURE.md draws it): ``sph/`` the SPH core (levels,
+grids, the neighbour visitor, density, forces, integration, walls, the step's runner);
+``pressure/`` the solvers; ``multires/`` the adaptivity pass and the level coupling;
+``scene/`` the scene's parameters, seeding, emitters, criteria and stirrers.
 """
 
 import math
 import time as _time
 import warnings
-from types import SimpleNamespace
 
 import numpy as np
 import taichi as ti
@@ -39,34 +27,20 @@ from .io.snapshot import Snapshot
 from .multires import COUNTERS, Multires, SplitFade, make_coupling
 from .scene.criteria import Criteria
 from .scene.emitters import Emitters
-from .scene.interaction import MOUSE_SLOT, Disturbance, Disturbances, Paths, path_sample
+from .scene.interaction import MOUSE_SLOT, Disturbance, Disturbances, Paths, StirrerPaths, path_sample
 from .scene.seeding import Seeder
 from .sph.boundary import Boundary
+from .sph.core import Core
 from .sph.density import Density
-from .sph.forces import Forces
-from .sph.fused import FusedStep
-from .sph.grid import CELLS_PER_SUPPORT, LevelGrids
+from .sph.forces import Forces, Viscosity
+from .sph.grid import CELLS_PER_SUPPORT, LevelGrids, PoolSort
 from .sph.integrator import Integrator, SimulationError
 from .sph.levels import Levels
 from .sph.neighbours import Neighbours
 from .sph.particles import ATTRIBUTES, DEAD, REGULAR, VIRTUAL_CHILD, ParticlePool
+from .sph.step import Pass, Stepper, StepState
 
-__all__ = ["Simulation", "SimulationError", "PHASES"]
-
-PHASES = (
-    "emit",
-    "adapt",
-    "grid",
-    "density",
-    "divergence",
-    "forces",
-    "virtual_coupling",
-    "timestep",
-    "pressure",
-    "integrate",
-    "boundaries",
-    "virtual_advect",
-)
+__all__ = ["Simulation", "SimulationError"]
 
 
 def _as_scene(scene):
@@ -82,108 +56,120 @@ class Simulation:
 
     def __init__(self, scene, arch: str = "cpu", profile: bool = False, threads: int | None = None):
         self.scene = _as_scene(scene)
-        s = self.scene.data
-        self.arch_name = runtime.ensure(arch, s["particles"]["precision"], threads)
+        prm = self.scene.params
+        self.arch_name = runtime.ensure(arch, prm.particles.precision, threads)
         self.threads = threads  # None: all cores (see runtime.auto_threads)
-        self.dim = int(s["dim"])
-        self.adaptive = bool(s["adaptivity"]["enabled"])
-        self.levels = int(s["adaptivity"]["levels"]) if self.adaptive else 1
+        self.dim = prm.dim
+        self.adaptive = prm.adaptivity.enabled
+        self.levels = prm.adaptivity.levels if self.adaptive else 1
         self.profile = profile
-        self.timers = {k: 0.0 for k in PHASES}
-        self._build()
+        self._build(prm)
+        self.timers = dict.fromkeys(p.timer for p in self.stepper.passes)
         self.reset()
 
+    @property
+    def timers(self) -> dict:
+        """Wall seconds per phase of the profiled steps (``profile``), by the passes' timers."""
+        return self.stepper.timers
+
+    @timers.setter
+    def timers(self, value: dict) -> None:
+        self.stepper.timers = {k: 0.0 for k in value}
+
     # ================================================================== set-up
-    def _build(self):
-        s = self.scene.data
-        d, L = self.dim, self.levels
-        part, a = s["particles"], s["adaptivity"]
-        self.rest_density = float(s["fluid"]["rest_density"])
-        self.pool = ParticlePool(d, int(part["capacity"]), unused=SplitFade.unused(s, self.adaptive))
+    def _build(self, prm) -> None:
+        """Every part, in dependency order, each handed what it uses."""
+        d, L, ad, fl = self.dim, self.levels, prm.adaptivity, prm.fluid
+        dom, part = prm.domain, prm.particles
+        self.rest_density = fl.rest_density
+        # the storage and geometry every pass reads (sph/core.py)
+        self.pool = ParticlePool(d, part.capacity, unused=SplitFade.unused(ad, self.adaptive))
         # a few slots more than asked, so that the per-particle arrays do not alias
         # (particles.storage_slots); every per-particle field has this length
         self.capacity = self.pool.capacity
-        symmetric = self.adaptive and a["coupling"] == "symmetric"
-        self.lev = Levels(d, L, float(part["spacing"]), float(part["support"]), self.rest_density, symmetric)
+        symmetric = self.adaptive and ad.coupling == "symmetric"
+        self.lev = Levels(d, L, part.spacing, part.support, fl.rest_density, symmetric)
         self.s0, self.h0, self.m0 = self.lev.s0, self.lev.h0, self.lev.m0
         self.grids = LevelGrids(
-            d,
-            L,
-            s["domain"]["min"],
-            s["domain"]["max"],
-            self.h0,
-            self.capacity,
-            CELLS_PER_SUPPORT[d],
-            parallel=runtime.on_gpu(),
+            d, L, dom.min, dom.max, self.h0, self.capacity, CELLS_PER_SUPPORT[d], parallel=runtime.on_gpu()
         )
-        self.boundary = Boundary(
-            d,
-            s["domain"]["min"],
-            s["domain"]["max"],
-            s["obstacles"],
-            s["domain"]["restitution"],
-            s["domain"]["friction"],
-        )
+        self.sorting = PoolSort(self.grids, self.pool)  # the pool in cell order, each step
+        self.boundary = Boundary(d, dom, prm.obstacles)
+        self.neighbours = Neighbours(d, self.pool, self.grids, self.boundary)
+        core = Core(d, L, self.adaptive, self.pool, self.lev, self.grids, self.neighbours, self.boundary)
+        # what moves the fluid from outside: the mouse and the stirrers, on their paths
         self.disturbances = Disturbances(d)
-        # band and background_level as config.py resolved them (given or automatic); a
+        # band and background_level as config resolved them (given or automatic); a
         # uniform run (adaptivity off) has one level whatever the scene's background
-        specs = s["criteria"] if self.adaptive else []
+        specs = prm.criteria if self.adaptive else ()
         # every waypoint path on the device: the stirrers', then the moving regions'
-        stirring = [(st["path"], st["loop"]) for st in s["stirrers"]]
-        self.paths = Paths(
-            d, stirring + [(c["path"], c.get("loop", False)) for c in specs if c["type"] == "region" and c.get("path")]
+        stirring = [(st.path, st.loop) for st in prm.stirrers]
+        regions = [(c.path, c.loop) for c in specs if c.type == "region" and c.path]
+        self.paths = Paths(d, stirring + regions)
+        self.criteria = Criteria(d, specs, ad.band, float(min(ad.background_level, L - 1)), self.paths, len(stirring))
+        # the levels: topology, the split fade, the coupling's hooks
+        self.fade = SplitFade(core, ad)
+        self.multires = Multires(core, ad, self.criteria, self.disturbances, self.fade) if self.adaptive else None
+        self.coupling = make_coupling(core, ad, self.fade, self.multires.offsets if self.adaptive else None)
+        # the step: its scalars, the solver, the integrator, the forces, the density
+        self.state = StepState()
+        self.pressure = self._solver(core, prm)
+        self.viscosity = Viscosity(self.pressure.force_viscosity(fl))
+        self.integrator = Integrator(
+            core, prm.physics, self.state, self.coupling, self.disturbances, self.pressure, self.fade,
+            self.viscosity.value,
+        )  # fmt: skip
+        # a uniform run's force pass takes the accelerations (nothing else adds to a force)
+        accelerate = None if self.adaptive else self.integrator
+        self.forces = Forces(
+            core, fl, self.coupling, self.pressure, self.state, self.viscosity, self.integrator.gravity, accelerate
         )
-        self.criteria = Criteria(
-            d, specs, float(a["band"]), float(min(a["background_level"], L - 1)), self.paths, len(stirring)
+        self.density = Density(core, self.coupling, self.fade, self.pressure, self.forces)
+        self.stirring = StirrerPaths(self.disturbances, self.paths, len(prm.stirrers), self.state)
+        # particles in
+        self.seeder = Seeder(core, fl, self.integrator.gravity, self.pressure.stiffness)
+        self.emitters = Emitters(core, prm.emitters, self.seeder)
+        self.stepper = Stepper(
+            self._passes(), self.state, fuse=True, profile=lambda: self.profile, count=self.sorting.count_func
         )
-        parts = SimpleNamespace(
-            scene=s,
-            dim=d,
-            levels=L,
-            adaptive=self.adaptive,
-            pool=self.pool,
-            lev=self.lev,
-            grids=self.grids,
-            boundary=self.boundary,
-            disturbances=self.disturbances,
-            criteria=self.criteria,
-        )
-        parts.neighbours = self.neighbours = Neighbours(d, self.pool, self.grids, self.boundary)
-        parts.fade = SplitFade(parts)
-        self.multires = Multires(parts) if self.adaptive else None
-        parts.coupling = self.coupling = make_coupling(parts, self.multires.offsets if self.adaptive else None)
-        self.pressure = pressure_solvers.make(s["fluid"]["solver"], parts)
-        self.density = Density(parts)
-        self.forces = Forces(parts, self.pressure)
-        self.integrator = Integrator(parts, self.pressure, lambda: self.forces.viscosity)
-        # the passes that call each other's device functions
-        self.density.forces, self.density.pressure = self.forces, self.pressure
-        self.forces.integrator = self.integrator
-        self.coupling.forces, self.coupling.density = self.forces, self.density
-        self.seeder = Seeder(parts, self.integrator.gravity, self.pressure.stiffness)
-        self.emitters = Emitters(parts, self.seeder)
-        self.pressure.warn = self._warn
-        # a step in one launch where the solver allows it, when not profiled (see step)
-        self.fused = (
-            FusedStep(
-                self.grids,
-                self.pool,
-                self.coupling,
-                self.density,
-                self.forces,
-                self.integrator,
-                self.disturbances,
-                self.paths,
-                len(s["stirrers"]),
-            )
-            if self.pressure.one_launch
-            else None
-        )
+
+    def _solver(self, core, prm):
+        """The pressure solver ``fluid.solver`` names (``mrsph.pressure``; each takes the
+        same arguments, ``pressure.base.PressureSolver``)."""
+        cls = pressure_solvers.solver_class(prm.fluid.solver)
+        return cls(core, prm, self.coupling, self.fade, self.state, self._warn)
+
+    def _passes(self) -> list:
+        """One time step, in the method's order (METHOD.md §1; docs/ARCHITECTURE.md's
+        step table is checked against this list)."""
+        coupling, density, forces = self.coupling, self.density, self.forces
+        integrator, pressure = self.integrator, self.pressure
+        adapt_every = self.scene.params.adaptivity.interval
+        return [
+            Pass("emit", "emit", self._emit, when=lambda: bool(self.emitters.specs)),
+            Pass("adapt", "adapt", self._adapt, when=lambda: self.adaptive and self.steps % adapt_every == 0),
+            Pass("grid", "grid", self.sorting.run, self.sorting.run_func, counts=True),
+            *coupling.before_density(density),
+            Pass("density", "density", density.run, density.run_func),
+            *coupling.after_density(forces),
+            *pressure.after_density(),
+            Pass("forces", "forces", forces.run, forces.run_func),
+            *coupling.after_forces(forces, self.viscosity),
+            integrator.timestep_pass(),
+            *integrator.motion(pressure.after_kick(), pressure.after_drift()),
+            *([integrator.advect_pass()] if self.adaptive else []),
+            *(
+                [Pass("stirrers", "integrate", self.stirring.run, self.stirring.run_func)]
+                if self.stirring.count
+                else []
+            ),
+            Pass("nozzles", "emit", self._nozzles, when=self.emitters.any_on),
+        ]
 
     # ================================================================== state
     def reset(self) -> None:
         """Back to t = 0: seed the fluid blocks, refine where the criteria ask."""
-        s = self.scene.data
+        prm = self.scene.params
         self.pool.clear()
         self.pool.refused[None] = 0
         self.coupling.reset()
@@ -192,21 +178,22 @@ class Simulation:
         self.time = 0.0
         self.frame = 0
         self.steps = 0
-        self.dt = float(s["physics"]["dt_max"])
+        self.dt = self.pressure.bound().dt_max  # the first step's "last dt"
+        self.state.set_dt(self.dt)
         self.integrator.set_chosen_dt(self.dt)
         self._events = dict.fromkeys(COUNTERS, 0)
         self._refused_reported = 0  # pool.refused at the last stats row
         self._events_due = False
         self._refusal_warned = False
         self.warnings: list[str] = []
-        for b in s["fluid"]["blocks"]:
-            for level, xs in self.seeder.block_lattices(b["min"], b["max"]):
+        for b in prm.fluid.blocks:
+            for level, xs in self.seeder.block_lattices(b.min, b.max):
                 ps = None
-                if s["fluid"]["hydrostatic_start"]:
-                    if self.pressure.implicit:  # an incompressible block: its pressure
-                        ps = self.seeder.hydrostatic_pressure(xs, b["min"], b["max"])
-                    xs = self.seeder.hydrostatic(xs, b["min"], b["max"])
-                self.seeder.append(xs, np.tile(np.asarray(b["velocity"], np.float64), (len(xs), 1)), level, ps)
+                if prm.fluid.hydrostatic_start:
+                    if self.pressure.incompressible:  # an incompressible block: its pressure
+                        ps = self.seeder.hydrostatic_pressure(xs, b.min, b.max)
+                    xs = self.seeder.hydrostatic(xs, b.min, b.max)
+                self.seeder.append(xs, np.tile(np.asarray(b.velocity, np.float64), (len(xs), 1)), level, ps)
         self._stirrers(0.0)
         if self.adaptive:
             for _ in range(self.levels):
@@ -215,52 +202,19 @@ class Simulation:
         self.grids.sort(self.pool)
         if self.pool.refused[None] > 0:
             raise SimulationError(
-                f"{self.scene.path}: particles.capacity = {self.scene.data['particles']['capacity']} is too "
+                f"{self.scene.path}: particles.capacity = {prm.particles.capacity} is too "
                 f"small for the initial fluid ({self.pool.refused[None]} claims refused); "
                 "raise it or set 0 for automatic"
             )
 
     # ================================================================== the step
-    def _phase(self, name, fn, *args, overhead: float = 0.0):
-        """``fn(*args)``; when profiling, its wall time, less ``overhead`` (not below
-        zero), is added to phase ``name``. ``name`` None: returns the time instead."""
-        if not self.profile:
-            return fn(*args)
-        ti.sync()
-        t0 = _time.perf_counter()
-        out = fn(*args)
-        ti.sync()
-        took = _time.perf_counter() - t0
-        if name is None:
-            return took
-        self.timers[name] += max(took - overhead, 0.0)
-        return out
-
     def step(self, max_dt: float | None = None) -> float:
-        """Advance by one time step (METHOD.md §1); returns the dt taken. ``max_dt``: cut
-        the step to end there (the end of a frame).
-
-        After the emitters and the adaptivity pass, the phases run as one launch
-        (``FusedStep``, the same device functions in the same order) unless the step is
-        profiled or the pressure solver solves on the host (DFSPH); then as below."""
-        self._phase("emit", self._emit)
-        if self.adaptive and self.steps % int(self.scene.data["adaptivity"]["interval"]) == 0:
-            self._phase("adapt", self._adapt)
+        """Advance by one time step (METHOD.md §1), the passes of ``_passes`` in order;
+        returns the dt taken. ``max_dt``: cut the step to end there (the end of a frame)."""
         stirred = int(self.disturbances.any_active())
-        if self.fused is not None and not self.profile:
-            dt = self.fused.run(max_dt, stirred, self.time)
-            if dt < 0.0:
-                self.integrator.refuse(self._where())
-        else:
-            n = self._phase("grid", self.grids.sort, self.pool)
-            self._density_phase(n)
-            self._force_phase(n, stirred)
-            # accelerations, the time step, integration, boundaries, and (after the owners
-            # moved, so that the anchors are current) the virtual particles' advection
-            dt = self.integrator.finish(n, max_dt, stirred, self._phase, self.profile, self._where)
-            self._follow_paths(self.time + dt)
-        if self.emitters.any_on():
-            self._phase("emit", self.emitters.hold, len(self.emitters.on))
+        dt = self.stepper.run(self.integrator.step_args(max_dt, stirred, self.time))
+        if dt < 0.0:
+            self.integrator.refuse(self._where())
         self.time += dt
         self.steps += 1
         self.dt = dt
@@ -270,40 +224,25 @@ class Simulation:
         """The step and time, for a refused step's message (built only then)."""
         return f"step {self.steps} (t = {self.time:.6g} s)"
 
-    def _density_phase(self, n: int) -> None:
-        """Density, with the coupling's passes on either side: the virtual masses (the
-        limiter) before, the virtual state (variational coupling) after; then what the
-        pressure solver takes from it (DFSPH: its factors and the divergence solve)."""
-        for ps in self.coupling.before_density():
-            self._phase(ps.timer, ps.kernel, n)
-        self._phase("density", self.density.run, n)
-        for ps in self.coupling.after_density():
-            self._phase(ps.timer, ps.kernel, n)
-        self.pressure.after_density(n, self.dt, self._phase)
-
-    def _force_phase(self, n: int, stirred: int) -> None:
-        """The pair forces, then the coupling's reactions and virtual velocities
-        (symmetric coupling; the variational one hands its reactions on in the force pass)."""
-        self._phase("forces", self.forces.run, n, self.pressure.signal_speed(), stirred)
-        for ps in self.coupling.after_forces():
-            self._phase(ps.timer, ps.kernel, n)
-
     def run_phases(self, *names: str) -> int:
-        """Run the first phases of a step on the current state without integrating, for
+        """Run the first passes of a step on the current state without integrating, for
         tests and tools that look inside a step: ``"grid"`` (sort the pool into the
         neighbour grids), ``"density"`` (density and neighbour lists, with the coupling's
-        passes around it), ``"forces"`` (pair forces, left in each particle's ``a``).
-        Phases run in the step's order whatever the order given; returns the particle
-        count n of the sorted pool."""
+        and the solver's passes around it), ``"forces"`` (pair forces, left in each
+        particle's ``a``), up to the last one named. Returns the particle count n of the
+        sorted pool."""
         known = ("grid", "density", "forces")
         bad = [x for x in names if x not in known]
         if bad:
             raise ValueError(f"run_phases: unknown phase(s) {bad} (expected some of {known})")
-        n = self.grids.sort(self.pool) if "grid" in names else self.pool.count()
-        if "density" in names:
-            self._density_phase(n)
-        if "forces" in names:
-            self._force_phase(n, int(self.disturbances.any_active()))
+        last = max(names, key=known.index)
+        # "density" runs through the solver's passes after it, "forces" through the coupling's
+        inner = [p.name for p in self.stepper.passes]
+        upto = inner[inner.index("forces") - 1] if last == "density" else inner[inner.index("timestep") - 1]
+        if last == "grid":
+            upto = "grid"
+        args = self.integrator.step_args(None, int(self.disturbances.any_active()), self.time)
+        n = self.stepper.run_until(upto, args)
         ti.sync()
         return n
 
@@ -331,11 +270,11 @@ class Simulation:
         """Advance by one frame (1/fps simulated seconds), or less within ``wall_budget``
         (see :meth:`advance`; ``None``, the whole frame, is what recordings need). The
         frame counter counts calls: a frame cut short by the budget counts as one."""
-        steps = self.advance(1.0 / float(self.scene.data["run"]["fps"]), wall_budget)
+        steps = self.advance(1.0 / self.scene.params.run.fps, wall_budget)
         self.frame += 1
         return steps
 
-    # ------------------------------------------------------------------ emit / adapt
+    # ------------------------------------------------------------------ the host's passes
     def _emit(self):
         if self.emitters.emit(self.time, self.dt):
             self._warn_refused()
@@ -343,6 +282,9 @@ class Simulation:
     def _adapt(self):
         self.multires.adapt(self.time)
         self._events_due = True
+
+    def _nozzles(self):
+        self.emitters.hold(len(self.emitters.on))
 
     def _collect_events(self):
         """Add the adaptivity passes' events since the last call to the frame's counts
@@ -374,19 +316,13 @@ class Simulation:
     def _stirrers(self, t):
         """The stirrers at time t: their slots are set once (radius, strength, mode; the
         host's copy keeps where each was then), then follow their paths on the device
-        (each step: ``_follow_paths``, or the fused step's launch)."""
-        stirrers = self.scene.data["stirrers"]  # at most MAX_STIRRERS (config)
-        for i, st in enumerate(stirrers):
+        (each step's ``stirrers`` pass)."""
+        for i, st in enumerate(self.scene.params.stirrers):  # at most MAX_STIRRERS
             if self.disturbances.get(1 + i) is None:
-                pos, vel = path_sample(st["path"], t, st["loop"])
-                self.disturbances.set(
-                    1 + i, Disturbance(tuple(pos), st["radius"], st["strength"], st["mode"], tuple(vel))
-                )
-        self._follow_paths(t)
-
-    def _follow_paths(self, t):
-        if self.scene.data["stirrers"]:
-            self.disturbances.follow(self.paths, 1, len(self.scene.data["stirrers"]), t)
+                pos, vel = path_sample(st.path, t, st.loop)
+                self.disturbances.set(1 + i, Disturbance(tuple(pos), st.radius, st.strength, st.mode, tuple(vel)))
+        if self.scene.params.stirrers:
+            self.disturbances.follow(self.paths, 1, len(self.scene.params.stirrers), t)
 
     # ================================================================== reading out
     def particles(self, virtual: bool = True) -> dict:
@@ -442,11 +378,12 @@ class Simulation:
             solve["density_error"] = (
                 float(np.maximum(rho - self.rest_density, 0.0).mean() / self.rest_density) if len(rho) else 0.0
             )
-        row["solver"] = self.scene.data["fluid"]["solver"]
+        row["solver"] = self.pressure.name
         row["density_iterations"] = solve["density_iterations"]
         row["divergence_iterations"] = solve["divergence_iterations"]
         row["density_error"] = solve["density_error"]
         row["unconverged"] = solve["unconverged"]
+        row["clamped"] = solve["clamped"]  # particles a velocity clamp slowed (pbf)
         self._collect_events()
         row["splits"] = self._events["splits"]
         row["merges"] = self._events["merges"]
@@ -460,7 +397,7 @@ class Simulation:
 
     def snapshot(self, stats: bool = True) -> Snapshot:
         parts = self.particles()
-        s = self.scene.data
+        s = self.scene.params
         return Snapshot(
             dim=self.dim,
             levels=self.levels,
@@ -473,9 +410,9 @@ class Simulation:
             level=parts["level"],
             kind=parts["kind"],
             radius=np.array([0.5 * self.s0 * 2**l for l in range(self.levels)]),
-            domain_min=np.asarray(s["domain"]["min"], float),
-            domain_max=np.asarray(s["domain"]["max"], float),
-            obstacles=[dict(o) for o in s["obstacles"]],
+            domain_min=np.asarray(s.domain.min, float),
+            domain_max=np.asarray(s.domain.max, float),
+            obstacles=[dict(o) for o in self.scene.data["obstacles"]],
             stats=self.stats(parts) if stats else {},
             p=parts["p"],
         )
@@ -513,6 +450,7 @@ class Simulation:
         self.pool.refused[None] = state["refused"]
         self._refused_reported = state["refused"]
         self.time, self.frame, self.steps, self.dt, chosen_dt = state["clock"]
+        self.state.set_dt(self.dt)
         self.integrator.set_chosen_dt(chosen_dt)
         self.emitters.progress = list(state["emitters"])
         self.coupling.reset()
@@ -524,7 +462,7 @@ class Simulation:
 
     def _live(self):
         """Live-tunable keys and the part that owns each."""
-        owners = (self.forces, self.pressure, self.integrator, self.coupling)
+        owners = (self.viscosity, self.pressure, self.integrator, self.coupling)
         return {k: part for part in owners for k in part.live_keys}
 
     @property

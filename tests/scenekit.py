@@ -127,14 +127,14 @@ def advance_logged(sim, seconds: float, log: SolveLog) -> None:
 
 
 def watch_solves(sim) -> list:
-    """Wrap the DFSPH solves of ``sim`` (the divergence solve, in ``after_density``, and
-    the density solve, ``solve``) so that each appends (which, Σ m Δv, Σ m |Δv|, σ) over
+    """Wrap the DFSPH solves of ``sim`` (its passes ``divergence_solve`` and
+    ``density_solve``) so that each appends (which, Σ m Δv, Σ m |Δv|, σ) over
     the real particles: the momentum the solve's pressure accelerations added, how hard
     they pushed, and the float32 round-off of measuring the first. A WCSPH run has no solve: the list stays empty."""
     from mrsph.sph.particles import VIRTUAL_CHILD
 
     out = []
-    if not getattr(sim.pressure, "implicit", False):
+    if sim.pressure.name != "dfsph":
         return out
 
     def state():
@@ -147,31 +147,29 @@ def watch_solves(sim) -> list:
         )
 
     def wrap(name, label):
-        inner = getattr(sim.pressure, name)
+        sim.stepper.wrap(name, lambda inner: lambda n: watched(inner, n, label))
 
-        def watched(n, dt, phase):
-            m0, v0 = state()
-            inner(n, dt, phase)
-            m1, v1 = state()
-            assert np.array_equal(m0, m1), f"the {label} solve changed the real particles"
-            dv = m0[:, None] * (v1 - v0)
-            # the float32 round-off of Δv = v1 − v0 on the particles the solve moved: each
-            # component is exact to 2^-24 |v|, so Σ m Δv has σ = 2^-24 sqrt(Σ m² |v|²)
-            moved = (v1 != v0).any(axis=1)
-            big = np.maximum(np.abs(v0[moved]), np.abs(v1[moved])) * m0[moved, None]
-            out.append(
-                (
-                    label,
-                    dv.sum(axis=0),
-                    float(np.linalg.norm(dv, axis=1).sum()),
-                    2.0**-24 * float(np.sqrt((big**2).sum())),
-                )
+    def watched(inner, n, label):
+        m0, v0 = state()
+        inner(n)
+        m1, v1 = state()
+        assert np.array_equal(m0, m1), f"the {label} solve changed the real particles"
+        dv = m0[:, None] * (v1 - v0)
+        # the float32 round-off of Δv = v1 − v0 on the particles the solve moved: each
+        # component is exact to 2^-24 |v|, so Σ m Δv has σ = 2^-24 sqrt(Σ m² |v|²)
+        moved = (v1 != v0).any(axis=1)
+        big = np.maximum(np.abs(v0[moved]), np.abs(v1[moved])) * m0[moved, None]
+        out.append(
+            (
+                label,
+                dv.sum(axis=0),
+                float(np.linalg.norm(dv, axis=1).sum()),
+                2.0**-24 * float(np.sqrt((big**2).sum())),
             )
+        )
 
-        setattr(sim.pressure, name, watched)
-
-    wrap("after_density", "divergence")
-    wrap("solve", "density")
+    wrap("divergence_solve", "divergence")
+    wrap("density_solve", "density")
     return out
 
 

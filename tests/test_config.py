@@ -1010,7 +1010,7 @@ def scenes_dir(tmp_path, monkeypatch) -> Path:
     folder = tmp_path / "scenes"
     folder.mkdir()
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr(config, "SCENES_DIR", folder)
+    monkeypatch.setattr(config.loading, "SCENES_DIR", folder)
     return folder
 
 

@@ -1021,7 +1021,7 @@ def test_particles_whose_lists_overflowed_move_as_if_listed(dim, solver, monkeyp
         listed.step()  # (after 12 steps a wrong image term in the solve went unseen)
     state = listed.save_state()
     monkeypatch.setattr(mrsph.sph.neighbours, "MAX_NEIGHBOURS", {2: 1, 3: 1})
-    monkeypatch.setattr(mrsph.pressure.dfsph, "IMAGE_PAIRS", {2: 1, 3: 1})  # dfsph's image pairs too
+    monkeypatch.setattr(mrsph.pressure.dfsph.pairs, "IMAGE_PAIRS", {2: 1, 3: 1})  # dfsph's image pairs too
     overflowed = Simulation(load_scene(scene), arch="cpu", threads=1)
     overflowed.restore_state(state)
     listed.step()

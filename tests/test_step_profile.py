@@ -33,9 +33,9 @@ def test_step_profile_lists_tasks_and_calls():
     assert "dam_break_2d particles.spacing=0.02:" in out and "solver wcsph" in out, out
     tasks = out.split("task\n")[1].split("\n\n")[0].splitlines()
     assert len(tasks) == 5 and any("_range_for" in t for t in tasks), out
-    # a weakly compressible step of a uniform run is one launch (fused.py)
+    # a weakly compressible step of a uniform run is one launch (sph/step.py)
     calls = out.split("calls from Python into Taichi: ")[1].splitlines()
-    assert calls[0].startswith("1.0 a step") and calls[1].endswith("  FusedStep._step"), out
+    assert calls[0].startswith("1.0 a step") and calls[1].endswith("  Segment.run"), out
     assert "calls from Python into Taichi: " in out
 
 
@@ -62,7 +62,7 @@ def test_step_profile_by_phase_names_the_phases_kernels():
     out = proc.stdout
     assert ", phase by phase" in out, out
     # the sort, the density, the forces and the end of the step, each launched alone
-    for kernel in ("LevelGrids._sort", "Density.run", "Forces.run", "Integrator.end_step"):
+    for kernel in ("PoolSort.run", "Density.run", "Forces.run", "Integrator.timestep", "Integrator.integrate"):
         assert f"  {kernel}\n" in out, out
 
 

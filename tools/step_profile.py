@@ -20,10 +20,10 @@ After ``--warm`` steps it runs ``--steps`` more and prints:
 The counts come from a second pass over the same number of steps, run without the
 profiler (the profiler syncs after every task).
 
-A weakly compressible step is one launch (``mrsph/sph/fused.py``), so its tasks are named
-``_step_..._kernel_K``; ``--by-phase`` steps phase by phase instead, as ``bench``'s
-profiled interval does, so that each task carries its phase's kernel name (``run``,
-``end_step``, ...), at the cost of the launches the fused step saves.
+A weakly compressible step is one launch (``mrsph/sph/step.py``), so its tasks are named
+``_fused_..._kernel_K``; ``--by-phase`` steps pass by pass instead, as ``bench``'s
+profiled interval does, so that each task carries its pass's kernel name (``run``,
+``timestep``, ...), at the cost of the launches the fused step saves.
 """
 
 from __future__ import annotations
@@ -103,7 +103,7 @@ def main(argv=None) -> int:
     sim = Simulation(scene, arch=args.arch, threads=args.threads, profile=args.by_phase)
     print(
         f"{' '.join([scene.name] + args.overrides)}: {sim.stats()['n_real']} real particles, "
-        f"arch {sim.arch_name}, solver {scene.data['fluid']['solver']}"
+        f"arch {sim.arch_name}, solver {scene.params.fluid.solver}"
         f"{', phase by phase' if args.by_phase else ''}",
         flush=True,
     )

@@ -224,7 +224,7 @@ def _row(
         "mean_dt": interval / max(steps, 1),
         "solver": st.get("solver"),
         # an implicit solver's mean iterations a step over the profiled interval
-        **({k: st[k] for k in ("density_iterations", "divergence_iterations")} if sim.pressure.implicit else {}),
+        **({k: st[k] for k in ("density_iterations", "divergence_iterations")} if st["density_iterations"] else {}),
         "steps_per_s": steps / wall,
         "particle_steps_per_s": n_real * steps / wall,
         "sim_s_per_wall_s": interval / wall,
@@ -285,11 +285,9 @@ def solve_iterations(solves) -> dict:
 def _start_profile(sim) -> None:
     """Time each phase from now on. A profiled step calls each phase of the fused kernels
     apart; the first one compiles those variants (seconds), so it is taken untimed."""
-    from mrsph.simulation import PHASES
-
     sim.profile = True
     sim.step()
-    sim.timers = {k: 0.0 for k in PHASES}
+    sim.timers = dict.fromkeys(sim.timers, 0.0)
 
 
 def pair_summary(adaptive: dict, uniform: dict) -> dict:

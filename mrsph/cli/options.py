@@ -75,7 +75,7 @@ def positive_float(text: str) -> float:
 
 def fps_arg(text: str) -> float:
     """--fps: a number of frames per second within config.FPS_RANGE."""
-    from mrsph.scene.config import FPS_RANGE
+    from mrsph.limits import FPS_RANGE
 
     lo, hi = FPS_RANGE
     try:

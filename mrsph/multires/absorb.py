@@ -35,11 +35,11 @@ ABSORB_REACH = 0.5
 class Absorption:
     """The light groups of one level pair's merge (``takes``), then given away (``run``)."""
 
-    def __init__(self, parts, counters, merged: int, absorbed: int):
+    def __init__(self, core, adaptivity, fade, counters, merged: int, absorbed: int):
         """counters: the topology's event counters, ``merged`` and ``absorbed`` the two
         this counts in (an absorption is a merge too)."""
-        self.pool, self.g, self.lev, self.fade = parts.pool, parts.grids, parts.lev, parts.fade
-        self.below = float(parts.scene["adaptivity"]["absorb_below"])
+        self.pool, self.g, self.lev, self.fade = core.pool, core.grids, core.lev, fade
+        self.below = adaptivity.absorb_below
         self.on = self.below > 0.0  # 0: light groups merge like any other
         # the receiver takes the group's mass-weighted means but keeps its place (moved,
         # receivers at a 3D dam-break front were pulled onto the remnants ahead of them:

@@ -1,13 +1,15 @@
 """The level coupling (METHOD.md §3–4, thesis §3.3): what virtual particles carry and how
 their forces reach the real particles they stand for. One object per
 ``adaptivity.coupling`` mode; the density, force and integration passes call its hooks
-(``ti.func``s), and the step runs its passes at fixed points, each a ``Pass`` (a timer's
-name, the kernel a profiled step launches, the device function a fused step inlines):
+(``ti.func``s), and the step's list (``sph/step.py``) takes its passes at fixed points,
+each built here from the part it needs, passed in:
 
-- ``before_density()``: the virtual-mass limiter (``limiter.py``), when it is on;
-- ``after_density()``: the virtual state (variational: virtual particles take their
-  owners' density, pressure and velocity);
-- ``after_forces()``: the reactions and virtual velocities (symmetric coupling);
+- ``before_density(density)``: the fine particles' neighbour lists, then the
+  virtual-mass limiter (``limiter.py``), when it is on;
+- ``after_density(forces)``: the virtual state (variational: virtual particles take
+  their owners' density, pressure and velocity; ``VirtualState``);
+- ``after_forces(forces, viscosity)``: the reactions and virtual velocities (symmetric
+  coupling; ``SymmetricReactions``);
 - device hooks: ``sum_mass``/``sum_scale`` (how a sum weighs a particle), ``density_skip``,
   ``partner_pressure``, ``skip2``/``interacts`` (which pairs meet), ``hand_reaction``
   (force pass), ``take_reaction`` (integrator), ``advect`` (the virtual particles follow
@@ -17,24 +19,13 @@ name, the kernel a profiled step launches, the device function a fused step inli
 default, ``Symmetric`` METHOD.md §4's form.
 """
 
-from typing import NamedTuple
-
 import taichi as ti
 
 from mrsph.sph.kernels import poly6
 from mrsph.sph.particles import DEAD, ROLE_PARENT, VIRTUAL_CHILD, VIRTUAL_PARENT, is_real, is_virtual
+from mrsph.sph.step import Pass
 
 from .limiter import VirtualMassLimiter
-
-
-class Pass(NamedTuple):
-    """One of a step's passes over the pool, ``(n)`` its only argument: ``timer`` names the
-    phase it is timed in, ``kernel`` launches it alone, ``func`` is the same work as a
-    device function for a launch that runs several phases."""
-
-    timer: str
-    kernel: object
-    func: object
 
 
 @ti.data_oriented
@@ -48,11 +39,9 @@ class Uniform:
     # without virtual particles there is no spring to tune
     live_keys = ("adaptivity.spring_rate",)
 
-    def __init__(self, parts):
-        self.dim = parts.dim
-        self.pool, self.lev, self.nb = parts.pool, parts.lev, parts.neighbours
-        self.forces = None  # set by the Simulation (the symmetric coupling's reactions)
-        self.density = None  # likewise (the limiter's neighbour search)
+    def __init__(self, core):
+        self.dim = core.dim
+        self.pool, self.lev, self.nb = core.pool, core.lev, core.nb
 
     # ------------------------------------------------------------------ host hooks
     def reset(self) -> None:
@@ -61,14 +50,14 @@ class Uniform:
     def set_param(self, key: str, value) -> None:
         pass
 
-    def before_density(self) -> tuple:
-        return ()
+    def before_density(self, density) -> list:
+        return []
 
-    def after_density(self) -> tuple:
-        return ()
+    def after_density(self, forces) -> list:
+        return []
 
-    def after_forces(self) -> tuple:
-        return ()
+    def after_forces(self, forces, viscosity) -> list:
+        return []
 
     # ------------------------------------------------------------------ device hooks
     @ti.func
@@ -120,33 +109,38 @@ class Uniform:
     def follow_owners(self, j):
         pass
 
+    @ti.func
+    def place(self, j):
+        pass
+
 
 @ti.data_oriented
 class Adaptive(Uniform):
     """What both adaptive modes share: real masses in the sums, the limiter, the springs
     that tie virtual particles to their owners."""
 
-    def __init__(self, parts, offsets):
-        super().__init__(parts)
-        a = parts.scene["adaptivity"]
-        self.offsets = offsets  # the virtual children's sampling offsets (topology)
+    def __init__(self, core, adaptivity, fade, offsets):
+        """adaptivity: the scene's params; fade: densities as the pressure reads them
+        (the limiter's); offsets: the virtual children's sampling offsets (topology)."""
+        super().__init__(core)
+        self.offsets = offsets
         self.spring_rate = ti.field(float, shape=())
-        self.spring_rate[None] = float(a["spring_rate"])
-        self.limit_virtual = bool(a["limit_virtual_density"])
-        self.limiter = VirtualMassLimiter(parts) if self.limit_virtual else None
+        self.spring_rate[None] = adaptivity.spring_rate
+        self.limit_virtual = adaptivity.limit_virtual_density
+        self.limiter = VirtualMassLimiter(core, adaptivity, fade) if self.limit_virtual else None
 
     def set_param(self, key: str, value) -> None:
         self.spring_rate[None] = float(value)
 
-    def before_density(self) -> tuple:
+    def before_density(self, density) -> list:
         # the limiter reads the neighbour lists of the fine particles, listed ahead of
         # the density pass (timed as density), and sets the virtual masses (coupling work)
         if self.limiter is None:
-            return ()
-        return (
-            Pass("density", self.density.list_fine, self.density.list_fine_func),
-            Pass("virtual_coupling", self.limiter.limit, self.limiter.limit_func),
-        )
+            return []
+        return [
+            Pass("list_fine", "density", density.list_fine, density.list_fine_func),
+            Pass("limit_virtual", "virtual_coupling", self.limiter.limit, self.limiter.limit_func),
+        ]
 
     @ti.func
     def sum_mass(self, j):
@@ -200,13 +194,11 @@ class Adaptive(Uniform):
                 p[j].v = mv / m
 
     @ti.func
-    def advect(self, j, dt):
-        """Virtual particle j follows its level's flow, tied by a Hooke spring (Eq. 24):
-        a virtual child to its transient parent at its sampling offset (rest length half
-        the level spacing per axis), a virtual parent to its children's barycentre (rest
-        length zero). The springs act on virtual particles only."""
+    def anchor(self, j):
+        """Where virtual particle j's spring pulls it: a virtual child to its transient
+        parent at its sampling offset (half the level spacing per axis), a virtual parent
+        to its children's barycentre."""
         p = ti.static(self.pool.p)
-        relax = ti.min(self.spring_rate[None] * dt, 1.0)
         anchor = p[j].x
         if p[j].kind == VIRTUAL_CHILD:
             par = p[j].parent
@@ -220,6 +212,24 @@ class Adaptive(Uniform):
                 mass += p[ch].m
             if mass > 0.0:
                 anchor = acc / mass
+        return anchor
+
+    @ti.func
+    def place(self, j):
+        """Virtual particle j on its anchor, at its owners' velocity: after a solver moved
+        the owners (``pbf``), as a spring at k dt >= 1 puts it (``advect``)."""
+        self.pool.p[j].x = self.anchor(j)
+        self.follow_owners(j)
+
+    @ti.func
+    def advect(self, j, dt):
+        """Virtual particle j follows its level's flow, tied by a Hooke spring (Eq. 24):
+        a virtual child to its transient parent at its sampling offset (rest length half
+        the level spacing per axis), a virtual parent to its children's barycentre (rest
+        length zero). The springs act on virtual particles only."""
+        p = ti.static(self.pool.p)
+        relax = ti.min(self.spring_rate[None] * dt, 1.0)
+        anchor = self.anchor(j)
         # advected, then pulled towards the anchor by the spring, integrated implicitly
         # (a relaxation by k dt, capped at 1) so that any stiffness is stable; at
         # k dt >= 1 the virtual particle sits on its anchor, an exact function of its
@@ -255,17 +265,18 @@ class Variational(Adaptive):
     mode = "variational"
     variational = True
 
-    def __init__(self, parts, offsets):
-        super().__init__(parts, offsets)
+    def __init__(self, core, adaptivity, fade, offsets):
+        super().__init__(core, adaptivity, fade, offsets)
         # reactions of the forces from virtual particles, handed on to their owners during
         # the force pass; zero between steps (``take_reaction``)
-        self.reaction = ti.Vector.field(self.dim, float, shape=parts.pool.capacity)
+        self.reaction = ti.Vector.field(self.dim, float, shape=core.pool.capacity)
 
     def reset(self) -> None:
         self.reaction.fill(0.0)
 
-    def after_density(self) -> tuple:
-        return (Pass("virtual_coupling", self.virtual_state, self.virtual_state_func),)
+    def after_density(self, forces) -> list:
+        state = VirtualState(self.pool, forces)
+        return [Pass("virtual_state", "virtual_coupling", state.run, state.run_func)]
 
     @ti.func
     def density_skip(self, i):
@@ -294,12 +305,41 @@ class Variational(Adaptive):
         self.reaction[i] = ti.Vector.zero(float, self.dim)
         return out
 
+
+@ti.data_oriented
+class Symmetric(Adaptive):
+    """METHOD.md §4's form: virtual particles have a density and pressure of their own
+    neighbourhood, and each pair of real particles on either side of a level interface
+    interacts exactly once. A fine particle i and a coarse particle P could meet twice: at
+    the fine level through P's virtual children (reaction to P) and at the coarse level
+    through i's virtual parent (reaction to i); counting both pushes the two sides apart
+    with an extra pressure·area at every interface. So the pair interacts at the finer
+    level whenever P carries virtual children, and through the virtual parent only when P
+    has none (``skip2``, ``Levels.reach2``). Virtual parents always give the coarse side
+    its density."""
+
+    mode = "symmetric"
+    symmetric = True
+
+    def after_forces(self, forces, viscosity) -> list:
+        reactions = SymmetricReactions(self, forces, viscosity)
+        return [Pass("virtual_reactions", "virtual_coupling", reactions.run, reactions.run_func)]
+
+
+@ti.data_oriented
+class VirtualState:
+    """The variational coupling's pass after the density: a virtual particle takes its
+    owners' state, and the pair factors the force pass reads of it (``forces.factors``)."""
+
+    def __init__(self, pool, forces):
+        self.pool, self.forces, self.dim = pool, forces, pool.dim
+
     @ti.kernel
-    def virtual_state(self, n: ti.i32):
-        self.virtual_state_func(n)
+    def run(self, n: ti.i32):
+        self.run_func(n)
 
     @ti.func
-    def virtual_state_func(self, n):
+    def run_func(self, n):
         """A virtual particle takes its owners' density, pressure and velocity (a virtual
         child 1/2^d of its transient parent, a virtual parent the sum of its transient
         children, mass-weighted), not those of its own neighbourhood, where virtual
@@ -330,22 +370,14 @@ class Variational(Adaptive):
 
 
 @ti.data_oriented
-class Symmetric(Adaptive):
-    """METHOD.md §4's form: virtual particles have a density and pressure of their own
-    neighbourhood, and each pair of real particles on either side of a level interface
-    interacts exactly once. A fine particle i and a coarse particle P could meet twice: at
-    the fine level through P's virtual children (reaction to P) and at the coarse level
-    through i's virtual parent (reaction to i); counting both pushes the two sides apart
-    with an extra pressure·area at every interface. So the pair interacts at the finer
-    level whenever P carries virtual children, and through the virtual parent only when P
-    has none (``skip2``, ``Levels.reach2``). Virtual parents always give the coarse side
-    its density."""
+class SymmetricReactions:
+    """The symmetric coupling's pass after the forces: the reactions of the real-virtual
+    forces handed to the real particles the virtual ones stand for, and the virtual
+    particles' velocities interpolated from their level."""
 
-    mode = "symmetric"
-    symmetric = True
-
-    def after_forces(self) -> tuple:
-        return (Pass("virtual_coupling", self.virtual_coupling, self.virtual_coupling_func),)
+    def __init__(self, coupling, forces, viscosity):
+        self.coupling, self.forces, self.viscosity = coupling, forces, viscosity
+        self.dim, self.pool, self.lev, self.nb = coupling.dim, coupling.pool, coupling.lev, coupling.nb
 
     @ti.func
     def _coupling_visit(self, j, i, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
@@ -359,7 +391,7 @@ class Symmetric(Adaptive):
         r2 = r.norm_sqr()
         if r2 < h2 and is_real(p[i].kind):
             reaction = ti.Vector.zero(float, self.dim)
-            if r2 > 0.0 and self.interacts(j, r2, ti.select((p[i].kind & ROLE_PARENT) != 0, ctx[4], -1.0)):
+            if r2 > 0.0 and self.coupling.interacts(j, r2, ti.select((p[i].kind & ROLE_PARENT) != 0, ctx[4], -1.0)):
                 reaction = -self.forces.pair(i, j, r, ti.sqrt(r2), h, ctx[1], ctx[2], ctx[3])
             w = p[i].m / p[i].rho * poly6(r2, h2, ctx[5])
             for k in ti.static(range(self.dim)):
@@ -368,16 +400,16 @@ class Symmetric(Adaptive):
             acc[2 * self.dim] += w
 
     @ti.kernel
-    def virtual_coupling(self, n: ti.i32):
-        self.virtual_coupling_func(n)
+    def run(self, n: ti.i32):
+        self.run_func(n)
 
     @ti.func
-    def virtual_coupling_func(self, n):
+    def run_func(self, n):
         """Hand the reaction of each real–virtual force to the real particles the virtual
         one stands for, split evenly (METHOD.md §4, thesis Fig. 7), and interpolate the
         virtual particle's velocity from the real particles of its level."""
         p = ti.static(self.pool.p)
-        mu = self.forces.mu[None]
+        mu = self.viscosity.mu[None]
         for j in range(n):
             kj = p[j].kind
             if is_virtual(kj):
@@ -394,7 +426,7 @@ class Symmetric(Adaptive):
                 reaction = ti.Vector([acc[k] for k in ti.static(range(self.dim))])
                 vsum = ti.Vector([acc[self.dim + k] for k in ti.static(range(self.dim))])
                 wsum = acc[2 * self.dim]
-                self.hand_on(j, reaction, p.a)
+                self.coupling.hand_on(j, reaction, p.a)
                 # the velocity interpolated from the real particles of the level
                 if wsum > 0.0:
                     p[j].v = vsum / wsum
@@ -410,8 +442,8 @@ class Symmetric(Adaptive):
 MODES = {"variational": Variational, "symmetric": Symmetric}
 
 
-def make(parts, offsets=None):
-    """The coupling of ``parts``' scene: ``Uniform`` without adaptivity."""
-    if not parts.adaptive:
-        return Uniform(parts)
-    return MODES[parts.scene["adaptivity"]["coupling"]](parts, offsets)
+def make(core, adaptivity, fade, offsets=None):
+    """The coupling of the scene's ``adaptivity`` params: ``Uniform`` without adaptivity."""
+    if not core.adaptive:
+        return Uniform(core)
+    return MODES[adaptivity.coupling](core, adaptivity, fade, offsets)

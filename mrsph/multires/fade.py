@@ -114,27 +114,26 @@ class SplitFade:
 
     ATTRIBUTES = ("drho", "rho_ref")  # the pool's attributes it alone reads
 
-    def __init__(self, parts):
-        a = parts.scene["adaptivity"]
-        self.pool, self.g, self.lev = parts.pool, parts.grids, parts.lev
-        self.rest_density = float(parts.scene["fluid"]["rest_density"])
-        self.tau = float(a["split_fade"]) if parts.adaptive else 0.0
-        self.on = self.wanted(parts.scene, parts.adaptive)
+    def __init__(self, core, adaptivity):
+        self.pool, self.g, self.lev = core.pool, core.grids, core.lev
+        self.rest_density = core.lev.rest_density
+        self.tau = adaptivity.split_fade if core.adaptive else 0.0
+        self.on = self.wanted(adaptivity, core.adaptive)
         # particles whose neighbourhood an adaptivity pass changed (topology.py)
         self.touched = ti.field(ti.i32, shape=self.pool.capacity if self.on else 1)
 
     @staticmethod
-    def wanted(scene, adaptive: bool) -> bool:
+    def wanted(adaptivity, adaptive: bool) -> bool:
         """Whether a run of ``scene`` fades its splits' compression (else its attributes
         are never read, and the sort need not move them)."""
-        return adaptive and float(scene["adaptivity"]["split_fade"]) > 0.0
+        return adaptive and adaptivity.split_fade > 0.0
 
     @classmethod
-    def unused(cls, scene, adaptive: bool) -> tuple:
+    def unused(cls, adaptivity, adaptive: bool) -> tuple:
         """The pool's attributes that no pass of a run of ``scene`` reads: the fade's own
         when it is off, which a sort then leaves where they are (two floats of 17 a
         particle: ~4 % of a uniform 10k step when moved, docs/performance.md)."""
-        return () if cls.wanted(scene, adaptive) else cls.ATTRIBUTES
+        return () if cls.wanted(adaptivity, adaptive) else cls.ATTRIBUTES
 
     @ti.func
     def born(self, ch, parent_rho):

@@ -23,15 +23,15 @@ class Gathering:
     proposal (-1: none), which the merge reads: a partial group merges only once it can
     gather no more."""
 
-    def __init__(self, parts, counters, event: int):
-        a = parts.scene["adaptivity"]
-        self.dim, self.nmax = parts.dim, 2**parts.dim
-        self.pool, self.g, self.lev = parts.pool, parts.grids, parts.lev
-        self.fade = parts.fade
-        self.release_factor = float(a["release_factor"])
-        self.gather_factor = float(a["gather_factor"])
-        self.gather_span = float(a["gather_span"])
-        self.gather_coarse_only = bool(a["gather_coarse_only"])
+    def __init__(self, core, adaptivity, fade, counters, event: int):
+        a = adaptivity
+        self.dim, self.nmax = core.dim, 2**core.dim
+        self.pool, self.g, self.lev = core.pool, core.grids, core.lev
+        self.fade = fade
+        self.release_factor = a.release_factor
+        self.gather_factor = a.gather_factor
+        self.gather_span = a.gather_span
+        self.gather_coarse_only = a.gather_coarse_only
         self.counters, self.event = counters, event  # the topology's event counters
         self.partner = ti.field(ti.i32, shape=self.pool.capacity)
 

@@ -38,14 +38,14 @@ from mrsph.sph.particles import VIRTUAL_CHILD, is_real
 
 @ti.data_oriented
 class VirtualMassLimiter:
-    def __init__(self, parts):
-        self.dim, self.levels = parts.dim, parts.levels
-        self.pool, self.grids, self.lev, self.nb = parts.pool, parts.grids, parts.lev, parts.neighbours
-        self.fade = parts.fade  # densities as the pressure reads them (fade.py)
-        self.rest_density = float(parts.scene["fluid"]["rest_density"])
-        self.tolerance = float(parts.scene["adaptivity"]["virtual_density_tolerance"])
+    def __init__(self, core, adaptivity, fade):
+        self.dim, self.levels = core.dim, core.levels
+        self.pool, self.grids, self.lev, self.nb = core.pool, core.grids, core.lev, core.nb
+        self.fade = fade  # densities as the pressure reads them (fade.py)
+        self.rest_density = core.lev.rest_density
+        self.tolerance = adaptivity.virtual_density_tolerance
         # per slot, for one step: the least share a virtual child got; 1 between calls
-        self.virtual_share = ti.field(float, shape=parts.pool.capacity)
+        self.virtual_share = ti.field(float, shape=core.pool.capacity)
         self.virtual_share.fill(1.0)
 
     @ti.func

@@ -31,15 +31,15 @@ SETTLE_STEP = 0.25
 
 @ti.data_oriented
 class Placement:
-    def __init__(self, parts):
-        a = parts.scene["adaptivity"]
-        self.dim, self.nmax = parts.dim, 2**parts.dim
-        self.pool, self.g, self.lev, self.nb = parts.pool, parts.grids, parts.lev, parts.neighbours
-        self.boundary = parts.boundary
-        self.rest_density = float(parts.scene["fluid"]["rest_density"])
-        self.relax_iterations = int(a["split_relax_iterations"])
-        self.relax_distance = float(a["split_min_distance"])
-        self.settle_tolerance = float(a["split_density_tolerance"])
+    def __init__(self, core, adaptivity):
+        a = adaptivity
+        self.dim, self.nmax = core.dim, 2**core.dim
+        self.pool, self.g, self.lev, self.nb = core.pool, core.grids, core.lev, core.nb
+        self.boundary = core.boundary
+        self.rest_density = core.lev.rest_density
+        self.relax_iterations = a.split_relax_iterations
+        self.relax_distance = a.split_min_distance
+        self.settle_tolerance = a.split_density_tolerance
         self.fresh = ti.field(ti.i32, shape=self.pool.capacity)  # children split this pass
         self.n_fresh = ti.field(ti.i32, shape=())
 

@@ -153,24 +153,26 @@ class Multires:
     and gather (the module's docstring). It owns the pool's links and flags; the coupling
     (``coupling.py``) reads them."""
 
-    def __init__(self, parts):
-        self.dim = parts.dim
-        self.pool = parts.pool
-        self.g = parts.grids
-        self.levels = parts.levels
-        self.lev, self.nb = parts.lev, parts.neighbours
-        self.criteria, self.boundary, self.disturbances = parts.criteria, parts.boundary, parts.disturbances
-        self.fade = parts.fade  # the compression of split children, faded out (fade.py)
-        self.rest_density = float(parts.scene["fluid"]["rest_density"])
+    def __init__(self, core, adaptivity, criteria, disturbances, fade):
+        """adaptivity: the scene's params; criteria: the wanted level λ(x); disturbances:
+        the mouse and stirrers; fade: the compression of split children, faded out
+        (fade.py)."""
+        self.dim = core.dim
+        self.pool = core.pool
+        self.g = core.grids
+        self.levels = core.levels
+        self.lev, self.nb, self.boundary = core.lev, core.nb, core.boundary
+        self.criteria, self.disturbances, self.fade = criteria, disturbances, fade
+        self.rest_density = core.lev.rest_density
         self.nmax = 2**self.dim
         self.reserve = int(MERGE_RESERVE * self.pool.capacity)  # slots splits leave free
-        a = parts.scene["adaptivity"]
-        self.hysteresis = float(a["hysteresis"])
-        self.release_factor = float(a["release_factor"])
-        self.merge_min = int(a["merge_min_children"])  # 0 resolved by the config
-        self.merge_remnants = bool(a["merge_remnants"])
-        self.split_near_regular = bool(a["split_near_regular"])
-        self.relax_by_density = a["split_relax"] == "density"
+        a = adaptivity
+        self.hysteresis = a.hysteresis
+        self.release_factor = a.release_factor
+        self.merge_min = a.merge_min_children  # 0 resolved by the config
+        self.merge_remnants = a.merge_remnants
+        self.split_near_regular = a.split_near_regular
+        self.relax_by_density = a.split_relax == "density"
         self.offsets = ti.Vector.field(self.dim, float, shape=self.nmax)
         for k, o in enumerate(sampling_offsets(self.dim)):
             self.offsets[k] = o
@@ -178,9 +180,10 @@ class Multires:
         # them, once an ``advance`` (a read and a clear after every pass cost ~50 µs)
         self.counters = ti.field(ti.i64, shape=len(COUNTERS))
         self._taken = np.zeros(len(COUNTERS), np.int64)
-        self.place = Placement(parts)  # where the children of this pass's splits go
-        self.gather = Gathering(parts, self.counters, EV_GATHERED)
-        self.absorb = Absorption(parts, self.counters, EV_MERGES, EV_ABSORBED)  # groups too light to merge
+        self.place = Placement(core, adaptivity)  # where the children of this pass's splits go
+        self.gather = Gathering(core, adaptivity, fade, self.counters, EV_GATHERED)
+        # groups too light to merge
+        self.absorb = Absorption(core, adaptivity, fade, self.counters, EV_MERGES, EV_ABSORBED)
 
     # ------------------------------------------------------------------ host driver
     def adapt(self, time: float) -> None:

@@ -49,7 +49,7 @@ class Criteria:
         self.band[None] = band
         self.background[None] = background
         self.paths, self.first_path = paths, first_path
-        moving = [i for i, s in enumerate(specs) if s["type"] == "region" and s.get("path")]
+        moving = [i for i, s in enumerate(specs) if s.type == "region" and s.path]
         self.moving = len(moving)
         shape = max(self.moving, 1)
         # a moving region's centre is (its centre as written + the path's position) −
@@ -59,24 +59,24 @@ class Criteria:
         self.moving_first = ti.Vector.field(dim, ti.f64, shape=shape)
         for r, i in enumerate(moving):
             self.moving_index[r] = i
-            self.moving_first[r] = [float(v) for v in specs[i]["path"][0][1:]]
+            self.moving_first[r] = [float(v) for v in specs[i].path[0][1:]]
         for i, s in enumerate(specs):
-            self.type[i] = TYPES[s["type"]]
-            self.level[i] = float(s.get("level", 0))
-            if s["type"] == "region":
-                if s["shape"] == "sphere":
-                    c = np.asarray(s["center"], float)
+            self.type[i] = TYPES[s.type]
+            self.level[i] = float(s.level)
+            if s.type == "region":
+                if s.shape == "sphere":
+                    c = np.asarray(s.center, float)
                     self.sphere[i] = 1
-                    self.radius[i] = float(s["radius"])
+                    self.radius[i] = s.radius
                 else:
-                    lo, hi = np.asarray(s["min"], float), np.asarray(s["max"], float)
+                    lo, hi = np.asarray(s.min, float), np.asarray(s.max, float)
                     c = (lo + hi) / 2
                     self.half[i] = ((hi - lo) / 2).tolist()
                 self.center[i] = c.tolist()
                 if i in moving:
                     self.moving_base[moving.index(i)] = c.tolist()
-            elif s["type"] == "obstacles":
-                self.distance[i] = float(s.get("distance", 0.0))
+            elif s.type == "obstacles":
+                self.distance[i] = s.distance
 
     def update(self, t: float) -> None:
         """Move regions that follow a path to their place at time t (one launch)."""

@@ -13,11 +13,12 @@ from .config import emitter_disc
 
 @ti.data_oriented
 class Emitters:
-    def __init__(self, parts, seeder):
-        d, L = parts.dim, parts.levels
-        self.specs = parts.scene["emitters"]
-        self.levels, self.pool, self.seeder = L, parts.pool, seeder
-        s0, h0 = parts.lev.s0, parts.lev.h0
+    def __init__(self, core, emitters, seeder):
+        """emitters: the scene's [[emitters]] params; seeder: places their layers."""
+        d, L = core.dim, core.levels
+        self.specs = emitters
+        self.levels, self.pool, self.seeder = L, core.pool, seeder
+        s0, h0 = core.lev.s0, core.lev.h0
         # the nozzles (see ``hold``): centre, unit normal, velocity, radius and
         # half-length of each, and whether it emits this step
         ne = max(len(self.specs), 1)
@@ -29,12 +30,12 @@ class Emitters:
         self.nozzle_on = ti.field(ti.i32, shape=ne)
         self.s0 = s0
         for e_idx, e in enumerate(self.specs):
-            vel = np.asarray(e["velocity"], np.float64)
-            level = min(int(e["level"]), L - 1)
-            self.nozzle_c[e_idx] = list(map(float, e["center"]))
+            vel = np.asarray(e.velocity, np.float64)
+            level = min(e.level, L - 1)
+            self.nozzle_c[e_idx] = list(map(float, e.center))
             self.nozzle_n[e_idx] = (vel / np.linalg.norm(vel)).tolist()
             self.nozzle_u[e_idx] = vel.tolist()
-            self.nozzle_r[e_idx] = float(e["radius"]) + 0.5 * s0 * 2**level
+            self.nozzle_r[e_idx] = e.radius + 0.5 * s0 * 2**level
             self.nozzle_len[e_idx] = h0 * 2**level
         self.reset()
 
@@ -51,21 +52,21 @@ class Emitters:
         whether the pool refused some (the caller warns)."""
         refused = False
         for e_idx, e in enumerate(self.specs):
-            on = bool(e["start"] <= time < e["stop"])
+            on = bool(e.start <= time < e.stop)
             if on != self.on[e_idx]:
                 self.on[e_idx] = on
                 self.nozzle_on[e_idx] = int(on)
             if not on:
                 continue
-            vel = np.asarray(e["velocity"], np.float64)
+            vel = np.asarray(e.velocity, np.float64)
             speed = float(np.linalg.norm(vel))
-            level = min(int(e["level"]), self.levels - 1)
+            level = min(e.level, self.levels - 1)
             s = self.s0 * 2**level
             self.progress[e_idx] += speed * dt
             while self.progress[e_idx] >= s:
                 self.progress[e_idx] -= s
                 normal = vel / speed
-                xs = emitter_disc(e["center"], float(e["radius"]), normal, s) + self.progress[e_idx] * normal
+                xs = emitter_disc(e.center, e.radius, normal, s) + self.progress[e_idx] * normal
                 took = self.seeder.append(xs, np.tile(vel, (len(xs), 1)), level)
                 refused |= took < len(xs)
         return refused

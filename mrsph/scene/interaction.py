@@ -197,3 +197,25 @@ class Disturbances:
             if self.active[s]:
                 best = ti.min(best, ti.max((x - self.center[s]).norm() - self.radius[s], 0.0))
         return best
+
+
+@ti.data_oriented
+class StirrerPaths:
+    """The step's ``stirrers`` pass: the stirrers' disturbances to where their paths are at
+    the end of the step (none when the step did not go)."""
+
+    def __init__(self, disturbances: Disturbances, paths: Paths, count: int, state):
+        """count: the stirrers (disturbance slots 1 … count, paths 0 … count − 1);
+        state: the step's time, dt and outcome (``sph.step.StepState``)."""
+        self.disturbances, self.paths, self.count, self.state = disturbances, paths, count, state
+
+    @ti.kernel
+    def run(self, n: ti.i32):
+        self.run_func(n)
+
+    @ti.func
+    def run_func(self, n):
+        # the count in the loop's bound, not an ``if`` around it, which would run the loop
+        # on one thread
+        st = self.state
+        self.disturbances.follow_func(self.paths, 1, self.count * st.go[None], st.t[None] + st.dt[None])

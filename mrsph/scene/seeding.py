@@ -13,13 +13,14 @@ from mrsph.sph.particles import REGULAR
 
 @ti.data_oriented
 class Seeder:
-    def __init__(self, parts, gravity, stiffness):
-        fl = parts.scene["fluid"]
-        self.dim, self.levels = parts.dim, parts.levels
-        self.pool, self.lev = parts.pool, parts.lev
-        self.capacity = parts.pool.capacity
-        self.rest_density = float(fl["rest_density"])
-        self.eos, self.gamma = fl["eos"], float(fl["gamma"])
+    def __init__(self, core, fluid, gravity, stiffness):
+        """fluid: the scene's [fluid] params (the equation of state of the hydrostatic
+        start); gravity: the integrator's field; stiffness: () -> k, the solver's."""
+        self.dim, self.levels = core.dim, core.levels
+        self.pool, self.lev = core.pool, core.lev
+        self.capacity = core.pool.capacity
+        self.rest_density = core.lev.rest_density
+        self.eos, self.gamma = fluid.eos, fluid.gamma
         self.gravity = gravity  # a field of the integrator's
         self.stiffness = stiffness  # () -> k, the pressure solver's
 

@@ -15,14 +15,16 @@ from mrsph.limits import MAX_OBSTACLES
 
 @ti.data_oriented
 class Boundary:
-    def __init__(self, dim: int, domain_min, domain_max, obstacles, restitution: float, friction: float):
+    def __init__(self, dim: int, domain, obstacles):
+        """domain: the scene's [domain] params (the box, restitution, friction);
+        obstacles: its [[obstacles]] (boxes and spheres)."""
         self.dim = dim
-        self.lo = ti.Vector(list(map(float, domain_min)))
-        self.hi = ti.Vector(list(map(float, domain_max)))
-        self.restitution = restitution
-        self.friction = friction
-        boxes = [o for o in obstacles if o["shape"] == "box"]
-        spheres = [o for o in obstacles if o["shape"] == "sphere"]
+        self.lo = ti.Vector(list(map(float, domain.min)))
+        self.hi = ti.Vector(list(map(float, domain.max)))
+        self.restitution = domain.restitution
+        self.friction = domain.friction
+        boxes = [o for o in obstacles if o.shape == "box"]
+        spheres = [o for o in obstacles if o.shape == "sphere"]
         # the scene check (config.py) refuses more; a caller building one by hand gets this
         assert len(boxes) <= MAX_OBSTACLES and len(spheres) <= MAX_OBSTACLES, "too many obstacles"
         self.n_boxes, self.n_spheres = len(boxes), len(spheres)
@@ -31,12 +33,12 @@ class Boundary:
         self.sph_c = ti.Vector.field(dim, float, shape=max(1, len(spheres)))
         self.sph_r = ti.field(float, shape=max(1, len(spheres)))
         for i, b in enumerate(boxes):
-            lo, hi = np.asarray(b["min"], float), np.asarray(b["max"], float)
+            lo, hi = np.asarray(b.min, float), np.asarray(b.max, float)
             self.box_c[i] = ((lo + hi) / 2).tolist()
             self.box_half[i] = ((hi - lo) / 2).tolist()
         for i, s in enumerate(spheres):
-            self.sph_c[i] = list(map(float, s["center"]))
-            self.sph_r[i] = float(s["radius"])
+            self.sph_c[i] = list(map(float, s.center))
+            self.sph_r[i] = s.radius
 
     @ti.func
     def domain_image(self, x, h, mask):

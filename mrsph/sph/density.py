@@ -30,13 +30,14 @@ DENSITY_CLUSTER = {2: 8, 3: 4}
 
 @ti.data_oriented
 class Density:
-    def __init__(self, parts):
-        self.dim, self.levels = parts.dim, parts.levels
-        self.pool, self.grids, self.lev = parts.pool, parts.grids, parts.lev
-        self.nb, self.coupling, self.fade = parts.neighbours, parts.coupling, parts.fade
-        self.forces = None  # set by the Simulation once built (pair factors)
-        self.pressure = None  # likewise (density_done)
-        self.limit_virtual = parts.coupling.limit_virtual
+    def __init__(self, core, coupling, fade, pressure, forces):
+        """coupling: how a sum weighs a particle and which it skips; fade: the split
+        fade's measure of a child's density (multires/fade.py); pressure: takes each
+        density (``density_done``); forces: the pair factors set with it (``factors``)."""
+        self.dim, self.levels = core.dim, core.levels
+        self.pool, self.grids, self.lev, self.nb = core.pool, core.grids, core.lev, core.nb
+        self.coupling, self.fade, self.pressure, self.forces = coupling, fade, pressure, forces
+        self.limit_virtual = coupling.limit_virtual
 
     @ti.func
     def support(self, i):

@@ -23,32 +23,48 @@ AV_EPS = 0.01
 
 
 @ti.data_oriented
-class Forces:
+class Viscosity:
+    """μ, the scene's dynamic viscosity as last set: the force pass reads the field, the
+    viscous time-step bound the host's copy (``value``)."""
+
     live_keys = ("fluid.viscosity",)
 
-    def __init__(self, parts, pressure):
-        fl = parts.scene["fluid"]
-        self.dim, self.adaptive = parts.dim, parts.adaptive
-        self.pool, self.grids, self.lev = parts.pool, parts.grids, parts.lev
-        self.nb, self.coupling, self.pressure = parts.neighbours, parts.coupling, pressure
-        self.integrator = None  # set by the Simulation (a uniform run's fused accelerations)
+    def __init__(self, mu: float):
         self.mu = ti.field(float, shape=())
-        self.set_param("fluid.viscosity", fl["viscosity"])
+        self.set_param("fluid.viscosity", mu)
+
+    def set_param(self, key: str, value) -> None:
+        self.host = float(value)
+        self.mu[None] = self.host
+
+    def value(self) -> float:
+        return self.host
+
+
+@ti.data_oriented
+class Forces:
+    def __init__(self, core, fluid, coupling, pressure, state, viscosity, gravity, accelerate=None):
+        """fluid: the scene's [fluid] params (the artificial viscosity); coupling: which
+        pairs meet and where reactions go; pressure: the solver's pair term; state: the
+        step's sound speed and whether a disturbance acts (``step.StepState``);
+        viscosity: μ (``Viscosity``); gravity: g (the integrator's field); accelerate:
+        the integrator, whose per-particle
+        accelerations and time-step rates the pass takes in its own loop (a uniform run:
+        nothing else adds to a force once a particle's sum is done), or None."""
+        self.dim, self.adaptive = core.dim, core.adaptive
+        self.pool, self.grids, self.lev, self.nb = core.pool, core.grids, core.lev, core.nb
+        self.coupling, self.pressure, self.state, self.viscosity = coupling, pressure, state, viscosity
+        self.gravity, self.integrator = gravity, accelerate
+        self.fused_accelerations = accelerate is not None
         # alpha c of the artificial viscosity (c the solver's damping speed, which follows k)
-        self.av_alpha = float(fl["artificial_viscosity"])
+        self.av_alpha = fluid.artificial_viscosity
         self.av_coef = ti.field(float, shape=())
         self.update_signal_speed()
         # 1/ρ per particle, set with the density: it takes a division out of every pair
-        self.inv_rho = ti.field(float, shape=parts.pool.capacity)
-        # without adaptivity the force pass also takes the accelerations: see ``run``
-        self.fused_accelerations = not self.adaptive
+        self.inv_rho = ti.field(float, shape=core.pool.capacity)
 
     def update_signal_speed(self):
         self.av_coef[None] = self.av_alpha * self.pressure.damping_speed()
-
-    def set_param(self, key: str, value) -> None:
-        self.viscosity = float(value)  # the host's copy, for the viscous time-step bound
-        self.mu[None] = self.viscosity
 
     @ti.func
     def factors(self, i):
@@ -152,11 +168,11 @@ class Forces:
         acc += f
 
     @ti.kernel
-    def run(self, n: ti.i32, c_sound: float, stirred: ti.i32):
-        self.run_func(n, c_sound, stirred)
+    def run(self, n: ti.i32):
+        self.run_func(n)
 
     @ti.func
-    def run_func(self, n, c_sound, stirred):
+    def run_func(self, n):
         """Internal forces on real particles, left in ``a``. With the variational
         coupling the reactions of the virtual neighbours are handed on to their owners in
         the same pass (the symmetric coupling does it after, in its own pass).
@@ -166,9 +182,10 @@ class Forces:
         limits (``Integrator.accelerate``): one parallel loop fewer a step, each of which
         costs 50-100 µs of thread wake-ups on two cores."""
         p = ti.static(self.pool.p)
-        mu = self.mu[None]
-        g = self.integrator.gravity[None]
+        mu = self.viscosity.mu[None]
         mm = self.coupling.sum_scale() * self.coupling.sum_scale()  # m_i m_j, when every pair term left it out
+        g = self.gravity[None]
+        c_sound, stirred = self.state.c_sound[None], self.state.stirred[None]
         if ti.static(self.fused_accelerations):
             self.integrator.clear_reductions()
         for i in range(n):

@@ -304,3 +304,25 @@ class LevelGrids:
         pool.n[None] = alive  # unmoved: the last sort's count, which is n
         self.sorted_n[None] = alive
         return alive
+
+
+@ti.data_oriented
+class PoolSort:
+    """The step's ``grid`` pass: the pool sorted into ``grids`` (``LevelGrids.sort``),
+    launched alone or inlined into a fused step; both return n."""
+
+    def __init__(self, grids: LevelGrids, pool: ParticlePool):
+        self.grids, self.pool = grids, pool
+
+    @ti.kernel
+    def run(self) -> ti.i32:
+        return self.grids.sort_func(self.pool)
+
+    @ti.func
+    def run_func(self):
+        return self.grids.sort_func(self.pool)
+
+    @ti.func
+    def count_func(self):
+        """n, as the last sort left it in the pool (a fused step's later launches)."""
+        return self.pool.n[None]

@@ -1,11 +1,14 @@
 """Time integration (METHOD.md §1, Eq. 21–23): accelerations, the time step, and the
-kick, drift and collide of symplectic Euler.
+kick, drift and collide of symplectic Euler, as passes of the step's list
+(``timestep``, ``kick``, ``drift``, or ``integrate`` for kick and drift in one loop where
+the solver has nothing between them, and ``virtual_advect``).
 
 - accelerate: a_i = F_i/m_i + g + disturbances (the body forces), with the reactions the
   level coupling handed to i, and i's CFL and force rates and whether it is bad;
-- the time step: dt = min(dt_max, CFL bound λ h/(c + |u|), force bound λ_f sqrt(h/|a|),
-  viscous bound, disturbance bound), each particle with its own level's h, c the pressure
-  solver's signal speed, then cut to the end of the frame;
+- the time step: dt = min(dt_max, CFL bound λ L/(c + |u|), force bound λ_f sqrt(h/|a|),
+  viscous bound, disturbance bound), each particle with its own level's lengths, λ, L
+  and c the pressure solver's (``pressure.base.TimeStepBound``), then cut to the end of
+  the frame;
 - kick u += dt a, drift x += dt u, collide (walls and obstacles, ``boundary.py``);
 - the virtual particles' advection (``multires.coupling``), after their owners moved.
 
@@ -20,6 +23,7 @@ import numpy as np
 import taichi as ti
 
 from .particles import is_real, is_virtual
+from .step import Pass
 
 # An acceleration this large (m/s²) is a blow-up: a step refuses it as it refuses NaN.
 # (In f32, |a| overflows already from 1.8e19 m/s², as its square passes the float range.)
@@ -27,10 +31,8 @@ ACCEL_OVERFLOW = 1e30
 
 REDUCTION_BLOCKS = 256  # blocks of the time-step reduction (see ``accelerations``)
 
-# Parts of ``end_step``: one launch runs them all, a profiled step one a call; an implicit
-# pressure solver solves between the kick and the drift (two launches).
-END_TIMESTEP, END_KICK, END_BOUNDARIES, END_ADVECT, END_DRIFT = 1, 2, 4, 8, 16
-END_INTEGRATE = END_KICK | END_DRIFT
+# What ``kick_drift_collide`` does for a particle: the kick, the drift and the walls.
+KICK, DRIFT, COLLIDE = 1, 2, 4
 
 
 class SimulationError(RuntimeError):
@@ -41,42 +43,64 @@ class SimulationError(RuntimeError):
 class Integrator:
     live_keys = ("physics.gravity",)
 
-    def __init__(self, parts, pressure, viscosity):
-        ph = self.physics = parts.scene["physics"]
-        self.viscosity = viscosity  # () -> μ on the host, as last set (``Forces``)
-        self.dim, self.adaptive = parts.dim, parts.adaptive
-        self.pool, self.lev, self.boundary = parts.pool, parts.lev, parts.boundary
-        self.fade = parts.fade  # a split child's density offset decays with the steps
-        self.coupling, self.disturbances, self.pressure = parts.coupling, parts.disturbances, pressure
-        self.rest_density = float(parts.scene["fluid"]["rest_density"])
-        self.fused_accelerations = not self.adaptive  # see forces.Forces.run
+    def __init__(self, core, physics, state, coupling, disturbances, pressure, fade, viscosity):
+        """physics: the scene's [physics] params; state: the step's inputs, dt and go
+        (``step.StepState``); coupling: the reactions handed on and the virtual
+        particles' advection; pressure: the solver's CFL rate and what it notes of the
+        step; fade: a split child's offset decays with the steps (multires/fade.py);
+        viscosity: () -> μ on the host, as last set (``Forces``)."""
+        self.physics = physics
+        self.viscosity = viscosity
+        self.dim, self.adaptive = core.dim, core.adaptive
+        self.pool, self.lev, self.boundary = core.pool, core.lev, core.boundary
+        self.state, self.fade = state, fade
+        self.coupling, self.disturbances, self.pressure = coupling, disturbances, pressure
+        self.rest_density = core.lev.rest_density
+        # without adaptivity the force pass takes the accelerations (``accelerate_reduce``)
+        self.fused_accelerations = not self.adaptive
         self.gravity = ti.Vector.field(self.dim, float, shape=())
-        self.gravity[None] = list(map(float, ph["gravity"]))
+        self.gravity[None] = list(physics.gravity)
         # physics.max_speed: a real particle faster than this is reported as a blow-up
         self.speed_limit = ti.field(float, shape=())
-        self.speed_limit[None] = float(ph["max_speed"])
+        self.speed_limit[None] = physics.max_speed
         # reductions of the time-step phase: [max (c+|u|)/h, max |a|/h, bad count, first bad]
         self.red_f = ti.field(float, shape=2)
         self.red_i = ti.field(ti.i32, shape=2)
-        # the step's dt (f64, so that a step cut to the end of a frame ends on it), and
-        # whether the step may move the particles (no NaN, dt not below dt_min)
-        self.step_dt = ti.field(ti.f64, shape=())
-        self.step_go = ti.field(ti.i32, shape=())
         # what the host reads when a step does not go: (dt before the cut to the frame's
         # end, force limit, bad count, first bad); a field, not the kernel's result,
-        # which costs more to pass back (see ``end_step``)
+        # which costs more to pass back
         self.step_report = ti.field(ti.f64, shape=4)
         # the last step that went as its bounds chose it, before a cut to the frame's end
         # (the stats row's dt; read once a frame, by ``chosen_dt``)
         self.bound_dt = ti.field(ti.f64, shape=())
-        advect = END_ADVECT if self.adaptive else 0
-        if pressure.implicit:  # the pressure solve between the kick and the drift
-            self.launches = (END_TIMESTEP | END_KICK, END_DRIFT | END_BOUNDARIES | advect)
-        else:
-            self.launches = (END_TIMESTEP | END_INTEGRATE | END_BOUNDARIES | advect,)
+        self.even_last_steps = pressure.bound().even_last_steps
 
     def set_param(self, key: str, value) -> None:
         self.gravity[None] = list(map(float, value))
+
+    # ------------------------------------------------------------------ passes
+    def timestep_pass(self) -> Pass:
+        """Accelerations (unless the force pass took them), the time step, whether the
+        step goes; its kernel returns dt, or -1 when it does not."""
+        return Pass("timestep", "timestep", self.timestep, self.timestep_func, decides=True)
+
+    def motion(self, after_kick: list, after_drift: list) -> list:
+        """The kick, the solver's passes on the kicked velocities, the drift and collide,
+        the solver's passes on the drifted positions. Without passes after the kick, the
+        kick and the drift run in one loop (``integrate``): one parallel loop fewer a
+        step, each of which costs 50-100 µs of thread wake-ups on two cores."""
+        if after_kick:
+            return [
+                Pass("kick", "integrate", self.kick, self.kick_func),
+                *after_kick,
+                Pass("drift", "integrate", self.drift, self.drift_func),
+                *after_drift,
+            ]
+        return [Pass("integrate", "integrate", self.integrate, self.integrate_func), *after_drift]
+
+    def advect_pass(self) -> Pass:
+        """The virtual particles follow their owners, once the owners have moved."""
+        return Pass("virtual_advect", "virtual_advect", self.advect, self.advect_func)
 
     # ------------------------------------------------------------------ device
     @ti.func
@@ -154,88 +178,105 @@ class Integrator:
 
     @ti.func
     def kick_drift_collide(self, i, parts: ti.template()):
-        """Symplectic Euler for real particle i: the kick u += dt a (END_KICK), the drift
-        x += dt u (END_DRIFT), then the walls and obstacles (END_BOUNDARIES)."""
+        """Symplectic Euler for real particle i: the kick u += dt a (KICK), the drift
+        x += dt u (DRIFT), then the walls and obstacles (COLLIDE)."""
         p = ti.static(self.pool.p)
+        dt = ti.cast(self.state.dt[None], float)
         x, v = p[i].x, p[i].v
-        if ti.static(parts & END_KICK):
-            v += ti.cast(self.step_dt[None], float) * p[i].a
-        if ti.static(parts & END_DRIFT):
-            x += ti.cast(self.step_dt[None], float) * v
-        if ti.static(parts & END_BOUNDARIES):
+        if ti.static(parts & KICK):
+            v += dt * p[i].a
+        if ti.static(parts & DRIFT):
+            x += dt * v
+        if ti.static(parts & COLLIDE):
             x, v = self.boundary.collide(x, v)
         p[i].x = x
         p[i].v = v
-        if ti.static(parts & END_KICK):
-            self.fade.decay(i, ti.cast(self.step_dt[None], float))
-
-    @ti.kernel
-    def end_step(
-        self,
-        n: ti.i32,
-        c_sound: float,
-        stirred: ti.i32,
-        cfl: ti.f64,
-        force_factor: ti.f64,
-        cap: ti.f64,
-        dt_min: ti.f64,
-        max_dt: ti.f64,
-        parts: ti.template(),
-    ) -> ti.f64:
-        return self.end_step_func(n, c_sound, stirred, cfl, force_factor, cap, dt_min, max_dt, parts)
+        if ti.static(parts & KICK):
+            self.fade.decay(i, dt)
 
     @ti.func
-    def end_step_func(self, n, c_sound, stirred, cfl, force_factor, cap, dt_min, max_dt, parts: ti.template()):
-        """The phases after the forces, those in ``parts`` (END_* bits): time step (with
-        the accelerations, unless the force pass took them), integrate, boundaries (in
-        integrate's loop when both are asked), virtual advection. Returns the dt taken,
-        or -1 when the step does not go (the reasons are in ``step_report``); 0 without
-        timestep. Scalars in and one out: on the CPU, a vector argument and a vector
-        result cost ~50 µs a launch between them, more than integrating a few thousand
-        particles."""
+    def _move(self, n, parts: ti.template()):
+        for i in range(n):
+            if self.state.go[None] and is_real(self.pool.p[i].kind):
+                self.kick_drift_collide(i, parts)
+
+    @ti.kernel
+    def timestep(self, n: ti.i32) -> ti.f64:
+        self.timestep_func(n)
+        return self.state.outcome()
+
+    @ti.func
+    def timestep_func(self, n):
+        """Accelerations (unless the force pass took them), then dt = min(cap, λ/max rate,
+        λ_f / sqrt(max |a|/h)) cut to the end of the frame, whether the step goes, and
+        the solver's note of it; the reasons a step does not go in ``step_report``."""
+        st = self.state
+        if ti.static(not self.fused_accelerations):
+            self.accelerations(n, st.c_sound[None], st.stirred[None])
+        cfl_lim = ti.cast(self.red_f[0], ti.f64)
+        force_lim = ti.cast(self.red_f[1], ti.f64)
+        max_dt = st.max_dt[None]
+        dt = st.cap[None]
+        if cfl_lim > 0.0:
+            dt = ti.min(dt, st.cfl[None] / cfl_lim)
+        if force_lim > 0.0:
+            dt = ti.min(dt, st.force_factor[None] / ti.sqrt(force_lim))
+        st.go[None] = ti.cast(self.red_i[0] == 0 and dt >= st.dt_min[None], ti.i32)
+        if st.go[None]:
+            self.bound_dt[None] = dt
+        if ti.static(self.even_last_steps):
+            # an implicit solve's κ goes as 1/dt²: a frame's last step cut to a sliver
+            # would correct the whole density error in it and leave a velocity kick
+            # of order error/dt. Where a full step would leave less than half a step,
+            # the last two share what is left; a leftover of round-off is absorbed.
+            if max_dt <= dt * (1.0 + 1e-6):
+                dt = max_dt
+            elif max_dt < 1.5 * dt:
+                dt = 0.5 * max_dt
+        st.dt[None] = ti.min(dt, max_dt)
+        self.pressure.note_step(cfl_lim * st.dt[None])  # spacings moved, at most
+        if not st.go[None]:
+            self.step_report[0] = dt
+            self.step_report[1] = force_lim
+            self.step_report[2] = ti.cast(self.red_i[0], ti.f64)
+            self.step_report[3] = ti.cast(self.red_i[1], ti.f64)
+
+    @ti.kernel
+    def integrate(self, n: ti.i32):
+        self.integrate_func(n)
+
+    @ti.func
+    def integrate_func(self, n):
+        """Kick, drift and collide in one loop."""
+        self._move(n, KICK | DRIFT | COLLIDE)
+
+    @ti.kernel
+    def kick(self, n: ti.i32):
+        self.kick_func(n)
+
+    @ti.func
+    def kick_func(self, n):
+        self._move(n, KICK)
+
+    @ti.kernel
+    def drift(self, n: ti.i32):
+        self.drift_func(n)
+
+    @ti.func
+    def drift_func(self, n):
+        """Drift and collide (after the solver's passes on the kicked velocities)."""
+        self._move(n, DRIFT | COLLIDE)
+
+    @ti.kernel
+    def advect(self, n: ti.i32):
+        self.advect_func(n)
+
+    @ti.func
+    def advect_func(self, n):
         p = ti.static(self.pool.p)
-        out = ti.cast(0.0, ti.f64)
-        if ti.static(parts & END_TIMESTEP):
-            if ti.static(not self.fused_accelerations):
-                self.accelerations(n, c_sound, stirred)
-            cfl_lim = ti.cast(self.red_f[0], ti.f64)
-            force_lim = ti.cast(self.red_f[1], ti.f64)
-            dt = cap
-            if cfl_lim > 0.0:
-                dt = ti.min(dt, cfl / cfl_lim)
-            if force_lim > 0.0:
-                dt = ti.min(dt, force_factor / ti.sqrt(force_lim))
-            self.step_go[None] = ti.cast(self.red_i[0] == 0 and dt >= dt_min, ti.i32)
-            if self.step_go[None]:
-                self.bound_dt[None] = dt
-            if ti.static(self.pressure.implicit):
-                # an implicit solve's κ goes as 1/dt²: a frame's last step cut to a sliver
-                # would correct the whole density error in it and leave a velocity kick
-                # of order error/dt. Where a full step would leave less than half a step,
-                # the last two share what is left; a leftover of round-off is absorbed.
-                if max_dt <= dt * (1.0 + 1e-6):
-                    dt = max_dt
-                elif max_dt < 1.5 * dt:
-                    dt = 0.5 * max_dt
-            self.step_dt[None] = ti.min(dt, max_dt)
-            if ti.static(self.pressure.implicit):
-                self.pressure.note_step(cfl_lim * self.step_dt[None])  # spacings moved, at most
-            out = self.step_dt[None]
-            if not self.step_go[None]:
-                out = -1.0
-                self.step_report[0] = dt
-                self.step_report[1] = force_lim
-                self.step_report[2] = ti.cast(self.red_i[0], ti.f64)
-                self.step_report[3] = ti.cast(self.red_i[1], ti.f64)
-        if ti.static(parts & (END_INTEGRATE | END_BOUNDARIES)):
-            for i in range(n):
-                if self.step_go[None] and is_real(p[i].kind):
-                    self.kick_drift_collide(i, parts)
-        if ti.static(parts & END_ADVECT):
-            for j in range(n):
-                if self.step_go[None] and is_virtual(p[j].kind):
-                    self.coupling.advect(j, ti.cast(self.step_dt[None], float))
-        return out
+        for j in range(n):
+            if self.state.go[None] and is_virtual(p[j].kind):
+                self.coupling.advect(j, ti.cast(self.state.dt[None], float))
 
     # ------------------------------------------------------------------ host
     def chosen_dt(self) -> float:
@@ -247,7 +288,8 @@ class Integrator:
         self.bound_dt[None] = float(dt)
 
     def bounds(self):
-        """(cap, viscous bound) of dt from the scene and the disturbances (host side).
+        """(cap, viscous bound) of dt from the solver's bound, the disturbances and the
+        viscosity (host side).
 
         The viscous bound: Eq. 19 relaxes a particle's velocity towards its neighbours' at
         a rate μ/ρ Σ_j V_j ∇²W ≈ 15 μ/(ρ h²) (3D; 13.3 in 2D), and the shortest mode, a
@@ -256,121 +298,89 @@ class Integrator:
         hand (as Morris et al. 1997's 0.125 h²/ν with their h, half our support). At the
         scenes' viscosities it is far above the CFL bound; it binds when the viscosity
         is raised live, which would otherwise blow up."""
-        ph = self.physics
-        cap = float(ph["dt_max"])
+        cap = self.pressure.bound().dt_max
         strength = self.disturbances.max_strength()
         if strength > 0:
             cap = min(cap, 0.5 / strength)  # the disturbance relaxation stays stable
         mu = self.viscosity()
         viscous_dt = math.inf
         if mu > 0:
-            viscous_dt = float(ph["viscous_factor"]) * self.lev.h0**2 * self.rest_density / mu
+            viscous_dt = self.physics.viscous_factor * self.lev.h0**2 * self.rest_density / mu
             cap = min(cap, viscous_dt)
         return cap, viscous_dt
 
-    def step_args(self, max_dt: float | None, stirred: int) -> tuple:
-        """``end_step``'s arguments after n: (c, stirred, cfl, force factor, cap, dt_min,
-        max_dt), ``max_dt`` None for no cut to a frame's end."""
-        ph = self.physics
+    def step_args(self, max_dt: float | None, stirred: int, t: float) -> tuple:
+        """``StepState``'s inputs: (c, stirred, cfl, force factor, cap, dt_min, max_dt, t),
+        ``max_dt`` None for no cut to a frame's end."""
+        ph, bound = self.physics, self.pressure.bound()
         cap, _ = self.bounds()
         return (
-            self.pressure.signal_speed(),
+            bound.signal_speed,
             stirred,
-            self.pressure.cfl_number(ph),
-            float(ph["force_factor"]),
+            bound.number,
+            ph.force_factor if bound.force_limited else math.inf,
             cap,
-            float(ph["dt_min"]),
+            ph.dt_min,
             math.inf if max_dt is None else float(max_dt),
+            float(t),
         )
-
-    def finish(self, n: int, max_dt: float | None, stirred: int, phase, profile: bool, where) -> float:
-        """Accelerations, the time step, integration, boundaries and (adaptive runs) the
-        virtual particles' advection: one kernel launch, integration and boundaries in one
-        loop, or when profiling one call a phase (``phase(name, fn, *args)``), each timed
-        as its own. Returns dt; raises ``SimulationError`` (``where()``: the step and time,
-        for the message, built only then) when the step cannot go."""
-        args = (n,) + self.step_args(max_dt, stirred)
-        dt = 0.0
-        for k, launch in enumerate(self.launches):
-            if k > 0:
-                if dt < 0.0:
-                    break  # the step does not go: reported below
-                self.pressure.solve(n, dt, phase)
-            if profile:
-                # One launch a part, so that each is timed; the fixed cost of a launch (its
-                # arguments, result and sync), timed on an empty one, is charged once, to
-                # the time step, as the fused launch pays it once.
-                fixed = phase(None, self.end_step, *args, 0)
-                for name, part in (
-                    ("timestep", END_TIMESTEP),
-                    ("integrate", launch & END_INTEGRATE),
-                    ("boundaries", END_BOUNDARIES),
-                    ("virtual_advect", END_ADVECT),
-                ):
-                    if part and part & launch:
-                        out = phase(name, self.end_step, *args, part, overhead=0.0 if part == END_TIMESTEP else fixed)
-                        if part == END_TIMESTEP:
-                            dt = out
-            else:
-                out = self.end_step(*args, launch)
-                if k == 0:
-                    dt = out
-        if dt >= 0.0:
-            return dt
-        self.refuse(where())
 
     def refuse(self, where: str):
         """Raise the ``SimulationError`` that says why the step just tried did not go
-        (``end_step`` returned -1; ``where``: the step and time, for the message)."""
+        (the time-step pass said -1; ``where``: the step and time, for the message)."""
         ph = self.physics
         _, viscous_dt = self.bounds()
         stable_dt, force_lim, bad, first_bad = self.step_report.to_numpy().tolist()
         if bad > 0:
             self.report_bad(int(first_bad), int(bad), where)
         mu = self.viscosity()
-        if not stable_dt >= float(ph["dt_min"]):  # as the kernel decided (NaN included)
-            if viscous_dt < float(ph["dt_min"]):
+        if not stable_dt >= ph.dt_min:  # as the kernel decided (NaN included)
+            if viscous_dt < ph.dt_min:
                 raise SimulationError(
                     f"{where}: the viscous time-step bound "
-                    f"{viscous_dt:.3g} s is below physics.dt_min = {ph['dt_min']:g} s: "
+                    f"{viscous_dt:.3g} s is below physics.dt_min = {ph.dt_min:g} s: "
                     f"fluid.viscosity = {mu:g} Pa s is too high for this resolution"
                 )
             raise SimulationError(
                 f"{where}: time step {stable_dt:.3g} s is below "
-                f"physics.dt_min = {ph['dt_min']:g} s: {self.dt_cause(stable_dt, force_lim)}"
+                f"physics.dt_min = {ph.dt_min:g} s: {self.dt_cause(stable_dt, force_lim)}"
             )
         raise AssertionError("a step that did not go left no reason in step_report")
 
     def dt_cause(self, dt: float, force_lim: float) -> str:
-        """Which bound of ``finish`` made ``dt``: the disturbance cap, read from the
-        disturbances, or one of the reduced rates: the force rate |a|/h is reported, and
-        the CFL rate (c + |u|)/h is cfl / dt. Which level h belongs to is not reported,
-        so a speed is given as at the finest one."""
-        ph = self.physics
-        c = self.pressure.signal_speed()
+        """Which bound made ``dt``: the disturbance cap, read from the disturbances, or one
+        of the reduced rates: the force rate |a|/h is reported, and the CFL rate of the
+        solver's bound (``TimeStepBound``, its λ, length and signal speed) is λ / dt.
+        Which level the fastest particle is at is not reported, so a speed is given as at
+        the finest one."""
+        ph, bound = self.physics, self.pressure.bound()
+        c = bound.signal_speed
         strength = self.disturbances.max_strength()
         if strength > 0 and dt >= 0.999 * 0.5 / strength:
             return (
                 f"the disturbance bound 0.5/strength sets it (strength {strength:.3g} 1/s, "
                 "the mouse's or a stirrer's): lower that strength or physics.dt_min"
             )
-        force_dt = float(ph["force_factor"]) / math.sqrt(force_lim) if force_lim > 0 else math.inf
+        force_dt = ph.force_factor / math.sqrt(force_lim) if force_lim > 0 else math.inf
         if dt >= 0.999 * force_dt:
             return (
                 f"the force bound sets it (largest |a|/h = {force_lim:.3g} 1/s^2): the fluid "
-                "is blowing up; lower the disturbance strength or physics.cfl"
+                f"is blowing up; lower the disturbance strength or {bound.key}"
             )
-        rate = float(ph["cfl"]) / dt
-        speed = rate * self.lev.h0 - c  # |u| if the fastest particle is at level 0
-        if speed <= 0.01 * c:
+        if bound.number == 0.0:  # no CFL bound: the solver's own step
+            return f"{bound.says} sets it; lower physics.dt_min"
+        rate = bound.number / dt
+        speed = bound.speed_at(dt, self.lev.h0, self.lev.s0)  # |u| if the fastest is at level 0
+        if c > 0 and speed <= 0.01 * c:
             return (
-                f"the sound speed sqrt(fluid.stiffness) = {c:.3g} m/s sets it (physics.cfl "
-                f"h / c, h0 = {self.lev.h0:.3g} m); lower fluid.stiffness or physics.dt_min"
+                f"{bound.says} sets it ({bound.key} {bound.length} / c, h0 = {self.lev.h0:.3g} m); "
+                "lower fluid.stiffness or physics.dt_min"
             )
+        form = f"(c + |u|)/{bound.length}" if c > 0 else f"|u|/{bound.length}"
         return (
-            f"the CFL bound sets it ((c + |u|)/h = {rate:.3g} 1/s with c = {c:.3g} m/s: a "
-            f"particle at about {speed:.3g} m/s if at the finest level): the fluid is "
-            "blowing up; lower the disturbance strength or physics.cfl"
+            f"the CFL bound sets it ({bound.key}: {form} = {rate:.3g} 1/s with c = {c:.3g} m/s: a "
+            f"particle at about {speed:.3g} m/s if at the finest level): the fluid is blowing up; "
+            f"lower the disturbance strength or {bound.key}"
         )
 
     def report_bad(self, i: int, count: int, where: str):
@@ -379,7 +389,7 @@ class Integrator:
             return np.asarray(val.to_numpy() if hasattr(val, "to_numpy") else val, float)
 
         x, v, a = vec(self.pool.p.x), vec(self.pool.p.v), vec(self.pool.p.a)
-        limit = float(self.physics["max_speed"])
+        limit = self.physics.max_speed
         speed = np.linalg.norm(v)
         if not (np.isfinite(v).all() and np.isfinite(a).all()):
             what = "NaN/Inf velocity or acceleration"

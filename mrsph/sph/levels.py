@@ -28,6 +28,7 @@ class Levels:
         self, dim: int, count: int, spacing: float, support: float, rest_density: float, symmetric_coupling: bool
     ):
         self.dim, self.count = dim, count
+        self.rest_density = float(rest_density)  # ρ0, which every level's mass reproduces
         self.s0 = float(spacing)
         self.h0 = float(support) * self.s0
         self.m0 = rest_density / lattice_density_sum(self.s0, self.h0, dim)

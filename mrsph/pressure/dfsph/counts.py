@@ -50,6 +50,7 @@ class SolveCounts:
             "divergence_iterations": self.iterations[DIVERGENCE] / steps,
             "density_error": self.last_error,
             "unconverged": self.unconverged,
+            "clamped": 0,
         }
         self._clear()
         return out

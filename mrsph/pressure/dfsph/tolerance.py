@@ -23,13 +23,13 @@ class RestTolerance:
     spacings the step's fastest particle moves. Kept in fields, not compiled in, so that
     a scene's values do not compile the solver's kernels again."""
 
-    def __init__(self, cfg: dict, density_tolerance: float):
+    def __init__(self, cfg, density_tolerance: float):  # cfg: the [dfsph] params
         self.share = ti.field(ti.f64, shape=())  # m / slow_flow, from ``note_step``
         self.floor = ti.field(ti.f64, shape=())  # rest_tolerance, at most the scene's
         self.slow = ti.field(ti.f64, shape=())  # slow_flow
         self.share[None] = 1.0
-        self.floor[None] = min(float(cfg["rest_tolerance"]), density_tolerance)
-        self.slow[None] = float(cfg["slow_flow"])
+        self.floor[None] = min(cfg.rest_tolerance, density_tolerance)
+        self.slow[None] = cfg.slow_flow
 
     @ti.func
     def note_step(self, moved):
@@ -51,13 +51,13 @@ class Stopping:
     of thousands); or at its maximum, counted as unconverged unless within the scene's own
     tolerance (short of one tightened at rest only: converged as asked)."""
 
-    def __init__(self, cfg: dict, rest_density: float):
-        self.tolerance = (float(cfg["density_tolerance"]), float(cfg["divergence_tolerance"]))
-        self.min_iterations = (int(cfg["min_iterations"]), int(cfg["divergence_min_iterations"]))
-        self.max_iterations = (int(cfg["max_iterations"]), int(cfg["divergence_max_iterations"]))
+    def __init__(self, cfg, rest_density: float):  # cfg: the [dfsph] params
+        self.tolerance = (cfg.density_tolerance, cfg.divergence_tolerance)
+        self.min_iterations = (cfg.min_iterations, cfg.divergence_min_iterations)
+        self.max_iterations = (cfg.max_iterations, cfg.divergence_max_iterations)
         self.rest = RestTolerance(cfg, self.tolerance[DENSITY])
         self.limit = ti.field(float, shape=())  # the largest error allowed, ρ* − ρ0
-        self.limit[None] = float(cfg["max_density_error"]) * rest_density
+        self.limit[None] = cfg.max_density_error * rest_density
         self.state = ti.field(ti.i32, shape=4)
         self.error = ti.field(ti.f64, shape=())  # the last iteration's average error
         self.peak = ti.field(float, shape=())  # its largest error (density solve)

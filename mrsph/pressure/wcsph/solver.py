@@ -9,38 +9,48 @@ sqrt(k) to |u| (``signal_speed``), which is what ties this solver's step to k.
 
 import taichi as ti
 
-from .eos import pressure, sound_speed
+from ..base import PressureSolver, TimeStepBound
+from ..eos import pressure, sound_speed
 
 
 @ti.data_oriented
-class WCSPH:
+class WCSPH(PressureSolver):
+    name = "wcsph"
     live_keys = ("fluid.stiffness",)
-    implicit = False  # no solve: the pressure is explicit, from the density
-    one_launch = True  # no host work in its hooks: a step can be one launch (fused.py)
 
-    def __init__(self, parts):
-        fl = parts.scene["fluid"]
-        self.pool, self.coupling, self.lev = parts.pool, parts.coupling, parts.lev
-        self.fade = parts.fade  # a split child's pressure reads rho - drho (multires/fade.py)
-        self.rest_density = float(fl["rest_density"])
-        self.eos = fl["eos"]
+    def __init__(self, core, params, coupling, fade, state, warn):
+        """params: the scene's (its [fluid] and [physics]); coupling: the level coupling's
+        hooks (the pressure a particle shows); fade: a split child's pressure reads ρ − δρ
+        (multires/fade.py); state and warn: unused (no solve, nothing to warn of)."""
+        fluid = params.fluid
+        self.pool, self.lev, self.coupling, self.fade = core.pool, core.lev, coupling, fade
+        self.physics = params.physics
+        self.rest_density = core.lev.rest_density
+        self.eos = fluid.eos
         self.tait = self.eos == "tait"
-        self.clamp = bool(fl["clamp_negative_pressure"])
-        self.gamma = float(fl["gamma"])
+        self.clamp = fluid.clamp_negative_pressure
+        self.gamma = fluid.gamma
         self.k = ti.field(float, shape=())
-        self.k[None] = float(fl["stiffness"])
+        self.k[None] = fluid.stiffness
         # p/ρ² with the pressure a particle shows its neighbours, set with the density:
         # it takes two divisions out of every pair
-        self.press_term = ti.field(float, shape=parts.pool.capacity)
+        self.press_term = ti.field(float, shape=core.pool.capacity)
         self._update_speed()
 
     def _update_speed(self):
         # host copy for dt, from the stored (possibly f32) k that the pressure kernel uses
         self._c = sound_speed(float(self.k[None]), self.eos)
 
-    def signal_speed(self) -> float:
-        """The sound speed at rest, sqrt(k): the CFL bound is λ h/(c + |u|)."""
-        return self._c
+    def bound(self) -> TimeStepBound:
+        """dt <= λ h / (c + |u|), c = sqrt(k) the sound speed at rest (``physics.cfl``)."""
+        return TimeStepBound(
+            "physics.cfl",
+            self.physics.cfl,
+            self._c,
+            "h",
+            self.physics.dt_max,
+            f"the sound speed sqrt(fluid.stiffness) = {self._c:.3g} m/s",
+        )
 
     def damping_speed(self) -> float:
         """The artificial viscosity's c: the sound speed, as in the CFL bound."""
@@ -49,27 +59,14 @@ class WCSPH:
     def stiffness(self) -> float:
         return float(self.k[None])
 
-    def cfl_number(self, physics: dict) -> float:
-        """λ of dt <= λ h / (c + |u|): ``physics.cfl``."""
-        return float(physics["cfl"])
-
-    def after_density(self, n: int, dt: float, phase) -> None:
-        pass
-
-    def take_stats(self) -> dict:
-        return {"density_iterations": 0.0, "divergence_iterations": 0.0, "density_error": None, "unconverged": 0}
-
-    def reset_counters(self) -> None:
-        pass
+    def set_param(self, key: str, value) -> None:
+        self.k[None] = float(value)
+        self._update_speed()
 
     @ti.func
     def cfl_rate(self, c_sound, speed, l):
         """(c + |u|)/h_l: dt = λ h / (c + |u|)."""
         return (c_sound + speed) / self.lev.h[l]
-
-    def set_param(self, key: str, value) -> None:
-        self.k[None] = float(value)
-        self._update_speed()
 
     @ti.func
     def density_done(self, i):

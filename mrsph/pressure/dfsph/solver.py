@@ -2,13 +2,13 @@
 Viscous Fluids", SCA 2015 / TVCG 2017): an implicit pressure solver whose time step is set
 by the flow speed, not by a sound speed.
 
-Per step (``solver.py`` calls the hooks in this order):
+Its passes in a step (``simulation.py`` schedules them):
 
-1. ``after_density``: the factor of each real particle,
+1. ``after_density``, ``dfsph_factors`` and ``divergence_solve``: the factor of each real particle,
    α_i = ρ_i / (|Σ_j m_j ∇W_ij|² + m_i Σ_j m_j |∇W_ij|²) (the second sum is the reaction
    of i's pressure on its neighbours; with equal masses it is the paper's Σ_j |m_j ∇W_ij|²,
-   see ``_reaction_term``),
-   then the divergence solve (``dfsph.divergence_solve``): Jacobi iterations on the
+   see ``gradients.py``),
+   then the divergence solve (``dfsph.divergence_solve``, with the last step's dt): Jacobi iterations on the
    velocities until the density's rate of change, Dρ_i/Dt = Σ_j m_j (u_i − u_j)·∇W_ij
    (compression only), averaged over the real particles, times the step, is within
    ``dfsph.divergence_tolerance`` of ρ0: κ_i = Dρ_i/Dt α_i, u_i −= Σ_j m_j (κ_i/ρ_i +
@@ -17,7 +17,7 @@ Per step (``solver.py`` calls the hooks in this order):
    gravity and disturbances), the time step dt = λ s_l / |u| (``dfsph.cfl``, s_l the
    particle's level spacing) with dt_max and the force and viscous bounds, and the kick
    u* = u + dt a;
-3. ``solve``: the constant-density solve, Jacobi iterations until the average predicted
+3. ``after_kick``, ``density_solve``: the constant-density solve, Jacobi iterations until the average predicted
    density error, (ρ*_i − ρ0)/ρ0 with ρ*_i = ρ_i + dt Σ_j m_j (u_i − u_j)·∇W_ij (compression
    only, so that a free surface is not pulled in), is within ``dfsph.density_tolerance``
    (tightened in slow flow down to ``dfsph.rest_tolerance``) and no particle's is
@@ -41,16 +41,17 @@ the device; the host reads it once per launch. A solve that stops at its maximum
 iterations is counted (``stats``) and warned about once.
 """
 
-import math
-import warnings
-
 import taichi as ti
 
 from mrsph.sph.neighbours import ImageNeighbours
 from mrsph.sph.particles import is_real, is_virtual
+from mrsph.sph.step import Pass
 
+from ..base import PressureSolver, TimeStepBound
+from ..eos import sound_speed
+from ..gradients import PairGradients
 from .counts import DENSITY, DIVERGENCE, SolveCounts
-from .eos import sound_speed
+from .pairs import StoredPairs
 from .tolerance import DONE, RUNS, Stopping
 
 # Jacobi iterations per kernel launch: the host reads the convergence after each launch.
@@ -63,106 +64,35 @@ from .tolerance import DONE, RUNS, Stopping
 # the warm start out of the loop first.
 ITERATIONS_PER_LAUNCH = 1
 
-# The mirror-image pairs (a neighbour's image across a wall or the obstacle, or i's own)
-# each particle keeps with its factor, m_j ∇W_ij and m_j Lᵀ ∇W_ij, as ``gw`` keeps its
-# listed neighbours': every iteration then reads them instead of finding the image's
-# candidates and their gradients again, which was a third of a Jacobi sweep in demo_2d
-# (0.64 -> 0.38 ms at 6.4k particles with the images left out). A particle near a corner
-# with more image pairs than this sums them on the fly.
-IMAGE_PAIRS = {2: 32, 3: 64}
-
 WARM = 2  # what a sweep (``_sweep``) runs: a solve's iteration (DENSITY, DIVERGENCE), or the warm start
 
 
 @ti.data_oriented
-class StoredPairs:
-    """What the factor pass keeps of each real particle's pairs for the step's iterations,
-    which then read them instead of recomputing a square root and a division per pair
-    (SPlisHSPlasH's precomputed values do the same): m_j ∇W_ij of each listed neighbour
-    (``gw``), and the mirror-image pairs (``IMAGE_PAIRS`` a particle: j, m_j ∇W_ij and
-    m_j Lᵀ ∇W_ij; ``img_n[i]`` their count, IMAGE_PAIRS + 1 when more did not fit)."""
+class DFSPH(PressureSolver):
+    name = "dfsph"
+    incompressible = True
 
-    def __init__(self, pool, dim: int, max_neighbours: int, grad, add_factor):
-        """grad and add_factor: the solver's pair gradient and factor sums (``ti.func``)."""
-        self.pool, self.max_images, self.dim = pool, IMAGE_PAIRS[dim], dim
-        self.grad, self.add_factor = grad, add_factor
-        cap = pool.capacity
-        self.gw = ti.Vector.field(dim, float, shape=(cap, max_neighbours))
-        self.img_j = ti.field(ti.i32, shape=(cap, self.max_images))
-        self.img_g = ti.Vector.field(dim, float, shape=(cap, self.max_images))
-        self.img_gl = ti.Vector.field(dim, float, shape=(cap, self.max_images))
-        self.img_n = ti.field(ti.i32, shape=cap)
-
-    @ti.func
-    def listed_pair(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
-        """The factor pass's visit of the q-th listed neighbour (q counted in acc's last
-        slot): its part of the factor sums, m_j ∇W_ij kept in ``gw``."""
-        ok, g = self.grad(i, j, xq, L, p0, nrm, check, ctx)
-        q = ti.cast(acc[self.dim + 1], ti.i32)
-        mg = ti.Vector.zero(float, self.dim)
-        if ok:
-            mg = self.pool.p[j].m * g
-            self.add_factor(i, j, mg, g, acc)
-        self.gw[i, q] = mg
-        acc[self.dim + 1] += 1.0
-
-    @ti.func
-    def image_pair(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
-        """The factor pass's visit of an image pair: its part of the factor sums, kept."""
-        ok, g = self.grad(i, j, xq, L, p0, nrm, check, ctx)
-        if ok:
-            mg = self.pool.p[j].m * g
-            self.add_factor(i, j, mg, g, acc)
-            self.keep_image(i, j, mg, L)
-
-    @ti.func
-    def keep_image(self, i, j, mg, L):
-        """Image pair j of i (m_j ∇W_ij = mg, the image's reflection L), while it fits."""
-        k = self.img_n[i]
-        if k < ti.static(self.max_images):
-            self.img_j[i, k] = j
-            self.img_g[i, k] = mg
-            self.img_gl[i, k] = L.transpose() @ mg
-        self.img_n[i] = ti.min(k + 1, ti.static(self.max_images + 1))
-
-    @ti.func
-    def images_kept(self, i):
-        return self.img_n[i] <= ti.static(self.max_images)
-
-    @ti.func
-    def image_rate(self, i, rate):
-        """``rate`` plus Σ m_j (u_i − L u_j)·∇W_ij = Σ u_i·(m_j ∇W_ij) − u_j·(m_j Lᵀ ∇W_ij)
-        over i's kept image pairs."""
-        p = ti.static(self.pool.p)
-        vi = p[i].v
-        for k in range(self.img_n[i]):
-            rate += vi.dot(self.img_g[i, k]) - p[self.img_j[i, k]].v.dot(self.img_gl[i, k])
-        return rate
-
-
-@ti.data_oriented
-class DFSPH:
-    live_keys = ()
-    implicit = True
-    one_launch = False  # its solves decide on the host when to stop
-
-    def __init__(self, parts):
-        cfg = parts.scene["dfsph"]
-        self.dim, self.adaptive = parts.dim, parts.adaptive
-        self.pool, self.lev, self.nb, self.coupling = parts.pool, parts.lev, parts.neighbours, parts.coupling
-        self.fade = parts.fade  # a split child's target is rho0 + drho (multires/fade.py)
-        self.rest_density = float(parts.scene["fluid"]["rest_density"])
-        self.cfl = float(cfg["cfl"])
-        self.stop = Stopping(cfg, self.rest_density)
-        self.divergence = bool(cfg["divergence_solve"])
-        self.warm_start = float(cfg["warm_start"])
+    def __init__(self, core, params, coupling, fade, state, warn):
+        """params: the scene's (its [dfsph], [fluid] for the artificial viscosity's sound
+        speed, [physics] for dt_max); coupling: the level coupling's hooks; fade: a split
+        child's target is ρ0 + δρ (multires/fade.py); state: the step's dt (``sph.step``);
+        warn: how a warning reaches the user (a solve at its maximum iterations)."""
+        fluid, physics, params = params.fluid, params.physics, params.dfsph
+        self.dim, self.adaptive = core.dim, core.adaptive
+        self.pool, self.lev, self.nb, self.coupling = core.pool, core.lev, core.nb, coupling
+        self.fade, self.state, self.params = fade, state, params
+        self.dt_max = physics.dt_max
+        self.rest_density = core.lev.rest_density
+        self.stop = Stopping(params, self.rest_density)
+        self.divergence = params.divergence_solve
+        self.warm_start = params.warm_start
         self.warm_share = ti.field(float, shape=())  # in a field, not compiled in
         self.warm_share[None] = self.warm_start
-        fl = parts.scene["fluid"]
-        self._damping_c = sound_speed(float(fl["stiffness"]), fl["eos"])
-        cap = parts.pool.capacity
+        self._damping_c = sound_speed(fluid.stiffness, fluid.eos)
+        cap = core.pool.capacity
         self.alpha = ti.field(float, shape=cap)
-        self.kept = StoredPairs(parts.pool, self.dim, parts.neighbours.max_neighbours, self._grad, self._add_factor)
+        self.pairs = PairGradients(core, coupling)  # ∇W of neighbours and images, the factor sums
+        self.kept = StoredPairs(core.pool, self.dim, core.nb.max_neighbours, self.pairs.grad, self.pairs.add_factor)
         self.kappa = ti.field(float, shape=cap)  # this iteration's κ_i
         self.ksum = ti.field(float, shape=cap)  # Σ κ_i over the density solve
         self.err = ti.field(ti.f64, shape=())  # Σ of the real particles' errors
@@ -171,30 +101,26 @@ class DFSPH:
         self._factor_images = ImageNeighbours(self.nb, self.kept.image_pair)
         self._rate_images = ImageNeighbours(self.nb, self._rate_pair)
         self._push_images = ImageNeighbours(self.nb, self._push_image)
-        # how a warning reaches the user (the Simulation sets its own: app and warnings)
-        self.warn = lambda msg: warnings.warn(msg, RuntimeWarning, stacklevel=4)
-        self.counts = SolveCounts(self.stop.tolerance, self.stop.max_iterations, lambda msg: self.warn(msg))
+        self.counts = SolveCounts(self.stop.tolerance, self.stop.max_iterations, warn)
 
     # ------------------------------------------------------------------ interface
-    def signal_speed(self) -> float:
-        """No sound speed: the CFL bound is on the flow speed alone."""
-        return 0.0
+    def bound(self) -> TimeStepBound:
+        """dt <= λ s / |u| (``dfsph.cfl``): no sound speed, the flow speed alone."""
+        return TimeStepBound(
+            "dfsph.cfl",
+            self.params.cfl,
+            0.0,
+            "s",
+            self.dt_max,
+            "the flow speed",
+            even_last_steps=True,
+        )
 
     def damping_speed(self) -> float:
         """The artificial viscosity's c: the sound speed ``fluid.stiffness`` gives a weakly
         compressible run of the scene (not a CFL bound here). Without it the solves do not
         damp: the 2D tank still sloshed at 0.0125 sqrt(gH) after 1.5 s."""
         return self._damping_c
-
-    def stiffness(self) -> float:
-        """Incompressible: a block at rest starts at ρ0 (no hydrostatic compression)."""
-        return math.inf
-
-    def cfl_number(self, physics: dict) -> float:
-        return self.cfl
-
-    def set_param(self, key: str, value) -> None:
-        raise ValueError(f"{key}: not live-tunable with fluid.solver = dfsph")
 
     @ti.func
     def cfl_rate(self, c_sound, speed, l):
@@ -206,18 +132,6 @@ class DFSPH:
         """The spacings the step's fastest particle moves (``RestTolerance``)."""
         self.stop.rest.note_step(moved)
 
-    @ti.func
-    def density_done(self, i):
-        pass
-
-    @ti.func
-    def pair_factor(self, i, inv):  # no pressure in the pair forces: the solves push
-        pass
-
-    @ti.func
-    def pair_term(self, i, j, grad):
-        return 0.0
-
     # ------------------------------------------------------------------ host
     def reset_counters(self) -> None:
         self.counts.reset()
@@ -227,101 +141,47 @@ class DFSPH:
         that stopped at their maximum, since the last call (``SolveCounts``)."""
         return self.counts.take()
 
-    def after_density(self, n: int, dt: float, phase) -> None:
+    def after_density(self) -> list:
         """The factors α, then the divergence solve (with the last step's dt)."""
-        phase("pressure", self._factors, n)
+        passes = [Pass("dfsph_factors", "pressure", self._factors)]
         if self.divergence:
-            self.counts.add(DIVERGENCE, *phase("divergence", self._solve, n, dt, DIVERGENCE))
+            passes.append(Pass("divergence_solve", "divergence", self._divergence_solve))
+        return passes
 
-    def solve(self, n: int, dt: float, phase) -> None:
+    def after_kick(self) -> list:
+        return [Pass("density_solve", "pressure", self._density_solve)]
+
+    def _divergence_solve(self, n: int) -> None:
+        self.counts.add(DIVERGENCE, *self._solve(n, DIVERGENCE))
+
+    def _density_solve(self, n: int) -> None:
         """The constant-density solve on the kicked velocities, then p = ρ Σ κ."""
         if self.warm_start > 0.0:
-            phase("pressure", self._warm, n, dt)
+            self._sweep(n, WARM, 0.0, 0, 0)
         else:
-            phase("pressure", self._cold, n)
-        self.counts.add(DENSITY, *phase("pressure", self._solve, n, dt, DENSITY))
-        phase("pressure", self._pressures, n)
+            self._cold(n)
+        self.counts.add(DENSITY, *self._solve(n, DENSITY))
+        self._pressures(n)
 
-    def _solve(self, n: int, dt: float, which: int):
+    def _solve(self, n: int, which: int):
         """Jacobi iterations, ``ITERATIONS_PER_LAUNCH`` a launch, each launch returning
         whether the device says done (its outcome is read once, at the end: a state read
         per launch was 13 of a demo_2d step's 43 calls); returns (iterations, average
         error, stopped at the maximum)."""
         self.stop.start()
-        while not self._sweep(n, dt, which, *self.stop.args(which)):
+        while not self._sweep(n, which, *self.stop.args(which)):
             pass
         iterations, error, hit_max = self.stop.outcome()
         return int(iterations), float(error), bool(hit_max)
 
     # ------------------------------------------------------------------ device
-    @ti.func
-    def _grad(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template()):
-        """(does j count, ∇_i W(x_i − x_j')) for candidate j of xq (x_i or an image of it,
-        x_i − x_j' = L (xq − x_j)); ctx: h, the level's spiky constant, i's skip²."""
-        p = ti.static(self.pool.p)
-        h = ctx[0]
-        rq = xq - p[j].x
-        r2 = rq.norm_sqr()
-        ok = 0.0 < r2 < h * h and self.coupling.interacts(j, r2, ctx[2])
-        if ti.static(check):
-            if ok:
-                ok = self.nb.image_in_solid(p[j].x, p0, nrm)
-        g = ti.Vector.zero(float, self.dim)
-        if ok:
-            rn = ti.sqrt(r2)
-            d = h - rn
-            g = (-3.0 * ctx[1] * d * d / rn) * (L @ rq)
-        elif j == i and r2 == 0.0 and L.trace() < self.dim - 1.0:
-            # i on the wall itself (the collision put it there): its mirror image sits on
-            # it, and the gradient's limit, 3 c h² along the wall's normal, lets the solve
-            # push it back into the fluid (left out, the solve pushed its neighbours without
-            # bound: the 2D dam break blew up in a corner at 0.4 s). Images only (trace
-            # L <= d - 2): an overflowed list's grid block holds i itself at L = I.
-            ok = True
-            g = (-3.0 * ctx[1] * h * h) * self.nb.image_normal(p[i].x, L, nrm, check)
-        return ok, g
-
-    @ti.func
-    def _ctx(self, i):
-        p = ti.static(self.pool.p)
-        l = p[i].level
-        return l, self.lev.h[l], ti.Vector([self.lev.h[l], self.lev.spiky[l], self.coupling.skip2(i, l)])
-
-    @ti.func
-    def _factor_pair(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
-        ok, g = self._grad(i, j, xq, L, p0, nrm, check, ctx)
-        if ok:
-            self._add_factor(i, j, self.pool.p[j].m * g, g, acc)
-
-    @ti.func
-    def _add_factor(self, i, j, mg, g, acc: ti.template()):
-        """j's part of i's factor sums (acc: Σ m_j ∇W_ij, then the reaction term)."""
-        if j == i:
-            # i's own mirror image moves with i (u_i' = L u_i), so it counts twice in
-            # i's response, (I − L)ᵀ ∇W = 2 ∇W along the wall's normal, and is no
-            # other particle to be pushed; counted once, as a neighbour, the factor
-            # was half what a particle at a wall needs and it blew up on impact
-            for k in ti.static(range(self.dim)):
-                acc[k] += 2.0 * mg[k]
-        else:
-            for k in ti.static(range(self.dim)):
-                acc[k] += mg[k]
-            acc[self.dim] += self._reaction_term(i, mg, g)
-
-    @ti.func
-    def _reaction_term(self, i, mg, g):
-        """m_i m_j |∇W_ij|²: i's own κ acting back on its rate through the reaction it hands
-        neighbour j. The paper's |m_j ∇W_ij|² holds for m_i = m_j only, and partial merges
-        leave one level with masses 8x apart (a factor up to 8x too large)."""
-        return self.pool.p[i].m * mg.dot(g)
-
     @ti.kernel
     def _factors(self, n: ti.i32):
         p = ti.static(self.pool.p)
         self.n_real[None] = 0
         for i in range(n):
             if is_real(p[i].kind):
-                l, h, ctx = self._ctx(i)
+                l, h, ctx = self.pairs.ctx(i)
                 acc = ti.Vector.zero(float, self.dim + 2)
                 listed = self.nb.is_listed(i)
                 xi = p[i].x
@@ -330,10 +190,9 @@ class DFSPH:
                 if listed:
                     self.nb.listed_candidates(i, xi, eye, xi, xi, False, False, self.kept.listed_pair, ctx, acc)
                 else:
-                    self.nb.grid_candidates(i, xi, eye, xi, xi, False, l, self._factor_pair, ctx, acc)
+                    self.nb.grid_candidates(i, xi, eye, xi, xi, False, l, self.pairs.factor_pair, ctx, acc)
                 self.nb.images(i, h, self._factor_images.visit, ctx, acc)
-                s = ti.Vector([acc[k] for k in ti.static(range(self.dim))])
-                den = s.norm_sqr() + acc[self.dim]
+                den = self.pairs.denominator(acc)
                 # an isolated particle has no neighbour to push: no pressure
                 self.alpha[i] = p[i].rho / den if den > 1e-12 * p[i].rho * p[i].rho else 0.0
                 self.n_real[None] += 1
@@ -343,7 +202,7 @@ class DFSPH:
         """Σ_j m_j (u_i − u_j')·∇W_ij over i's neighbourhood: the listed neighbours from
         ``kept``, an overflowed list or images that did not fit on the fly."""
         p = ti.static(self.pool.p)
-        l, h, ctx = self._ctx(i)
+        l, h, ctx = self.pairs.ctx(i)
         rate = 0.0
         if self.nb.is_listed(i):
             vi = p[i].v
@@ -364,7 +223,7 @@ class DFSPH:
         """Σ_j m_j (κ_i/ρ_i + κ'_j/ρ_j) ∇W_ij over i's neighbourhood (listed neighbours from
         ``kept``), the reactions of virtual neighbours handed on."""
         p = ti.static(self.pool.p)
-        l, h, ctx = self._ctx(i)
+        l, h, ctx = self.pairs.ctx(i)
         acc = ti.Vector.zero(float, self.dim)
         ki = self.kappa[i] / p[i].rho
         if self.nb.is_listed(i):
@@ -388,7 +247,7 @@ class DFSPH:
     @ti.func
     def _rate_pair(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
         """m_j (u_i − u_j')·∇W_ij, u_j' = L u_j."""
-        ok, g = self._grad(i, j, xq, L, p0, nrm, check, ctx)
+        ok, g = self.pairs.grad(i, j, xq, L, p0, nrm, check, ctx)
         if ok:
             p = ti.static(self.pool.p)
             acc += p[j].m * (p[i].v - L @ p[j].v).dot(g)
@@ -408,7 +267,7 @@ class DFSPH:
     def _push_own(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
         """Own-level neighbour: its part of the velocity change, and the reaction of a
         virtual j handed to its owners (as a force, m_i times the velocity change)."""
-        ok, g = self._grad(i, j, xq, L, p0, nrm, check, ctx)
+        ok, g = self.pairs.grad(i, j, xq, L, p0, nrm, check, ctx)
         if ok:
             f = self._push(i, j, g)
             acc += f
@@ -417,7 +276,7 @@ class DFSPH:
     @ti.func
     def _push_image(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
         """A mirror image: the wall is external, nothing is handed on."""
-        ok, g = self._grad(i, j, xq, L, p0, nrm, check, ctx)
+        ok, g = self.pairs.grad(i, j, xq, L, p0, nrm, check, ctx)
         if ok:
             acc += self._push(i, j, g)
 
@@ -440,7 +299,7 @@ class DFSPH:
                     self.coupling.follow_owners(j)
 
     @ti.kernel
-    def _sweep(self, n: ti.i32, dt: ti.f64, mode: ti.i32, tol: ti.f64, min_it: ti.i32, max_it: ti.i32) -> ti.i32:
+    def _sweep(self, n: ti.i32, mode: ti.i32, tol: ti.f64, min_it: ti.i32, max_it: ti.i32) -> ti.i32:
         """One kernel for the three sweeps over the fluid, ``mode`` a runtime argument: a
         Jacobi iteration of the density or the divergence solve (``ITERATIONS_PER_LAUNCH``
         of them), or the density solve's warm start. Each measures the rate of the current
@@ -458,7 +317,7 @@ class DFSPH:
         step starts from it again."""
         p = ti.static(self.pool.p)
         rho0 = ti.static(self.rest_density)
-        h_dt = ti.cast(dt, float)
+        h_dt = ti.cast(self.state.dt[None], float)  # this step's (the last one's before the kick)
         state, peak = ti.static(self.stop.state, self.stop.peak)
         for _ in ti.static(range(ITERATIONS_PER_LAUNCH)):
             self.err[None] = 0.0
@@ -499,10 +358,6 @@ class DFSPH:
                     self.ksum[i] += self.kappa[i]
             self._update(n, 1.0 if mode == DIVERGENCE else h_dt)
         return state[DONE]
-
-    def _warm(self, n: int, dt: float) -> None:
-        """The warm start (``_sweep``), one velocity update with it."""
-        self._sweep(n, dt, WARM, 0.0, 0, 0)
 
     @ti.kernel
     def _cold(self, n: ti.i32):

@@ -1,0 +1,121 @@
+"""Divergence-free SPH (Bender & Koschier 2015): the scene keys of ``[dfsph]`` and their
+rules, Taichi-free, read by the scene's schema (``mrsph.scene.config``); the solver itself
+is ``solver.py``, with its stopping rule (``tolerance.py``) and what its solves did
+(``counts.py``)."""
+
+from mrsph.pressure import key
+
+NAME = "dfsph"
+DOC = (
+    "dfsph, divergence-free SPH (Bender & Koschier 2015), implicit, time step tied to the flow speed "
+    "(keys in [dfsph])"
+)
+
+
+# The [dfsph] table: its keys, then its doc (a pair the schema turns into a Table).
+TABLE = (
+    {
+        "cfl": key(
+            "float",
+            0.4,
+            "(0, 1]",
+            doc="lambda of the CFL bound dt <= lambda s / max |u| "
+            "(s the particle's level spacing): a particle moves at most lambda spacings a step",
+        ),
+        "density_tolerance": key(
+            "float",
+            0.001,
+            "> 0",
+            doc="the density solve stops when the average "
+            "predicted compression (rho* - rho0)/rho0 of the real particles is "
+            "within this (0.001 = 0.1 %)",
+        ),
+        "rest_tolerance": key(
+            "float",
+            0.0005,
+            "> 0",
+            doc="the tightest the density tolerance "
+            "gets: in a slow flow (slow_flow) density_tolerance is scaled by "
+            "how slow, down to this. The compression a solve leaves is undone "
+            "the next step at about tolerance s/dt, a noise of its own in water "
+            "at rest (the resting 3D tank moved at 1.3 % of sqrt(gH) "
+            "unscaled, 0.8 % at 0.0005); = density_tolerance: unscaled",
+        ),
+        "slow_flow": key(
+            "float",
+            0.1,
+            "(0, 1]",
+            doc="a step in which the fastest particle moves "
+            "less than this share of its spacing is a slow flow: the density "
+            "tolerance is scaled by max |u| dt / s over this (see rest_tolerance)",
+        ),
+        "max_density_error": key(
+            "float",
+            0.01,
+            "> 0",
+            doc="and until no real particle's predicted "
+            "compression is above this (0.01 = 1 %): a hot spot of a few dozen "
+            "particles hides in the average (docs/performance.md, the stirred "
+            "soak); larger is faster",
+        ),
+        "divergence_tolerance": key(
+            "float",
+            0.01,
+            "> 0",
+            doc="the divergence solve stops when the "
+            "average density rate of change times dt, over rho0, is within this",
+        ),
+        "min_iterations": key("int", 1, ">= 0", doc="velocity updates of the density solve at least"),
+        "max_iterations": key(
+            "int",
+            100,
+            ">= 1",
+            doc="velocity updates of the density solve at most; "
+            "a solve that stops here is counted in stats (unconverged) and warned once",
+        ),
+        "divergence_min_iterations": key(
+            "int", 0, ">= 0", doc="velocity updates of the divergence solve at least"
+        ),
+        "divergence_max_iterations": key(
+            "int",
+            100,
+            ">= 1",
+            doc="velocity updates of the divergence solve at most (counted and warned as max_iterations)",
+        ),
+        "divergence_solve": key(
+            "bool",
+            True,
+            doc="run the divergence solve each step (false: the density solve alone, as IISPH-like schemes)",
+        ),
+        "warm_start": key(
+            "float",
+            0.5,
+            "[0, 1]",
+            doc="the share of the last step's pressure the "
+            "density solve starts from, where the kicked fluid is compressed (0: a "
+            "cold start; 1, the whole, ratchets the 2D dam break's pressure up until "
+            "it blows up)",
+        ),
+    },
+    "The divergence-free solver (fluid.solver = \"dfsph\"); ignored by the other solvers.",
+)
+
+
+def rules(check, data: dict) -> None:
+    """The cross-field rules of a scene that runs this solver (``check.add`` reports)."""
+    ad = data["adaptivity"]
+    if ad and ad["enabled"] and ad["coupling"] == "symmetric":
+        check.add(
+            "adaptivity.coupling",
+            'not with fluid.solver = "dfsph"',
+            '"symmetric"',
+            '"variational" (the implicit solver hands a virtual particle\'s reaction to its '
+            "owners and takes its velocity from them)",
+        )
+
+
+def solver_class():
+    """The Taichi class (imported here, on first use, so that the keys stay Taichi-free)."""
+    from .solver import DFSPH
+
+    return DFSPH
