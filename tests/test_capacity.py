@@ -34,7 +34,7 @@ def test_particles_whose_lists_overflowed_move_as_if_listed(dim, solver, monkeyp
     pairs hold one (all of them overflow) takes the same step as the listed run from the same state: the
     slab of the moving refinement thrown onto the floor, so that the walls' images and
     every kind of particle are in the sums. The two sum in another order, so they agree
-    to round-off. Found by the stirred soak (session 35): under dfsph the own block holds
+    to round-off. Found by the stirred soak: under dfsph the own block holds
     i itself at r = 0, which the solver took for i on a wall, and its velocity went NaN."""
     import mrsph.pressure.dfsph
     import mrsph.sph.neighbours
@@ -71,7 +71,7 @@ def test_particles_whose_lists_overflowed_move_as_if_listed(dim, solver, monkeyp
 
 @pytest.mark.slow_params("3d")  # the quick run keeps 2D (conftest.py, "two tiers")
 def test_a_full_pool_refuses_splits_warns_once_and_loses_nothing(dim):
-    """Issue 3 §7: a split that does not fit in the pool is refused, counted in the stats
+    """A split that does not fit in the pool is refused, counted in the stats
     (``refused``) and reported once as a RuntimeWarning; the run goes on with its links
     intact, and no particle is dropped: with full groups only, the real mass stays
     bit-identical. The pool gets the smallest capacity the scene check accepts (the

@@ -392,7 +392,7 @@ def test_virtual_coupling_conserves_momentum(dim, coupling, solver):
 def test_symmetric_coupling_is_refused_with_dfsph(dim):
     """The implicit solver hands a virtual particle's reaction to its owners within each
     iteration; the symmetric coupling's own reaction pass cannot: the scene is refused,
-    in one line naming the key, its value and what to use (issue 31 §2)."""
+    in one line naming the key, its value and what to use."""
     from mrsph.scene.config import SceneError
 
     scene = for_solver(refined_blob_scene(dim), "dfsph")
@@ -474,18 +474,11 @@ def stirred_slab_scene(dim: int, **adaptivity) -> dict:
 def test_fine_fluid_a_stirrer_left_merges_back(dim, remnants):
     """METHOD.md §6: particles merge wherever the merged particle would not meet the split
     criterion. After a stir the released fine particles must gather again into groups
-    that can merge. Measured when written (3D, fine particles left that want level 1, at
-    0.2 s): 462 of 2000 real particles when a gathered group could span only 0.8 of the
-    release distance (a lattice cell of eight spans 0.87), 190 of 1791 with
-    ``gather_span`` = 0.9; the rest are groups of 1–3 that no group can join, which
-    ``merge_remnants`` merges where they sit among coarse particles. 2D: 2 left.
-
-    With ``merge_remnants`` none were left until session 36, when a group too light to
-    stand alone could go to a receiver a whole coarse support away. Within one coarse
-    spacing (``ABSORB_REACH``, which put the 3D dam-break front right: docs/dam-front.md,
-    "The absorption's reach") 12 of 1555 stay fine in 3D, from 0.2 s to 0.5 s at least:
-    groups with no receiver that near. The bound is 1 % of the real particles, against
-    the 15 % of the default case."""
+    that can merge. In 3D some are left, groups of 1–3 that no group can join, which
+    ``merge_remnants`` merges where they sit among coarse particles, except those with no
+    receiver for their light group within one coarse spacing (``ABSORB_REACH``). The
+    bounds, 15 % of the real particles by default and 1 % with ``merge_remnants``, sit
+    above what was measured (docs/validation.md, "Fine fluid merging back")."""
     sim = make_sim(stirred_slab_scene(dim, merge_remnants=remnants))
     sim.advance(0.2)
     p = sim.particles(virtual=False)
@@ -521,8 +514,8 @@ def test_no_particle_falls_below_half_its_level_mass(dim, absorb):
     particle ends up lighter than half its level's nominal mass or heavier than twice it
     (``ABSORB_CAP``), and the real mass holds. Without it
     (absorb_below = 0) a remnant of one fine particle merges into a coarse particle of
-    2^-d of its level's mass, whose children are as light, and so on down (docs/
-    performance.md, the mass cascade): the second case shows the check can fail."""
+    2^-d of its level's mass, whose children are as light, and so on down (METHOD.md §15):
+    the second case shows the check can fail."""
     from mrsph.multires.absorb import ABSORB_CAP
 
     sim = make_sim(stirred_slab_scene(dim, merge_remnants=True, absorb_below=absorb))
@@ -560,7 +553,7 @@ def test_a_lone_fine_particle_among_coarse_ones_is_absorbed(dim):
     particle's virtual children, where its own level's density read above rho0 wherever
     it went. Under dfsph demo_2d's density solve then pumped it to megapascals and ran to
     its maximum iterations every step (after a drag in the window: 0.004-0.008x real
-    time, 97 J/m of kinetic energy; docs/performance.md, "A remnant no one could take").
+    time; docs/validation.md, "A cursor in resting water").
     Here: one fine particle in a coarse block at rest, four adaptivity passes."""
     s1 = 2 * S0[dim]
     scene = {
@@ -832,7 +825,7 @@ def test_a_merge_starts_at_the_pressure_its_group_had(dim):
     a split's offset made merged particles whose compression their pressure took in
     full: demo_2d, the cursor held still at the mouse's strength for 0.1 s and let go,
     the kinetic energy reached 44-52 J within 20 ms at four places and times, 14-42 J
-    against rho - drho (docs/performance.md, "The release of the cursor")."""
+    against rho - drho (docs/validation.md, "A cursor in resting water")."""
     sim = split_under_a_cursor(dim)
     pool = raw_pool(sim)
     rho = sim.pool.p.rho.to_numpy()[: pool["n"]].astype(np.float64)
@@ -888,7 +881,7 @@ def test_merging_back_compresses_nothing_around_it(dim):
     followed by a density pass. Measured first on demo_2d: with only the merged
     particle's own offset, its neighbours' densities rose a pass later, unhidden, and
     the release of a cursor held at the mouse's strength peaked at 19-44 J; with its
-    neighbours re-measured, 3-6 J (docs/performance.md, "The release of the cursor")."""
+    neighbours re-measured, 3-6 J (docs/validation.md, "A cursor in resting water")."""
     sim = split_under_a_cursor(dim)
     sim.run_phases("grid", "density")
 
@@ -934,7 +927,7 @@ def test_a_split_moves_no_mass(dim):
     step's end and its coarse neighbours took the mass it brought for a compression: in
     demo_2d under a dragged cursor a parent moved 7 mm, a quarter of its spacing, its
     coarse neighbours went to 1.03-1.08 rho0 in a step, and the density solve threw its
-    children at 2.6 m/s (docs/performance.md, "A cursor dragged through resting water")."""
+    children at 2.6 m/s (docs/validation.md, "A cursor in resting water")."""
     from mrsph.scene.interaction import Disturbance
 
     sim = split_under_a_cursor(dim, jitter_radius=0.16)
