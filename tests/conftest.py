@@ -13,9 +13,8 @@ Nothing here touches Taichi at import time.
   (:func:`mrsph.runtime.ensure`), so tests that need f64 say so in the scene; they are
   kept together at the end of their module so that precision switches are rare.
 - Two tiers. The quick run (``python3 -m pytest -q``; pytest.ini's ``-m "not slow"``)
-  holds every guard once, in under ten minutes on 2 cores (8:47 from an empty Taichi
-  cache; docs/performance.md, "Two tiers"). ``-m slow`` holds the rest, and ``.ci/run``
-  runs both:
+  holds every guard once, in under ten minutes on 2 cores (docs/performance.md, "The
+  test run's time"). ``-m slow`` holds the rest, and ``.ci/run`` runs both:
   - the long validation: adaptive against uniform flows, the dam breaks, the tanks at
     rest, the soaks' short run, the real window;
   - the other cases of a long test (one of more than ~8 s) whose guard the quick run
@@ -24,17 +23,16 @@ Nothing here touches Taichi at import time.
     mode where another case runs the same pass, and the 3D scenes whose 2D twin runs.
     Each test names its slow cases where it is parametrised. The quick run keeps 3D
     through the 3D demo, dam break and pour, the kernels, grids, rest density, momentum
-    and the errors a 3D step reports. Most of a test's time is building its Simulation
-    (~4 s of Taichi turning kernels into IR, ~3 s compiling them at the first step, even
-    from a warm offline cache), so a test is cut by building fewer, not by stepping less.
+    and the errors a 3D step reports. Most of a test's time is building its Simulation,
+    even from a warm offline cache, so a test is cut by building fewer, not by stepping
+    less.
   They run with ``python3 -m pytest -q -m slow`` (a ``-m`` on the command line replaces
   the default). Mark only the long run: where a test is parametrised (over dimension,
   say) and only some of its cases are long, name those cases' ids with
   ``@pytest.mark.slow_params("3d", ...)`` (or ``pytest.param(3, marks=pytest.mark.slow)``
   where the test owns the parameter), so the short cases stay in the default run.
-- ``open_issue`` tests: long validations of work an open issue has not finished (the
-  DFSPH flows of issue 31 that were never run to the end here, ``UNVERIFIED_DFSPH``;
-  none today).
+- ``open_issue`` tests: long validations of unfinished work, not yet run to the end on
+  this machine (``UNVERIFIED_DFSPH``; none today).
   They are xfail and not strict, so no outcome of theirs can fail a run; they are left
   out of both runs above, so that CI's time goes to tests that can fail, and run with
   ``python3 -m pytest -q -m open_issue`` (they print their numbers).
@@ -47,11 +45,11 @@ Nothing here touches Taichi at import time.
   the rest of ``-m slow``: ``python3 -m pytest -q -m "slow and wallclock" -n 0``.
 - The default run compiles without Taichi's advanced optimisation passes
   (``TI_ADVANCED_OPTIMIZATION=0``, set in ``pytest_configure`` for ``-m "not slow"``
-  unless the variable is already set; subprocesses inherit it): those passes were most
-  of each kernel's compile, and a short test is mostly compile (region_2d's first two
-  steps from an empty cache 21 s → 8.7 s; the whole run 12:01 → 9:40). The kernels
-  compute the same sums; the long validation (``-m slow``, any other ``-m``) keeps the
-  optimised kernels that users run, and ``bench`` warns when the variable is set.
+  unless the variable is already set; subprocesses inherit it): those passes are most
+  of each kernel's compile, and a short test is mostly compile (docs/performance.md,
+  "Building the kernels"). The kernels compute the same sums; the long validation
+  (``-m slow``, any other ``-m``) keeps the optimised kernels that users run, and
+  ``bench`` warns when the variable is set.
 - Both runs use two processes (pytest-xdist, ``-n auto --dist loadgroup`` in pytest.ini;
   ``-n 0`` runs in one). Most of a test's time is Taichi compiling, which is one thread,
   so two processes halve the wall time on two cores. Tests that share an expensive
@@ -78,36 +76,14 @@ def pytest_configure(config):
     config.addinivalue_line("markers", "slow: long validation runs, left out by default; run them with -m slow")
     config.addinivalue_line("markers", "slow_params(*ids): mark slow only the parametrised cases with these ids")
     config.addinivalue_line("markers", "wallclock: times the real window in wall-clock seconds; run it alone (-n 0)")
-    config.addinivalue_line(
-        "markers", "open_issue: xfail validations of an open issue's unfinished work; run with -m open_issue"
-    )
+    config.addinivalue_line("markers", "open_issue: xfail validations of unfinished work; run with -m open_issue")
     config.addinivalue_line("markers", "soak: robustness runs of 10^5 steps; skipped unless --soak (or -m soak)")
 
 
-# Long DFSPH validations (all -m slow) written with the solver but not yet run to the end
-# on this machine when they were added (2026-11-26). They run and print their numbers; a
-# failure is reported as xfail, not hidden as a pass. Each is to be made strict, or its
-# mark dropped, once measured. Keyed by test file and a substring of the test id.
-# Measured since (2026-11-26, after the artificial viscosity under dfsph, -m open_issue):
-# - test_adaptive_flow 2d-dfsph: all 8 pass (refined pool 0.0037 sqrt(gH), uniform
-#   0.0205; the dam break's front, splits, merges and density error); back in -m slow
-#   since CI's run took 41 of its 90 minutes; CI's next run read the refined pool at
-#   0.0116 and a rerun here 0.0072: the DFSPH rest noise, now a known failure
-#   (test_adaptive_flow.KNOWN_FAILURES, xfail, not strict);
-# - test_physics 3d-dfsph: all pass but the tank's settling (0.0126 sqrt(gH) after 1.8 s;
-#   needs <= 0.01), now a known failure of test_physics.KNOWN_FAILURES; the dam break
-#   against Martin & Moyce passes (Z = 1.58, 2.13, 2.74, 3.31 at T = 1.43..2.96); back
-#   in -m slow;
-# - test_adaptive_flow 3d-dfsph: 7 of 8 pass (the front at 1 s 1.607 m against the
-#   uniform run's 1.581 m, 5.14x fewer particles, splits, merges, density error); the
-#   refined pool does not stay at rest: 0.0121 sqrt(gH) (its uniform twin 0.0156), the
-#   velocity noise of the 3D tank (test_physics.KNOWN_FAILURES). Left here: its two
-#   module runs took ~14 minutes beside another job, more than CI has to spare;
-# - run again 2026-11-27 (session 32, absorption on, -m open_issue): the same 7 of 8 pass
-#   (the front at 1 s 1.661 m against the uniform run's 1.592 m, +4.3 %, the same in
-#   four runs on two threads; 5.51x fewer particles) and the pool's rest speed is the
-#   known failure (0.0126 sqrt(gH), uniform 0.0138), in 2 min 53 s on two processes (CI
-#   had taken 14 minutes in all): back in -m slow. None is left here.
+# Long DFSPH validations (all -m slow) written before they were run to the end on this
+# machine: they run and print their numbers, and a failure is reported as xfail, not
+# hidden as a pass, until each is measured and made strict or unmarked. Keyed by test
+# file and a substring of the test id. Their results are in docs/validation.md.
 UNVERIFIED_DFSPH: tuple = ()
 
 # Modules whose tests read a module fixture that is expensive to build: with the fixture's

@@ -1,10 +1,10 @@
-"""The multiresolution scheme against uniform runs at its finest spacing (issue 3, §8):
-a pool at rest with a refined box inside, and a dam break refined near an obstacle.
+"""The multiresolution scheme against uniform runs at its finest spacing (METHOD.md §8):
+a pool at rest with a refined box inside, and a dam break refined near an obstacle
+(docs/validation.md, "Refined pool at rest" and "Adaptive dam break against uniform").
 
 Each scenario runs once per dimension, adaptive and uniform, in a module fixture; the
-tests below read the numbers. Scenes are built in code and coarse, so that the file
-stays near five minutes on a 2-core CPU (the 3D dam break's two runs take half of it).
-Every flow here is long validation, marked ``slow`` (run with ``python3 -m pytest -q -m slow``);
+tests below read the numbers. Scenes are built in code and coarse, so that the long tier
+can afford them. Every flow here is long validation, marked ``slow`` (run with ``python3 -m pytest -q -m slow``);
 the default run keeps the front measurement's own check.
 Tests that fail because of the library are listed in ``KNOWN_FAILURES`` with what was
 measured: they run and print their numbers, and their failure does not fail the suite
@@ -29,23 +29,15 @@ DIMS = (2, 3)
 pytestmark = pytest.mark.usefixtures("fresh_program")
 
 # Tests that fail because of the library: (name, case id) -> what was measured
-# (``scenekit.known_xfail``). The 3D dam-break front was listed here until the split
-# stopped throwing fluid (see ``refined_dam`` and docs/dam-front.md).
+# (``scenekit.known_xfail``). None today.
 KNOWN_FAILURES: dict[tuple[str, str], str] = {}
-# The DFSPH pools' rest speed was listed until session 39 (0.007-0.012 sqrt(gH) in 2D,
-# 0.0121 in 3D): the density solve's leftover compression, undone at about eta s / dt each
-# step; the tolerance now scales with the step's share of its CFL bound (see
-# test_physics.KNOWN_FAILURES).
 
 
 # The largest density next to the level interface, adaptive against uniform
-# (test_density_next_to_the_interface_matches_uniform). The issue asks for 3 %. Held to
-# 0.5 %: measured within 0.1 % over four runs each with wcsph, and the weaker coupling
-# (`symmetric`, limiter off) reads +0.9 % / +1.6 % (README), which 3 % would let through.
-# The 3D DFSPH pool is held to 1.5 %: its rest noise (before session 39) moved the average
-# from run to run, -0.05, +0.30, -0.05 % here and +0.52 % in CI (2026-11-27; the uniform
-# run 1.0062 rho0 each time), and with the limiter off it read +0.43 and +0.03 %, so no
-# tighter bound would tell the two apart.
+# (test_density_next_to_the_interface_matches_uniform): held to 0.5 %, not the 3 % asked,
+# since the weaker symmetric coupling reads +0.9 % / +1.6 % and 3 % would let it through;
+# the 3D DFSPH pool to 1.5 %, since its average moves by that from run to run
+# (docs/validation.md, "Refined pool at rest").
 PEAK_BOUND = {"3d-dfsph": 0.015}
 
 
@@ -75,21 +67,11 @@ def adaptive_and_uniform(dim: int, scene: dict, run) -> dict:
 
 # ================================================================== pool at rest
 # Depth and width, m: whole cells of the coarse level in both dimensions (16 x 2 cm in 2D,
-# 8 x 4 cm in 3D). At 0.3 m the 3D pool was seeded with 7 coarse columns of 4 cm and a
-# 2 cm gap at two walls (before the seed filled such slabs with fine particles): it
-# slumped into the gap (0.24 sqrt(gH) at 0.07 s) and still moved at 0.03 sqrt(gH) after
-# 4 s, topping up its refined region with splits all along; that was what read as the
-# interface stirring the 3D pool.
+# 8 x 4 cm in 3D), so that the seed leaves no gap at a wall for the pool to slump into.
 POOL_H = 0.32
-# Both runs start from a lattice in hydrostatic equilibrium, and both relax: the uniform
-# pool's square lattice rearranges at about 1 s (2D at 0.3 m: 0.0047 sqrt(gH) at 1.2 s,
-# 0.001 by 2 s); the adaptive one adds the splits of its first second or so (2D at 0.3 m:
-# 27, the last at 1.3 s, then none up to 4 s).
-# Measured with the test's scenes (mean speed / sqrt(gH), adaptive / uniform, viscosity
-# x0.98, x1.00, x1.02): after 1 s 2D 0.0075 / 0.0028 and 3D 0.0092 / 0.0042 at x1.00;
-# after 2 s 2D 0.0063, 0.0037, 0.0032 / ~0.001 and 3D 0.0077, 0.0061, 0.0067 / 0.0025;
-# with adaptivity.split_relax = "density" (2026-11-26) 2D 0.0063, 0.0025, 0.0070 and
-# 3D 0.0077, 0.0060, 0.0071.
+# Both runs start from a lattice in hydrostatic equilibrium and relax over the first
+# second or so (the uniform lattice rearranging, the adaptive one's first splits), so
+# the pool is measured after 2 s (docs/validation.md, "Refined pool at rest").
 SETTLE_S = 2.0
 MEASURE_S = 0.2
 
@@ -184,7 +166,7 @@ def test_density_next_to_the_interface_matches_uniform(pool_runs, request):
         f"{pool_runs['case']}: largest density next to the level interface "
         f"{a['peak']:.4f} rho0 (time average of each snapshot's largest), uniform "
         f"run {u['peak']:.4f} rho0 ({100 * err:+.2f} %, expected within "
-        f"{100 * bound:.1f} %, the issue's bound 3 %; worst snapshot "
+        f"{100 * bound:.1f} %; worst snapshot "
         f"{a['worst']:.4f} against {u['worst']:.4f})"
     )
 
@@ -196,7 +178,7 @@ DAM_T = 1.0
 # Also printed (not asserted): the front at EARLY_T, before the block, where the adaptive
 # fluid is all at the coarse level (2 cm) and runs where a uniform 2 cm run does (0.977 m
 # in 3D, 0.963 m in 2D, against 1.053 and 1.037 m at 1 cm); by 1 s the uniform 2 cm front
-# is within 0.5 % of the 1 cm one (docs/dam-front.md).
+# is within 0.5 % of the 1 cm one (docs/validation.md, "Adaptive dam break against uniform").
 EARLY_T = 0.4
 # Merges are counted over a longer adaptive run, so that the fluid thrown over the block
 # has time to leave the refined shell around it.
@@ -209,22 +191,12 @@ def refined_dam(dim: int) -> dict:
     (``adaptivity.band``), and the groups left over merging where they sit among coarse
     particles (``adaptivity.merge_remnants``), so that fluid past the block coarsens again.
 
-    Why two levels and a thin shell. The coarse level must resolve the flow the test
-    compares: the surge that reaches the block is 4-5 cm deep, and a uniform run at 2 cm
-    has its front at 1 s within 0.5 % of the 1 cm run's, but one at 4 cm is 8.6 % behind
-    (3D; 10.2 % in 2D). The earlier version of this test used three levels, 1, 2 and
-    4 cm, refined within 0.1 m: its front agreed (3D +3.1 % over seven CFL numbers, up
-    to +5.5 % over viscosities) only because the 4 cm level's lag cancelled the fluid
-    thrown forward by the splits at the block. With two levels the uniform twin is 8x
-    the coarse run in 3D, so a 5x saving leaves room for about 800 fine particles on
-    average: the shell is 3 cm (at 4 cm, 4.9x). Measured with ``tools/dam_front.py
-    --dim D [--solver dfsph] --cfl ...`` (docs/dam-front.md, "The absorption's reach"),
-    seven CFL numbers for wcsph, five to fifteen runs for dfsph: 3D wcsph -0.4 .. +0.8 %
-    (mean +0.2 %), dfsph +0.9 .. +4.0 % (mean +2.3 %), 5.4x fewer particles; 2D wcsph
-    -1.0 .. +1.7 % (mean +0.5 %), dfsph -2.2 .. -0.7 % (mean -1.3 %). One run says
-    little: before session 36 the 3D runs read +8.6 % on average (wcsph, up to +19.9 %)
-    while the test's own settings read +1.6 %. In 3D the uniform twin (9600 particles)
-    takes about 90 s of the suite on one core."""
+    Why two levels and a thin shell: the coarse level must resolve the flow the test
+    compares (a uniform run at 2 cm has its front at 1 s within 0.5 % of the 1 cm run's,
+    one at 4 cm 8.6 % behind in 3D), and with two levels a 5x saving leaves room for about
+    800 fine particles on average. One run says little: the front is judged over a sweep
+    of CFL numbers and viscosities (``tools/dam_front.py``; docs/validation.md, "Adaptive
+    dam break against uniform")."""
     s0 = 0.01
     lo, hi = box(dim, (0, 0), (DAM_L, 0.6), (0, 0.12))
     blo, bhi = box(dim, (0, 0), (DAM_A, 2 * DAM_A), (0, 0.12))

@@ -1,4 +1,4 @@
-"""The mouse in the user's time (issue 32, item 1), on the real solver.
+"""The mouse in the user's time, on the real solver.
 
 The window hands ``MouseDisturbance`` the wall-clock time between frames, and the
 disturbance's target speed is capped to ``safe_speed`` (Mach 0.1 of the fluid). Here a

@@ -1,4 +1,4 @@
-"""What acts on the water, drawn; the water view; the OBJ surface dump (issue 32).
+"""What acts on the water, drawn; the water view; the OBJ surface dump.
 
 Rendered frames of the stand-in simulation, by the rasteriser and (where Vulkan works)
 by the GGUI renderer the window and recordings share: the mouse's reach (white) and a

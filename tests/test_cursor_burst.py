@@ -1,9 +1,9 @@
 """A still cursor entering water at rest refines it without throwing it about, and
-leaving it lets it merge back without throwing it either
-(``adaptivity.split_fade``, set in demo_2d; mrsph/multires/fade.py), measured by
-tools/cursor_burst.py on
-the default demo as the window shows it: the pool at rest after its opening stir, the
-mouse's refinement splitting level 2 down to 0 under the cursor in one adaptivity pass.
+leaving it lets it merge back without throwing it either (``adaptivity.split_fade``, set
+in demo_2d; METHOD.md §14), measured by tools/cursor_burst.py on the default demo as the
+window shows it: the pool at rest after its opening stir, the mouse's refinement
+splitting level 2 down to 0 under the cursor in one adaptivity pass. The numbers these
+bounds sit between are in docs/validation.md, "A cursor in resting water".
 """
 
 import pytest
@@ -20,17 +20,9 @@ def test_a_still_cursor_in_resting_water_throws_nothing(solver):
     tool = load_tool("cursor_burst")
     rows = tool.burst("demo_2d", SOLVERS[solver], tool.AT, tool.RADIUS, 2.5, (2.5, 20.0), threads=1, leave=True)
     (_, rest, _), (_, soon, _), (_, later, _), (_, gone, _), _ = rows
-    # Measured 2026-11-27 (one thread): at rest 0.11 m/s at most; 2.5 ms after the cursor
-    # came 2.04 m/s and 25 particles above 1 m/s, 20 ms after 0.51 and none; with the
-    # merges' offset too (which changes the opening stir's history) 3.30 m/s and 53;
-    # with the offsets handed on at a change of level (session 34) 2.43 m/s and 33; with
-    # the neighbours of a change of level re-measured too 1.57 m/s and 8, and 1.18 m/s
-    # 20 ms after. With dfsph (session 35): 0.26 m/s and none at 2.5 ms, 1.17 m/s and 5
-    # above 1 m/s at 20 ms (a slower wave: 7.9 J against wcsph's 1.8 J then, 5.8 J at
-    # 2.5 ms); after it left 1 above 1 m/s, the fastest at 1.17 m/s.
-    # Without the fade (split_fade = 0): 11.0 m/s and 1,638 above 1 m/s, then 9.9 and
-    # 261. The count is the measure; the fastest particle, one particle, is held to half
-    # of what it was.
+    # Without the fade 1,638 particles were above 1 m/s 2.5 ms after the cursor came, the
+    # fastest at 11 m/s; with it a handful. The count is the measure; the fastest
+    # particle, one particle, is held to half of what it was.
     fast = int((soon > 1.0).sum())
     assert soon.max() <= 5.5 and fast <= 150, (
         f"demo_2d ({solver}) at rest, a still cursor at {tool.AT}: 2.5 ms after it came the fastest particle "
@@ -41,10 +33,9 @@ def test_a_still_cursor_in_resting_water_throws_nothing(solver):
         f"demo_2d ({solver}), a still cursor: 20 ms after it came the fastest particle moves "
         f"at {later.max():.2f} m/s (expected <= 2)"
     )
-    # and when it goes, the refined fluid merges back: 2.5 ms later 23 particles above
-    # 1 m/s, the fastest at 4.0 m/s (the merged particle's compression faded too; 17 and
-    # 1.9 m/s with the offsets handed on, none with the neighbours re-measured, session
-    # 34); 336 and 6.5 m/s with the splits' fade alone
+    # and when it goes, the refined fluid merges back: with the splits' fade alone 336
+    # particles were above 1 m/s 2.5 ms later, 23 with the merges' offsets too, and none
+    # or one with the neighbours of a change of level re-measured
     thrown = int((gone > 1.0).sum())
     assert thrown <= 100, (
         f"demo_2d ({solver}): 2.5 ms after the cursor left, {thrown} of {len(gone)} particles move "
@@ -58,11 +49,10 @@ def test_letting_go_of_a_held_cursor_splashes_nothing(solver):
     let go: the fluid it refined merges back. Each merge (and absorption, gathering,
     new coupling) changes what the particles around it read, and those re-measure their
     split-fade offset (``SplitFade.remeasure_touched``). The kinetic energy
-    (J per metre of depth) over the 20 ms after, measured at four places and times
-    (docs/performance.md, "The release of the cursor"): 44-52 J at its peak before
-    session 34, 19-44 J with the merged particle's own offset handed on, 3.7-5.8 J with
-    its neighbours re-measured too; at rest before 0.2-0.3 J. The bound sits between.
-    With dfsph (session 35, at the first place): 7.9 J while held, 1.7 J at most after."""
+    (J per metre of depth) over the 20 ms after, at four places and times: 44-52 J at
+    its peak with no offset handed on, 19-44 J with the merged particle's own offset
+    handed on, 3.7-5.8 J with its neighbours re-measured too, 0.2-0.3 J at rest before
+    (docs/validation.md, "A cursor in resting water"). The bound sits between."""
     tool = load_tool("cursor_burst")
     rows = tool.burst(
         "demo_2d",
@@ -85,9 +75,9 @@ def test_letting_go_of_a_held_cursor_splashes_nothing(solver):
     )
 
 
-#: (where the cursor starts, its velocity): along the floor, as session 37 measured, and
-#: two diagonals that threw the pool furthest under dfsph before session 38 (5979 J and
-#: 35 J; with only one of session 38's two changes 176 J and 195 J)
+#: (where the cursor starts, its velocity): along the floor, and the two diagonals of
+#: tools/cursor_burst.py's twelve paths that threw the pool furthest under dfsph before the
+#: split kept its centre of mass and the limiter read densities as the pressure does
 DRAGS = {
     "floor": ((0.3, 0.12), (2.0, 0.0)),
     "up-right": ((0.2, 0.1), (1.5, 1.0)),
@@ -100,8 +90,8 @@ DRAGS = {
 def test_a_cursor_dragged_through_resting_water_throws_nothing(solver, drag):
     """The mouse's refinement alone (no push) dragged through demo_2d's resting pool at
     1.8-2.2 m/s, jumping every 10 ms as the window moves it once a frame: the pool should
-    stay near rest. The kinetic energy's peak over 0.4 s, measured (one thread) in
-    session 38 (docs/performance.md, "A cursor dragged through resting water"):
+    stay near rest. The kinetic energy's peak over 0.4 s, one thread, 2026-11-28
+    (docs/validation.md, "A cursor in resting water"):
 
     ============  ======================  =====
     drag          dfsph (before → after)  wcsph

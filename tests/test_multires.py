@@ -1,11 +1,14 @@
 """The multiresolution scheme (METHOD.md §2–8) held to its invariants: the links between
 real and virtual particles at every step of a run whose refined region keeps moving, the
 total mass through splits and merges (bit for bit), the momentum through an adaptivity
-pass and through the forces that cross a level interface via virtual particles.
+pass and through the forces that cross a level interface via virtual particles; merging
+back, absorption, seeding, and the split fade's offsets. The step, saved states and the
+pool's capacity have files of their own (test_step.py, test_state.py, test_capacity.py);
+the raw pool, its link checks and the scenes they share are in scenekit.py.
 
 Scenes are built in code, small (2D ~1–2k, 3D ~3–6k slots), gravity off and far from
-the walls, so that the file stays within about a minute and a half on a 2-core CPU. Each
-test starts a fresh Taichi program (``fresh_program``), as in ``test_physics.py``.
+the walls. Each test starts a fresh Taichi program (``fresh_program``), as in
+``test_physics.py``.
 
 Link checks read the raw pool (slots ``[0, n)``, DEAD rows skipped by kind), not
 ``Simulation.particles()``, which drops DEAD rows and so renumbers the slots that
@@ -16,255 +19,40 @@ import math
 
 import numpy as np
 import pytest
-from scenekit import DIMS_3D_SLOW, dim_solver_params, watch_solves, with_solver, worst_leak
+from scenekit import (
+    BAND,
+    CHILD_ROLE,
+    DIMS_3D_SLOW,
+    PARENT_ROLE,
+    REAL_KINDS,
+    REGULAR,
+    RULE_E_KINDS,
+    S0,
+    T_BOTH,
+    T_CHILD,
+    T_PARENT,
+    V_CHILD,
+    V_PARENT,
+    case_label,
+    describe,
+    dim_solver_params,
+    for_solver,
+    link_violations,
+    make_sim,
+    moving_region_scene,
+    raw_pool,
+    real_first_moment,
+    real_mass,
+    real_momentum,
+    watch_solves,
+    with_solver,
+    worst_leak,
+)
 from scipy.spatial import cKDTree
 
 from mrsph.scene.config import load_scene
-from mrsph.sph.particles import (
-    DEAD,
-    REGULAR,
-)
-from mrsph.sph.particles import (
-    TRANSIENT_BOTH as T_BOTH,
-)
-from mrsph.sph.particles import (
-    TRANSIENT_CHILD as T_CHILD,
-)
-from mrsph.sph.particles import (
-    TRANSIENT_PARENT as T_PARENT,
-)
-from mrsph.sph.particles import (
-    VIRTUAL_CHILD as V_CHILD,
-)
-from mrsph.sph.particles import (
-    VIRTUAL_PARENT as V_PARENT,
-)
 
 pytestmark = pytest.mark.usefixtures("fresh_program")
-
-REAL_KINDS = (REGULAR, T_PARENT, T_CHILD, T_BOTH)
-PARENT_ROLE = (T_PARENT, T_BOTH)  # real kinds carrying virtual children
-CHILD_ROLE = (T_CHILD, T_BOTH)  # real kinds linked to a virtual parent
-# rule (e) compares regular particles only: right after a pass a transient particle may
-# still see one two levels away for a step (see the test's docstring)
-RULE_E_KINDS = (REGULAR,)
-
-
-def make_sim(scene: dict, threads: int | None = None):
-    from mrsph.simulation import Simulation
-
-    return Simulation(load_scene(scene), arch="cpu", threads=threads)
-
-
-def sound_step(scene: dict) -> float:
-    """The CFL time step of the fluid at rest, dt = cfl h0 / sqrt(k), to script paths in steps."""
-    s0 = scene["particles"]["spacing"]
-    return 0.2 * 2.0 * s0 / math.sqrt(scene["fluid"]["stiffness"])
-
-
-def case_label(dim: int, solver: str) -> str:
-    """How a message names the case: "2D", "2D dfsph"."""
-    return f"{dim}D" + ("" if solver == "wcsph" else f" {solver}")
-
-
-def for_solver(scene: dict, solver: str) -> dict:
-    """The scene with ``fluid.solver = solver``. DFSPH's time step is set by the flow
-    speed (dt_max at rest, ~15x the sound step here): its dt_max is pinned to the sound
-    step, so that the paths scripted in sound steps (``sound_step``) take as many steps
-    and the refined box sweeps the fluid alike with both solvers."""
-    out = with_solver(scene, solver)
-    if solver == "dfsph":
-        out["physics"] = dict(scene["physics"], dt_max=sound_step(scene))
-    return out
-
-
-# ================================================================== the raw pool
-def raw_pool(sim) -> dict:
-    """Every slot [0, n) of the pool, DEAD ones included, with the children table."""
-    n = sim.pool.count()
-    p = sim.pool.p
-    out = {name: getattr(p, name).to_numpy()[:n] for name in ("x", "v", "m", "level", "kind", "parent", "nchild")}
-    out["children"] = sim.pool.children.to_numpy()[:n]
-    out["n"] = n
-    return out
-
-
-def real_momentum(pool: dict) -> tuple[np.ndarray, float]:
-    """Σ m v over real particles (float64) and the scale Σ m |v|."""
-    real = np.isin(pool["kind"], REAL_KINDS)
-    m = pool["m"][real].astype(np.float64)
-    v = pool["v"][real].astype(np.float64)
-    return (m[:, None] * v).sum(axis=0), float((m * np.linalg.norm(v, axis=1)).sum())
-
-
-def real_first_moment(pool: dict) -> tuple[np.ndarray, float]:
-    """Σ m x over real particles (float64) and the scale Σ m |x|."""
-    real = np.isin(pool["kind"], REAL_KINDS)
-    m = pool["m"][real].astype(np.float64)
-    x = pool["x"][real].astype(np.float64)
-    return (m[:, None] * x).sum(axis=0), float((m * np.linalg.norm(x, axis=1)).sum())
-
-
-def real_mass(pool: dict) -> float:
-    real = np.isin(pool["kind"], REAL_KINDS)
-    return math.fsum(pool["m"][real].astype(np.float64).tolist())
-
-
-def describe(pool: dict, i: int) -> str:
-    if not 0 <= i < pool["n"]:
-        return f"slot {i} (outside [0, {pool['n']}))"
-    return (
-        f"slot {i} (kind {pool['kind'][i]}, level {pool['level'][i]}, parent {pool['parent'][i]}, "
-        f"nchild {pool['nchild'][i]}, children {pool['children'][i][: max(pool['nchild'][i], 0)].tolist()})"
-    )
-
-
-def link_violations(sim, pool: dict) -> list[str]:
-    """The broken invariants of METHOD.md §3 and §8, first ones first (at most a few per rule)."""
-    kind, level, parent = pool["kind"], pool["level"], pool["parent"]
-    nchild, children, n = pool["nchild"], pool["children"], pool["n"]
-    nmax = 2**sim.dim
-    out = []
-
-    def listed(par: int, ch: int) -> bool:
-        k = int(nchild[par])
-        return 0 <= k <= nmax and ch in children[par, :k]
-
-    def owner_ok(j, want_kinds, what):
-        par = int(parent[j])
-        if not 0 <= par < n:
-            return f"{what} {describe(pool, j)} has no owner: parent {par}"
-        if kind[par] not in want_kinds:
-            return f"{what} {describe(pool, j)}: its owner {describe(pool, par)} is not of kind {want_kinds}"
-        if level[par] != level[j] + 1:
-            return f"{what} {describe(pool, j)}: its owner {describe(pool, par)} is not one level coarser"
-        if not listed(par, j):
-            return f"{what} {describe(pool, j)}: its owner {describe(pool, par)} does not list it"
-        return None
-
-    # (a) virtual children: an alive, real owner with ROLE_PARENT, one level coarser, listing it
-    for j in np.flatnonzero(kind == V_CHILD):
-        msg = owner_ok(int(j), PARENT_ROLE, "virtual child")
-        if msg:
-            out.append("(a) " + msg)
-            break
-    # (b) transient children: a virtual parent one level coarser listing it
-    for j in np.flatnonzero(np.isin(kind, CHILD_ROLE)):
-        msg = owner_ok(int(j), (V_PARENT,), "transient child")
-        if msg:
-            out.append("(b) " + msg)
-            break
-    # (c) virtual parents: 1..2^d children, alive transient children one level finer pointing back
-    for i in np.flatnonzero(kind == V_PARENT):
-        k = int(nchild[i])
-        if not 1 <= k <= nmax:
-            out.append(f"(c) virtual parent {describe(pool, i)} has {k} children; expected 1..{nmax}")
-            break
-        chs = children[i, :k]
-        bad = [
-            int(c)
-            for c in chs
-            if not (0 <= c < n and kind[c] in CHILD_ROLE and level[c] == level[i] - 1 and parent[c] == i)
-        ]
-        if bad or len(set(chs.tolist())) != k:
-            out.append(
-                f"(c) virtual parent {describe(pool, i)}: child {describe(pool, bad[0]) if bad else 'listed twice'}"
-                f" is not an alive transient child one level finer pointing back"
-            )
-            break
-    # (c') a virtual parent weighs its group: a child's mass changed (a light group
-    # absorbed by it, ``Absorption.run``) changes its virtual parent's with it
-    for i in np.flatnonzero(kind == V_PARENT):
-        k = int(nchild[i])
-        group = math.fsum(pool["m"][children[i, :k]].astype(np.float64)) if 1 <= k <= nmax else 0.0
-        if abs(float(pool["m"][i]) - group) > 1e-6 * group:
-            out.append(
-                f"(c') virtual parent {describe(pool, i)} has mass {float(pool['m'][i])!r}, its children {group!r}"
-            )
-            break
-    # the transient parents' side of (a): their children are their own virtual children
-    for i in np.flatnonzero(np.isin(kind, PARENT_ROLE)):
-        k = int(nchild[i])
-        chs = children[i, :k] if 0 <= k <= nmax else []
-        bad = [
-            int(c)
-            for c in chs
-            if not (0 <= c < n and kind[c] == V_CHILD and parent[c] == i and level[c] == level[i] - 1)
-        ]
-        if not 1 <= k <= nmax or bad:
-            out.append(
-                f"(a') transient parent {describe(pool, i)}: "
-                + (
-                    f"child {describe(pool, bad[0])} is not its virtual child"
-                    if bad
-                    else f"{k} children, expected 1..{nmax}"
-                )
-            )
-            break
-    # (d) no particle has more than 2^d children
-    over = np.flatnonzero((kind != DEAD) & (nchild > nmax))
-    if len(over):
-        out.append(f"(d) {len(over)} particles have more than {nmax} children; first {describe(pool, int(over[0]))}")
-    # (e) no regular particle has a regular particle >= 2 levels finer within its support
-    reg = np.isin(kind, RULE_E_KINDS)
-    x = pool["x"].astype(np.float64)
-    for lc in range(2, sim.levels):
-        coarse = np.flatnonzero(reg & (level == lc))
-        fine = np.flatnonzero(reg & (level <= lc - 2))
-        if len(coarse) == 0 or len(fine) == 0:
-            continue
-        h = sim.h0 * 2**lc
-        d, k = cKDTree(x[fine]).query(x[coarse], k=1)
-        close = np.flatnonzero(d < h)
-        if len(close):
-            c, f = int(coarse[close[0]]), int(fine[k[close[0]]])
-            out.append(
-                f"(e) regular {describe(pool, c)} at {np.round(x[c], 4).tolist()} has regular "
-                f"{describe(pool, f)} at {np.round(x[f], 4).tolist()} {d[close[0]]:.4g} m away, "
-                f"inside h_{lc} = {h:.4g} m ({len(close)} such coarse particles)"
-            )
-    return out
-
-
-# ================================================================== scenes
-S0 = {2: 0.01, 3: 0.02}  # level-0 spacing
-BAND = {2: 0.04, 3: 0.03}  # adaptivity.band
-
-
-def moving_region_scene(dim: int, half_period_steps: int = 30, levels: int = 3) -> dict:
-    """A slab of fluid at rest, gravity off, far from the walls; a refinement box (level 0)
-    sweeps along x through it and back, so that the fluid keeps splitting ahead of the box
-    and merging behind it. The band is set narrow (3 level-0 spacings... 1.5 h0) so that
-    the transition layers fit inside the small slab."""
-    s0 = S0[dim]
-    c = [0.5] * dim
-    half = 0.07 if dim == 2 else 0.08  # half width of the refined box
-    lo = [0.2] + [0.34] * (dim - 1)
-    hi = [0.8] + [0.66] * (dim - 1)
-    x0, x1 = lo[0] + half, hi[0] - half
-    scene = {
-        "description": "slab swept by a moving refinement box",
-        "dim": dim,
-        "domain": {"min": [0.0] * dim, "max": [1.0] * dim},
-        "particles": {"spacing": s0},
-        "fluid": {"viscosity": 1.0, "stiffness": 1000.0, "blocks": [{"min": lo, "max": hi}]},
-        "physics": {"gravity": [0.0] * dim},
-        "adaptivity": {"enabled": True, "levels": levels, "interval": 1, "band": BAND[dim]},
-        "criteria": [],
-    }
-    t = half_period_steps * sound_step(scene)
-    scene["criteria"].append(
-        {
-            "type": "region",
-            "shape": "box",
-            "level": 0,
-            "min": [x0 - half] + [v - half for v in c[1:]],
-            "max": [x0 + half] + [v + half for v in c[1:]],
-            "path": [[0.0, x0] + c[1:], [t, x1] + c[1:], [2 * t, x0] + c[1:]],
-            "loop": True,
-        }
-    )
-    return scene
 
 
 # ================================================================== 1. links at every step
@@ -604,7 +392,7 @@ def test_virtual_coupling_conserves_momentum(dim, coupling, solver):
 def test_symmetric_coupling_is_refused_with_dfsph(dim):
     """The implicit solver hands a virtual particle's reaction to its owners within each
     iteration; the symmetric coupling's own reaction pass cannot: the scene is refused,
-    in one line naming the key, its value and what to use (issue 31 §2)."""
+    in one line naming the key, its value and what to use."""
     from mrsph.scene.config import SceneError
 
     scene = for_solver(refined_blob_scene(dim), "dfsph")
@@ -686,18 +474,11 @@ def stirred_slab_scene(dim: int, **adaptivity) -> dict:
 def test_fine_fluid_a_stirrer_left_merges_back(dim, remnants):
     """METHOD.md §6: particles merge wherever the merged particle would not meet the split
     criterion. After a stir the released fine particles must gather again into groups
-    that can merge. Measured when written (3D, fine particles left that want level 1, at
-    0.2 s): 462 of 2000 real particles when a gathered group could span only 0.8 of the
-    release distance (a lattice cell of eight spans 0.87), 190 of 1791 with
-    ``gather_span`` = 0.9; the rest are groups of 1–3 that no group can join, which
-    ``merge_remnants`` merges where they sit among coarse particles. 2D: 2 left.
-
-    With ``merge_remnants`` none were left until session 36, when a group too light to
-    stand alone could go to a receiver a whole coarse support away. Within one coarse
-    spacing (``ABSORB_REACH``, which put the 3D dam-break front right: docs/dam-front.md,
-    "The absorption's reach") 12 of 1555 stay fine in 3D, from 0.2 s to 0.5 s at least:
-    groups with no receiver that near. The bound is 1 % of the real particles, against
-    the 15 % of the default case."""
+    that can merge. In 3D some are left, groups of 1–3 that no group can join, which
+    ``merge_remnants`` merges where they sit among coarse particles, except those with no
+    receiver for their light group within one coarse spacing (``ABSORB_REACH``). The
+    bounds, 15 % of the real particles by default and 1 % with ``merge_remnants``, sit
+    above what was measured (docs/validation.md, "Fine fluid merging back")."""
     sim = make_sim(stirred_slab_scene(dim, merge_remnants=remnants))
     sim.advance(0.2)
     p = sim.particles(virtual=False)
@@ -733,8 +514,8 @@ def test_no_particle_falls_below_half_its_level_mass(dim, absorb):
     particle ends up lighter than half its level's nominal mass or heavier than twice it
     (``ABSORB_CAP``), and the real mass holds. Without it
     (absorb_below = 0) a remnant of one fine particle merges into a coarse particle of
-    2^-d of its level's mass, whose children are as light, and so on down (docs/
-    performance.md, the mass cascade): the second case shows the check can fail."""
+    2^-d of its level's mass, whose children are as light, and so on down (METHOD.md §15):
+    the second case shows the check can fail."""
     from mrsph.multires.absorb import ABSORB_CAP
 
     sim = make_sim(stirred_slab_scene(dim, merge_remnants=True, absorb_below=absorb))
@@ -772,7 +553,7 @@ def test_a_lone_fine_particle_among_coarse_ones_is_absorbed(dim):
     particle's virtual children, where its own level's density read above rho0 wherever
     it went. Under dfsph demo_2d's density solve then pumped it to megapascals and ran to
     its maximum iterations every step (after a drag in the window: 0.004-0.008x real
-    time, 97 J/m of kinetic energy; docs/performance.md, "A remnant no one could take").
+    time; docs/validation.md, "A cursor in resting water").
     Here: one fine particle in a coarse block at rest, four adaptivity passes."""
     s1 = 2 * S0[dim]
     scene = {
@@ -900,205 +681,6 @@ def test_adaptive_seed_holds_the_uniform_runs_fluid(dim):
     closest = d[:, 1] / np.minimum(s_own, s_own[j[:, 1]])
     assert closest.min() >= 1.0 - 1e-9, (
         f"{dim}D: seeds overlap: nearest neighbour at {closest.min():.3f} of the finer spacing"
-    )
-
-
-# ================================================================== profiled steps
-@pytest.mark.slow_params("2d-adaptive", "3d-adaptive", "3d-uniform")
-@pytest.mark.parametrize("adaptive", [True, False], ids=["adaptive", "uniform"])
-def test_profiled_steps_take_the_same_physics_as_fused_ones(dim, adaptive):
-    """``bench`` times each phase by calling the fused end of the step (accelerations, dt,
-    integration, boundaries, virtual advection) one phase a call. Both ways must move the
-    particles alike. Adaptive: a slab falling onto the floor through a moving refinement
-    box, splits and merges going on. Uniform: the same slab thrown at the floor at 6 m/s,
-    one particle of it put under the floor, which the walls must project back (the
-    ghost forces keep the others off the walls; faster, the adaptive run's split
-    decisions tip on round-off and the two runs part). The two ways are compiled apart, and LLVM
-    may contract a multiply-add in one and not the other (measured: one velocity a few
-    ulp apart after 6 steps), so they agree to round-off, not to the bit. One thread: on
-    more, an adaptive run's reactions are atomic float adds in the threads' order, and
-    two plain runs of it already part at round-off (see the restored-state test below)."""
-    from mrsph.simulation import Simulation
-
-    scene = moving_region_scene(dim)
-    scene["physics"]["gravity"] = [0.0, -9.81] + [0.0] * (dim - 2)
-    scene["adaptivity"]["enabled"] = adaptive
-    block = scene["fluid"]["blocks"][0]
-    scene["domain"]["min"][1] = block["min"][1]  # the floor under the slab
-    speed = 1.5 if adaptive else 6.0
-    block["velocity"] = [0.0, -speed] + [0.0] * (dim - 2)
-    runs = []
-    for profile in (False, True):
-        sim = Simulation(load_scene(scene), arch="cpu", profile=profile, threads=1)
-        if not adaptive:  # the slab's lowest particle under the floor: the walls project it
-            low = int(np.argmin(sim.pool.p.x.to_numpy()[: sim.pool.count(), 1]))
-            x = sim.pool.p.x[low]
-            x[1] = block["min"][1] - 0.002
-            sim.pool.p.x[low] = x
-        for _ in range(60):
-            sim.step()
-        runs.append((sim.time, sim.steps, raw_pool(sim)))
-    (t0, n0, fused), (t1, n1, split) = runs
-    assert n0 == n1 and t1 == pytest.approx(t0, rel=1e-6), (
-        f"{dim}D: fused steps reached t = {t0!r} in {n0}, profiled ones t = {t1!r} in {n1}"
-    )
-    for key in ("n", "level", "kind", "nchild"):
-        assert np.array_equal(fused[key], split[key]), f"{dim}D: profiled and fused steps differ in {key}"
-    dx = float(np.abs(fused["x"] - split["x"]).max())
-    dv = float(np.abs(fused["v"] - split["v"]).max())
-    assert dx < 1e-6 and dv < 1e-4, (
-        f"{dim}D: after 60 steps profiled and fused positions differ by up to {dx:.3g} m, "
-        f"velocities by {dv:.3g} m/s (slab at {speed} m/s)"
-    )
-
-
-# ================================================================== save and restore
-@pytest.mark.slow_params("3d")
-def test_a_restored_state_steps_exactly_as_the_original(dim):
-    """``save_state``/``restore_state`` (what ``bench`` uses to time a pair's two runs
-    turn about): a second Simulation of the scene, given the first one's state in the
-    middle of a run with splits and merges going on, takes the same next steps to the bit.
-    The adaptivity pass runs every few steps (its phase is the step count) and the box
-    moves with the time, so the clocks must come back too, not only the particles.
-    One thread: with more, the reactions handed on to the owners are atomic float adds
-    in whatever order the threads reach them, and two runs part at round-off level (two
-    plain runs of this scene on two threads: the first velocity differs after 42 steps)."""
-    from mrsph.simulation import Simulation
-
-    scene = moving_region_scene(dim)
-    first = Simulation(load_scene(scene), arch="cpu", threads=1)
-    for _ in range(25):  # an odd count: the pass's phase matters
-        first.step()
-    state = first.save_state()
-    first.stats()  # counts events since the last call: start from zero here
-    for _ in range(30):
-        first.step()
-    events = first.stats()
-    assert events["splits"] + events["merges"] > 0, (
-        f"{dim}D: no split or merge in the 30 steps compared ({events['splits']}, {events['merges']})"
-    )
-    second = Simulation(load_scene(scene), arch="cpu", threads=1)
-    second.restore_state(state)
-    for _ in range(30):
-        second.step()
-    a, b = raw_pool(first), raw_pool(second)
-    assert (second.time, second.steps) == (first.time, first.steps), (
-        f"{dim}D: restored run at t = {second.time!r} after {second.steps} steps, original at "
-        f"t = {first.time!r} after {first.steps}"
-    )
-    for key in a:
-        assert np.array_equal(a[key], b[key]), f"{dim}D: the restored run's {key} differs after 30 steps"
-    # a state of another dimension or pool size is refused before anything is written
-    for wrong in (dict(state, dim=5 - dim), dict(state, capacity=state["capacity"] + 16)):
-        with pytest.raises(ValueError, match="does not fit"):
-            second.restore_state(wrong)
-    assert np.array_equal(raw_pool(second)["x"], b["x"]), f"{dim}D: a refused state changed the pool"
-
-
-# the 2D dfsph case in the quick run: its kernels compiled as there (TI_ADVANCED_OPTIMIZATION=0)
-# gave the NaN; optimised, LLVM's fast math hid it. The other cases guard the same visitor: -m slow
-@pytest.mark.parametrize(("dim", "solver"), dim_solver_params(slow=("3d", "2d", "3d-dfsph")))
-def test_particles_whose_lists_overflowed_move_as_if_listed(dim, solver, monkeypatch):
-    """A particle with more neighbours than its list holds (``MAX_NEIGHBOURS``) is summed
-    over its grid block instead, in every pass, and one with more DFSPH image pairs than
-    it keeps (``dfsph.IMAGE_PAIRS``) sums its images on the fly. A run whose lists and image
-    pairs hold one (all of them overflow) takes the same step as the listed run from the same state: the
-    slab of the moving refinement thrown onto the floor, so that the walls' images and
-    every kind of particle are in the sums. The two sum in another order, so they agree
-    to round-off. Found by the stirred soak (session 35): under dfsph the own block holds
-    i itself at r = 0, which the solver took for i on a wall, and its velocity went NaN."""
-    import mrsph.pressure.dfsph
-    import mrsph.sph.neighbours
-    from mrsph.simulation import Simulation
-
-    scene = for_solver(moving_region_scene(dim), solver)
-    scene["physics"]["gravity"] = [0.0, -9.81] + [0.0] * (dim - 2)
-    block = scene["fluid"]["blocks"][0]
-    scene["domain"]["min"][1] = block["min"][1]  # the floor under the slab
-    block["velocity"] = [0.0, -1.5] + [0.0] * (dim - 2)
-    listed = Simulation(load_scene(scene), arch="cpu", threads=1)
-    for _ in range(2):  # the slab's impact, where the walls' images push hardest
-        listed.step()  # (after 12 steps a wrong image term in the solve went unseen)
-    state = listed.save_state()
-    monkeypatch.setattr(mrsph.sph.neighbours, "MAX_NEIGHBOURS", {2: 1, 3: 1})
-    monkeypatch.setattr(mrsph.pressure.dfsph.pairs, "IMAGE_PAIRS", {2: 1, 3: 1})  # dfsph's image pairs too
-    overflowed = Simulation(load_scene(scene), arch="cpu", threads=1)
-    overflowed.restore_state(state)
-    listed.step()
-    overflowed.step()
-    a, b = raw_pool(listed), raw_pool(overflowed)
-    for key in ("n", "level", "kind"):
-        assert np.array_equal(a[key], b[key]), f"{case_label(dim, solver)}: the overflowed step's {key} differs"
-    real = np.isin(a["kind"], REAL_KINDS)
-    dv = np.abs(a["v"][real] - b["v"][real]).max(axis=1)
-    speed = float(np.abs(a["v"][real]).max())
-    worst = int(np.argmax(np.where(np.isfinite(dv), dv, np.inf)))
-    assert np.isfinite(b["v"]).all() and dv[worst] <= 1e-4 * speed, (
-        f"{case_label(dim, solver)}: a step with every list overflowed moves real particle {worst} at "
-        f"{b['v'][real][worst]} m/s, the listed step at {a['v'][real][worst]} (fastest {speed:.3g} m/s; "
-        f"{int((~np.isfinite(b['v'])).any(axis=1).sum())} non-finite velocities)"
-    )
-
-
-# ================================================================== capacity
-@pytest.mark.slow_params("3d")  # the quick run keeps 2D (conftest.py, "two tiers")
-def test_a_full_pool_refuses_splits_warns_once_and_loses_nothing(dim):
-    """Issue 3 §7: a split that does not fit in the pool is refused, counted in the stats
-    (``refused``) and reported once as a RuntimeWarning; the run goes on with its links
-    intact, and no particle is dropped: with full groups only, the real mass stays
-    bit-identical. The pool gets the smallest capacity the scene check accepts (the
-    uniform lattice at the finest spacing), and a refinement box slides over the slab
-    until the whole of it wants the finest level: the coarse seed splits towards that
-    lattice, and its virtual particles overrun the pool on the way."""
-    import warnings
-
-    scene = moving_region_scene(dim)
-    scene["adaptivity"]["merge_min_children"] = 2**dim
-    lo, hi = scene["fluid"]["blocks"][0]["min"], scene["fluid"]["blocks"][0]["max"]
-    half = [0.5 * (b - a) + 0.05 for a, b in zip(lo, hi)]
-    centre = [0.5 * (a + b) for a, b in zip(lo, hi)]
-    start = [0.99] + centre[1:]  # the box's far edge over the slab's last quarter
-    slide = 20 * sound_step(scene)
-    scene["criteria"] = [
-        {
-            "type": "region",
-            "shape": "box",
-            "level": 0,
-            "min": [c - h for c, h in zip(start, half)],
-            "max": [c + h for c, h in zip(start, half)],
-            "path": [[0.0] + start, [slide] + centre, [1e3] + centre],
-        }
-    ]
-    block = scene["fluid"]["blocks"][0]
-    extent = np.asarray(block["max"], float) - np.asarray(block["min"], float)
-    scene["particles"]["capacity"] = int(np.prod(np.floor(extent / S0[dim] + 1e-9)))
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        sim = make_sim(scene)
-        m_start = real_mass(raw_pool(sim))
-        refused = splits = 0
-        for step in range(1, 61):
-            sim.step()
-            ev = sim.stats()
-            refused += ev["refused"]
-            splits += ev["splits"]
-            assert ev["total_mass"] == m_start, (
-                f"{dim}D, step {step}: total real mass {ev['total_mass']!r} != {m_start!r} "
-                f"with {refused} splits refused so far"
-            )
-            bad = link_violations(sim, raw_pool(sim))
-            assert not bad, f"{dim}D, step {step}, {refused} refused so far: " + "; ".join(bad)
-    full = [w for w in caught if issubclass(w.category, RuntimeWarning) and "pool full" in str(w.message)]
-    print(f"\n{dim}D capacity {sim.capacity}: {splits} splits, {refused} refused in 60 steps; {len(full)} warning(s)")
-    assert refused > 0, f"{dim}D: capacity {sim.capacity} refused nothing ({splits} splits): the test is void"
-    total = int(sim.pool.refused[None])
-    assert refused == total, (
-        f"{dim}D: the stats rows' refused add up to {refused}, the pool "
-        f"refused {total} claims (each row counts since the previous one)"
-    )
-    assert len(full) == 1 and sim.warnings == [str(full[0].message)], (
-        f"{dim}D: expected one 'pool full' warning, got {len(full)} "
-        f"({len(sim.warnings)} in sim.warnings); first: {full[0].message if full else None}"
     )
 
 
@@ -1243,7 +825,7 @@ def test_a_merge_starts_at_the_pressure_its_group_had(dim):
     a split's offset made merged particles whose compression their pressure took in
     full: demo_2d, the cursor held still at the mouse's strength for 0.1 s and let go,
     the kinetic energy reached 44-52 J within 20 ms at four places and times, 14-42 J
-    against rho - drho (docs/performance.md, "The release of the cursor")."""
+    against rho - drho (docs/validation.md, "A cursor in resting water")."""
     sim = split_under_a_cursor(dim)
     pool = raw_pool(sim)
     rho = sim.pool.p.rho.to_numpy()[: pool["n"]].astype(np.float64)
@@ -1299,7 +881,7 @@ def test_merging_back_compresses_nothing_around_it(dim):
     followed by a density pass. Measured first on demo_2d: with only the merged
     particle's own offset, its neighbours' densities rose a pass later, unhidden, and
     the release of a cursor held at the mouse's strength peaked at 19-44 J; with its
-    neighbours re-measured, 3-6 J (docs/performance.md, "The release of the cursor")."""
+    neighbours re-measured, 3-6 J (docs/validation.md, "A cursor in resting water")."""
     sim = split_under_a_cursor(dim)
     sim.run_phases("grid", "density")
 
@@ -1345,7 +927,7 @@ def test_a_split_moves_no_mass(dim):
     step's end and its coarse neighbours took the mass it brought for a compression: in
     demo_2d under a dragged cursor a parent moved 7 mm, a quarter of its spacing, its
     coarse neighbours went to 1.03-1.08 rho0 in a step, and the density solve threw its
-    children at 2.6 m/s (docs/performance.md, "A cursor dragged through resting water")."""
+    children at 2.6 m/s (docs/validation.md, "A cursor in resting water")."""
     from mrsph.scene.interaction import Disturbance
 
     sim = split_under_a_cursor(dim, jitter_radius=0.16)

@@ -37,19 +37,7 @@ pytestmark = pytest.mark.usefixtures("fresh_program")
 # test listed here runs and reports its numbers, but its failure does not fail the suite
 # (``known_xfail``: xfail, not strict).
 KNOWN_FAILURES: dict[tuple[str, str], str] = {}
-# The DFSPH tanks' speed was listed until session 39: each step's density solve left a
-# compression of its tolerance, undone the next step at about eta s / dt, a noise of
-# 0.0123-0.0128 sqrt(gH) in 3D and 0.0045-0.0128 in 2D (bimodal). The tolerance now scales
-# with the step's share of its CFL bound, down to dfsph.rest_tolerance (dfsph._tolerance):
-# 0.0078-0.0081 in 3D, 0.0037-0.0049 in 2D over five nudged runs each
-# (python3 tools/tank_rest.py --dim 2|3 --nudge).
-# The resting tank under wcsph was listed until fluid.hydrostatic_start and
-# fluid.artificial_viscosity; it now settles and reads hydrostatic pressure in 2D and 3D.
-# The 2D DFSPH tank was unlisted when the artificial viscosity took its c from
-# fluid.stiffness under dfsph too (it settled at 0.0125 sqrt(gH), a particle on a wall) and
-# the band pressure was sampled every step (every fifth step read +12 %); measured
-# 2026-11-26: 0.0073 sqrt(gH), -0.4 %, closest particle 0.43 spacings from a wall. Its
-# speed was listed again (above): that was one run's reading.
+# None today: the resting tanks settle under both solvers (docs/validation.md, "Resting tank").
 
 
 def stiffness_for(height: float) -> float:
@@ -102,8 +90,8 @@ def blob_scene(dim):
     }
 
 
-# the DFSPH cases took 210 s (2D, first compile, on a loaded 2-core machine): slow; the
-# default run keeps the per-solve check in test_multires' variational-dfsph coupling case
+# the DFSPH cases compile a second solver (minutes on 2 cores): slow; the default run
+# keeps the per-solve check in test_multires' variational-dfsph coupling case
 @pytest.mark.parametrize(("dim", "solver"), dim_solver_params(slow=("2d-dfsph", "3d-dfsph")))
 def test_internal_forces_conserve_momentum(dim, solver):
     """Pair forces are antisymmetric, so the total momentum of a free blob does not
@@ -732,7 +720,7 @@ SOLVE_COLUMNS = ("solver", "density_iterations", "divergence_iterations", "densi
 @pytest.mark.slow_params("3d")  # the quick run keeps 2D (conftest.py, "two tiers")
 def test_dfsph_solve_stopped_at_its_maximum_is_counted_warned_once_and_written(dim, tmp_path):
     """A density solve that stops at dfsph.max_iterations before its tolerance is never
-    silent (issue 31 §3): each such step is counted in the stats row (``unconverged``), a
+    silent: each such step is counted in the stats row (``unconverged``), a
     RuntimeWarning naming the key and its value is given once for the run, and stats.csv
     carries the solver's columns. Here max_iterations = 1 against a tolerance of 1e-9 in
     a tank just let go (the lattice compresses under gravity), so every density solve stops

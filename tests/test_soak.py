@@ -2,9 +2,8 @@
 
 - ``test_soak_full`` (marker ``soak``, skipped unless ``--soak``): 10^5 steps, tens of
   minutes on 2 cores. Run it with ``python3 -m pytest -q --soak -m soak``.
-  It runs with each pressure solver; under ``fluid.solver = "dfsph"`` it blows up within
-  0.4 s today (xfail, not strict, with the numbers; issue 31).
-- ``test_soak_short``: a SHORT soak of 1000 steps (~45 s on 2 cores) in -m slow, with
+  It runs with each pressure solver (docs/validation.md, "Stirred soak").
+- ``test_soak_short``: a SHORT soak of 1000 steps in -m slow, with
   gestures of 0.025 s so that it pushes, pulls and lets go within its ~0.09 s, its
   kernels compiled without the advanced optimisation passes, as the quick run compiles.
 - The checker itself is tested on hand-made particles, so that a passing soak means the
@@ -127,17 +126,18 @@ def test_cursor_pushes_pulls_and_lets_go_inside_the_fluid():
     assert step.max() == pytest.approx(10.0, rel=1e-6)
 
 
-@pytest.mark.slow  # 44 s: a long run, in -m slow (conftest.py, "two tiers")
+@pytest.mark.slow  # a long run, in -m slow (conftest.py, "two tiers")
 def test_soak_short(fresh_program, monkeypatch):
     """SHORT soak (1000 steps, not the 10^5 of test_soak_full): every check passes, the
     stirring refines the fluid, and the summary line says so. Each level's median mass
     stays within what absorption allows, [absorb_below, ABSORB_CAP] = [0.5, 2] of
     nominal: the mass cascade of partial merges read medians of 0.21-0.50
-    (docs/performance.md). Not at most 1, as before absorption: with two threads the
-    run differs each time, and CI's had a nearly empty level 1 whose median read 1.50
-    (here 0.79-0.87 with hundreds of particles)."""
-    # compiled as the quick run compiles (conftest.py), where this soak found a NaN that
-    # the optimised kernels hid (docs/performance.md, "A NaN the default test run found")
+    (docs/validation.md, "Masses near their level's nominal mass"). Not at most 1: with
+    two threads the run differs each time, and a nearly empty level's median can read
+    above 1."""
+    # compiled as the quick run compiles (conftest.py): so compiled, this soak found a NaN
+    # that the optimised kernels' fast math hid (an overflowed list's own image at r = 0,
+    # METHOD.md §10)
     monkeypatch.setenv("TI_ADVANCED_OPTIMIZATION", "0")
     res = soak_tool.soak(steps=1000, check_every=125, gesture_s=0.025)
     assert res.ok, res.failures
@@ -173,8 +173,8 @@ def test_mass_ratios_are_per_level_medians_of_the_real_particles():
 @pytest.mark.parametrize("solver", ["wcsph", "dfsph"])
 def test_soak_full(fresh_program, solver):
     """The soak proper: 10^5 steps at the strongest stirring (tens of minutes), with each
-    pressure solver (``fluid.solver``, issue 31 item 6). One thread, as measured
-    (docs/performance.md): on two, the coupling's atomic adds make each run its own."""
+    pressure solver (``fluid.solver``). One thread, as measured (docs/validation.md,
+    "Stirred soak"): on two, the coupling's atomic adds make each run its own."""
     res = soak_tool.soak(steps=100_000, check_every=500, overrides=(f'fluid.solver="{solver}"',), threads=1)
     print(res.summary())
     assert res.ok, res.failures

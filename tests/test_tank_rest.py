@@ -1,5 +1,5 @@
-"""tools/tank_rest.py: the resting tank's harness (docs/performance.md, "The warm start's
-share"); its runs are judged by hand, so only what it runs is tested here."""
+"""tools/tank_rest.py: the resting tank's harness (docs/validation.md, "Resting tank");
+its runs are judged by hand, so only what it runs is tested here."""
 
 import subprocess
 import sys

@@ -20,8 +20,8 @@ read 11 m/s and 1,638 particles above 1 m/s 2.5 ms after the cursor came.
 With ``--drag`` the cursor moves instead, from ``--at`` at the given velocity (m/s),
 jumping once every ``--frame`` ms as the window moves it once a frame, for ``--for`` ms;
 the kinetic energy is sampled every millisecond and its peak reported with when it
-came. The refinement alone should leave the pool near rest (docs/performance.md, "A
-cursor dragged through resting water").
+came. The refinement alone should leave the pool near rest (docs/validation.md, "A
+cursor in resting water").
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ AFTER_MS = (2.5, 10.0, 20.0, 50.0, 100.0)
 #: ``--paths``: twelve drags through demo_2d's resting pool, (start, velocity m/s): along
 #: the floor, through the middle, down from the surface, up from the floor, diagonals, in
 #: both basins. One drag says little of a chaotic burst; their median and worst say more
-#: (docs/performance.md, "A cursor dragged through resting water").
+#: (docs/validation.md, "A cursor in resting water").
 PATHS = (
     ((0.3, 0.12), (2.0, 0.0)),
     ((0.3, 0.2), (2.0, 0.0)),

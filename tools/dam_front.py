@@ -13,12 +13,12 @@ adaptivity.band=0 --set adaptivity.merge_remnants=false``), and so is the front
 Each combination of a viscosity factor and a CFL number runs in its own process, ``--jobs``
 at a time, one core each. Without ``--uniform`` the error is taken against the uniform
 fronts measured at the test's own settings (:data:`UNIFORM_FRONT`); the uniform runs move
-by about 1 cm over these perturbations (docs/dam-front.md), which ``--uniform`` measures
+by about 1 cm over these perturbations, which ``--uniform`` measures
 (it runs each uniform twin too: about 90 s each in 3D on one core).
 
 Why a tool: a single run says little. The front at 1 s spreads by several per cent over
-viscosities and CFL numbers a few per cent apart, so every fix in docs/dam-front.md was
-judged over several of them; this is the harness that did it.
+viscosities and CFL numbers a few per cent apart, so a change is judged over several of
+them (docs/validation.md, "Adaptive dam break against uniform").
 """
 
 from __future__ import annotations

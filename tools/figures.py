@@ -1,4 +1,4 @@
-"""Make the README's pictures with the project's own renderer.
+"""Make the pictures of the README and docs/METHOD.md with the project's own renderer.
 
     python3 tools/figures.py            # assets/kinds.png and assets/demo.gif (--out DIR: elsewhere)
 
@@ -118,7 +118,7 @@ if __name__ == "__main__":
     ap = argparse.ArgumentParser(
         description=__doc__.split("\n\n")[0],
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog="Without --out it overwrites the README's assets/kinds.png and assets/demo.gif.",
+        epilog="Without --out it overwrites assets/kinds.png and assets/demo.gif.",
     )
     ap.add_argument("--out", type=Path, default=ROOT / "assets", help="folder for the two files (default: assets/)")
     out = ap.parse_args().out

@@ -115,7 +115,7 @@ def mass_ratios(parts: dict, nominal) -> list[float]:
     """The median of the real particles' mass over their level's nominal mass, per level
     (nan for an empty level). Not a check: partial merges make lighter particles by design
     (a group of one, a quarter in 2D), but a run that drifts far below 1 has fewer
-    particles than its spacing says, each with more neighbours (docs/performance.md)."""
+    particles than its spacing says, each with more neighbours (docs/METHOD.md §15)."""
     from mrsph.sph.particles import VIRTUAL_CHILD
 
     real = parts["kind"] < VIRTUAL_CHILD

@@ -14,8 +14,8 @@ After ``--warm`` steps it runs ``--steps`` more and prints:
 - Taichi's kernel profiler (``ti.init(kernel_profiler=True)``) over the same steps: the
   time of each *task*. A kernel is one task per top-level loop, named ``..._range_for``,
   plus ``..._serial`` tasks for what runs between them on one thread. A ``_serial`` task
-  high in the list is a loop that a GPU runs on one thread, as the issue-31 profile on an
-  H200 found (docs/performance.md, "On a GPU").
+  high in the list is a loop that a GPU runs on one thread, as a profile on an H200
+  found (docs/performance.md, "On a GPU").
 
 The counts come from a second pass over the same number of steps, run without the
 profiler (the profiler syncs after every task).

@@ -12,7 +12,7 @@ read every stats row, so its float sequence, and a run's reading, may differ fro
 test's own run; what it is for is the spread over runs. ``--nudge`` adds four runs with one key moved by about round-off
 (``fluid.viscosity`` ×0.99 and ×1.01, ``dfsph.density_tolerance`` ×0.99 and ×1.01):
 under dfsph one run lands on either side of the bound as its float sequence falls
-(docs/performance.md, "The warm start's share"), so a change is judged over several.
+(docs/validation.md, "Resting tank"), so a change is judged over several.
 One thread, one run after another, about 10 s each in 2D and 15 s in 3D.
 """
 
