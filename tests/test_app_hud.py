@@ -24,7 +24,7 @@ DFSPH_ROW = {
 def test_dfsph_row_shows_iterations_of_each_solve_and_the_density_error():
     lines = solver_lines(DFSPH_ROW, "dfsph", tolerance=0.001)
     assert lines == [
-        "solver dfsph   (s: switch to wcsph)",
+        "solver dfsph   (s: switch to pbf)",
         "iterations/step: density 7.4, div 2.0",
         "density error 0.085 % (tol 0.1 %)",
     ], lines
@@ -56,7 +56,7 @@ def test_row_without_a_solver_names_the_scenes_and_the_stand_in_has_none():
 
 
 def test_switch_cycles_the_schema_choices():
-    assert next_solver("wcsph") == "dfsph" and next_solver("dfsph") == "wcsph"
+    assert next_solver("wcsph") == "dfsph" and next_solver("dfsph") == "pbf" and next_solver("pbf") == "wcsph"
 
 
 def test_switch_refuses_a_scene_that_cannot_take_dfsph_in_one_line():

@@ -355,7 +355,8 @@ def test_bench_refuses_a_bad_override_before_running():
     )
     assert proc.returncode == 2, proc.stderr
     assert proc.stderr.strip().splitlines() == [
-        'python3 main.py bench: --set fluid.solver: unknown choice (got "implicit"; expected one of "wcsph", "dfsph")'
+        'python3 main.py bench: --set fluid.solver: unknown choice (got "implicit"; '
+        'expected one of "wcsph", "dfsph", "pbf")'
     ], proc.stderr
 
 

@@ -13,6 +13,7 @@ import importlib
 SOLVERS = (
     "wcsph",  # weakly compressible (the default)
     "dfsph",  # divergence-free, implicit
+    "pbf",  # position based, a time step tied to the frame
 )
 
 

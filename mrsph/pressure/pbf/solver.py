@@ -1,0 +1,382 @@
+"""Position based fluids (Macklin & Müller, "Position Based Fluids", SIGGRAPH 2013; the
+mass-weighted constraint gradients of Macklin et al. 2014): the density of every real
+particle is a constraint C_i = ρ_i/ρ0 − 1 <= 0, projected on the positions by a few
+Jacobi iterations a step, with a time step tied to the frame (``pbf.substeps`` a frame),
+not to a sound speed or a CFL bound.
+
+The step, in mrsph's order (``simulation.py`` schedules these passes): the positions a
+step starts from are the last step's predictions, x* = x + dt (u + dt a); the density
+pass measures ρ(x*); then ``pbf_project`` runs ``pbf.iterations`` times
+
+1. the multipliers: ρ_i and D_i = |Σ_j m_j ∇W_ij|² + m_i Σ_j m_j |∇W_ij|² over i's
+   neighbourhood (virtual particles and mirror images included, ``gradients.py``), and
+   the Jacobi step on i's accumulated multiplier q_i (a displacement per unit of
+   Σ m ∇W, q = dt² p / ρ²), kept at q >= 0 (the constraint is one-sided, so a free
+   surface is never pulled in):  q_i ← max(q_i + ω (ρ_i − ρ0 − δρ_i) / (D_i + ε D_0), 0),
+   δq_i its change (δρ: a split child's sampling offset, multires/fade.py);
+2. the corrections: Δx_i = −Σ_j m_j (δq_i + δq'_j + s_corr,ij) ∇W_ij, δq'_j the
+   multiplier j shows (the coupling's: 0 for a virtual particle, whose reaction
+   m_i Σ m_j δq_i ∇W_ij is handed back, split evenly, to the real particles it stands
+   for, so that the corrections over the real particles sum to zero); s_corr is the
+   tensile correction k (W(r)/W(Δq h))^n in units of a rest lattice's multiplier;
+3. x_i += Δx_i and u_i += Δx_i / dt (the velocity from the position change), the walls
+   and obstacles (collide), the virtual particles back on their owners;
+
+XSPH smoothing in the last iteration's corrections (u_i += c Σ_j V_j (u_j − u_i) W_ij),
+and p_i = q_i ρ_i² / dt², the pressure whose force moves x by q in a step: what dumps
+show. The force pass then applies ``pbf.warm_start`` of that pressure (the pair pressure
+term of weakly compressible SPH with this p), the kick adds gravity and disturbances,
+``pbf_clamp`` keeps each particle within ``pbf.max_displacement`` of its spacing a step
+(counted), and the drift predicts the next step's x*. So the pressure that carries the
+water's weight acts as a force and the iterations correct the change: without it, the
+weight is carried by each step's iterations alone and a column H deep compresses by
+about g H D_0 dt² / (ρ0 iterations), 30 % at the bottom of demo_2d's 7 mm level.
+"""
+
+import numpy as np
+import taichi as ti
+
+from mrsph.sph.kernels import poly6
+from mrsph.sph.neighbours import ImageNeighbours
+from mrsph.sph.particles import is_real, is_virtual
+from mrsph.sph.step import Pass
+
+from ..base import PressureSolver, TimeStepBound
+from ..eos import sound_speed
+from ..gradients import PairGradients
+
+# knobs[]: scene values the kernels read from a field, so that changing one does not
+# compile the solver's kernels again
+WARM, OMEGA, EPS, XSPH, AP, CLAMP = range(6)
+# stats[] (f64): Σ over steps of the average error, the largest step average, the
+# largest particle error, steps, steps above the tolerance, clamped particles
+ERR_SUM, ERR_WORST, ERR_PEAK, STEPS, UNCONVERGED, CLAMPED = range(6)
+
+
+def rest_denominator(s: float, h: float, m: float, spiky: float, dim: int) -> float:
+    """D of a particle in a rest lattice (spacing s, support h, masses m):
+    m² Σ_j |∇W_ij|², the first term of D vanishing by symmetry; ``spiky`` the level's
+    calibrated constant (∇W = −3 c (h − r)² r̂)."""
+    reach = int(np.ceil(h / s))
+    axes = np.arange(-reach, reach + 1) * s
+    pts = np.stack(np.meshgrid(*([axes] * dim), indexing="ij"), axis=-1).reshape(-1, dim)
+    r = np.linalg.norm(pts, axis=1)
+    r = r[(r > 0) & (r < h)]
+    return float(m * m * np.sum((3.0 * spiky * (h - r) ** 2) ** 2))
+
+
+@ti.data_oriented
+class PBF(PressureSolver):
+    name = "pbf"
+    incompressible = True
+
+    def __init__(self, core, params, coupling, fade, state, warn):
+        cfg = params.pbf
+        self.cfg, self.warn = cfg, warn
+        self.dim, self.adaptive, self.levels = core.dim, core.adaptive, core.levels
+        self.pool, self.lev, self.nb, self.boundary = core.pool, core.lev, core.nb, core.boundary
+        self.coupling, self.fade, self.state = coupling, fade, state
+        self.rest_density = core.lev.rest_density
+        self.step_dt = cfg.dt if cfg.dt > 0.0 else 1.0 / (params.run.fps * cfg.substeps)
+        self.iterations = cfg.iterations
+        self.scene_viscosity = cfg.viscosity == "scene"
+        fl = params.fluid
+        self._damping_c = sound_speed(fl.stiffness, fl.eos) if self.scene_viscosity else 0.0
+        self._viscosity = fl.viscosity if self.scene_viscosity else 0.0
+        self.pairs = PairGradients(core, coupling)
+        cap = core.pool.capacity
+        self.q = ti.field(float, shape=cap)  # the step's accumulated multiplier
+        self.dq = ti.field(float, shape=cap)  # this iteration's change of it
+        self.dx = ti.Vector.field(self.dim, float, shape=cap)  # this iteration's correction
+        self.dv = ti.Vector.field(self.dim, float, shape=cap)  # XSPH's velocity change
+        self.press_term = ti.field(float, shape=cap)  # the warm start's p/ρ², as the force pass reads it
+        L = core.levels
+        self.den_rest = ti.field(float, shape=L)  # D of a rest lattice, per level
+        self.ap_w = ti.field(float, shape=L)  # poly6 at r = Δq h, per level (tensile correction)
+        for l in range(L):
+            h, s = self.lev.support(l), self.lev.spacing(l)
+            self.den_rest[l] = rest_denominator(s, h, self.lev.m[l], self.lev.spiky[l], self.dim)
+            dq = cfg.artificial_pressure_radius * h
+            self.ap_w[l] = (h * h - dq * dq) ** 3
+        self.knobs = ti.field(float, shape=6)
+        for k, v in ((WARM, cfg.warm_start), (OMEGA, cfg.over_relaxation), (EPS, cfg.relaxation),
+                     (XSPH, 0.0 if self.scene_viscosity else cfg.xsph), (AP, cfg.artificial_pressure),
+                     (CLAMP, cfg.max_displacement)):  # fmt: skip
+            self.knobs[k] = v
+        self.err = ti.field(ti.f64, shape=())  # Σ of this iteration's errors
+        self.iteration = ti.field(ti.i32, shape=())  # of the step's, the one running
+        self.n_real = ti.field(ti.i32, shape=())
+        self.stats = ti.field(ti.f64, shape=6)
+        self.tolerance = ti.field(ti.f64, shape=())
+        self.tolerance[None] = cfg.tolerance
+        self._warned = False
+        self._lambda_images = ImageNeighbours(self.nb, self._lambda_pair)
+        self._correct_images = ImageNeighbours(self.nb, self._correct_image)
+
+    # ------------------------------------------------------------------ interface
+    def bound(self) -> TimeStepBound:
+        """dt = the frame's share (``pbf.substeps``) or ``pbf.dt``: no CFL and no force bound."""
+        key = "pbf.dt" if self.cfg.dt > 0.0 else "pbf.substeps"
+        return TimeStepBound(
+            key, 0.0, 0.0, "s", self.step_dt, f"the frame ({key}: dt = {self.step_dt:.3g} s)",
+            even_last_steps=True, force_limited=False,
+        )  # fmt: skip
+
+    def damping_speed(self) -> float:
+        """The artificial viscosity's c: with ``pbf.viscosity = "scene"`` the sound speed
+        ``fluid.stiffness`` gives the scene, else none (XSPH damps instead)."""
+        return self._damping_c
+
+    def force_viscosity(self, fluid) -> float:
+        """μ of the force pass: the scene's with ``pbf.viscosity = "scene"``, else 0."""
+        return self._viscosity
+
+    def reset_counters(self) -> None:
+        self.stats.fill(0.0)
+        self._warned = False
+
+    def take_stats(self) -> dict:
+        """The steps since the last call: the mean of their average density errors (at
+        the last iteration's multipliers, before its corrections), the steps above
+        ``pbf.tolerance`` (warned about once) and the particles the clamp slowed."""
+        err_sum, worst, peak, steps, unconverged, clamped = self.stats.to_numpy().tolist()
+        self.stats.fill(0.0)
+        if unconverged and not self._warned:
+            self._warned = True
+            self.warn(
+                f"pbf: {int(unconverged)} of {int(steps)} steps ended with an average density error above "
+                f"pbf.tolerance = {self.cfg.tolerance:g} (worst {worst:.3g}): raise pbf.iterations "
+                f"(now {self.iterations}) or pbf.substeps (counted in stats as unconverged; warned once)"
+            )
+        return {
+            "density_iterations": float(self.iterations),
+            "divergence_iterations": 0.0,
+            "density_error": err_sum / steps if steps else 0.0,
+            "unconverged": int(unconverged),
+            "clamped": int(clamped),
+        }
+
+    def after_density(self) -> list:
+        """The projection: its start, ``pbf.iterations`` launches of one Jacobi iteration
+        each (a kernel compiled once, whatever the count), its end."""
+        return [
+            Pass("pbf_begin", "pressure", self.begin, self.begin_func),
+            Pass("pbf_iterate", "pressure", self.iterate, self.iterate_func, repeat=self.iterations, alone=True),
+            Pass("pbf_end", "pressure", self.end, self.end_func),
+        ]
+
+    def after_kick(self) -> list:
+        return [Pass("pbf_clamp", "integrate", self.clamp, self.clamp_func)]
+
+    # ------------------------------------------------------------------ device: hooks
+    @ti.func
+    def pair_factor(self, i, inv):
+        """The warm start as a force: the pressure i shows its neighbours, times the share."""
+        p = ti.static(self.pool.p)
+        self.press_term[i] = self.knobs[WARM] * self.coupling.partner_pressure(p[i].kind, p[i].p) * inv * inv
+
+    @ti.func
+    def pair_term(self, i, j, grad):
+        return -(self.press_term[i] + self.press_term[j]) * grad
+
+    # ------------------------------------------------------------------ device: the iterations
+    @ti.func
+    def _lambda_pair(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
+        """j's part of i's factor sums and of its density (acc: Σ m ∇W, the reaction term,
+        Σ m (h² − r²)³); for an obstacle image only a candidate whose image is in the solid."""
+        ok, g = self.pairs.grad(i, j, xq, L, p0, nrm, check, ctx)
+        p = ti.static(self.pool.p)
+        if ok:
+            self.pairs.add_factor(i, j, p[j].m * g, g, acc)
+        h = ctx[0]
+        r2 = (xq - p[j].x).norm_sqr()
+        counts = r2 < h * h
+        if ti.static(check):
+            if counts:
+                counts = self.nb.image_in_solid(p[j].x, p0, nrm)
+        if counts:
+            d = h * h - r2
+            acc[self.dim + 1] += self.coupling.sum_mass(j) * (d * d * d)
+
+    @ti.func
+    def _visit(self, i, pair: ti.template(), images: ti.template(), ctx: ti.template(), acc: ti.template()):
+        """``pair`` over i's own level (its list, itself first, or the grid block) and
+        ``images`` over its wall and obstacle images."""
+        p = ti.static(self.pool.p)
+        xi = p[i].x
+        eye = ti.Matrix.identity(float, self.dim)
+        if self.nb.is_listed(i):
+            self.nb.listed_candidates(i, xi, eye, xi, xi, False, True, pair, ctx, acc)
+        else:
+            self.nb.grid_candidates(i, xi, eye, xi, xi, False, p[i].level, pair, ctx, acc)
+        self.nb.images(i, ctx[0], images, ctx, acc)
+
+    @ti.func
+    def _multipliers(self, n):
+        """Step 1 for every real particle: ρ_i, D_i, the Jacobi step on q_i, δq_i; the
+        average error into ``err``."""
+        p = ti.static(self.pool.p)
+        rho0 = ti.static(self.rest_density)
+        self.err[None] = 0.0
+        self.n_real[None] = 0
+        for i in range(n):
+            if is_real(p[i].kind):
+                l, h, ctx = self.pairs.ctx(i)
+                acc = ti.Vector.zero(float, self.dim + 2)
+                self._visit(i, self._lambda_pair, self._lambda_images.visit, ctx, acc)
+                rho = acc[self.dim + 1] * self.lev.poly6[l] * self.coupling.sum_scale()
+                den = self.pairs.denominator(acc)
+                q = self.q[i]
+                e = rho - rho0 - self.fade.excess(i)
+                step = 0.0
+                if den > 1e-12 * rho * rho:  # an isolated particle has nothing to push
+                    step = e / (den + self.knobs[EPS] * self.den_rest[l])
+                q_new = ti.max(q + self.knobs[OMEGA] * step, 0.0)
+                self.dq[i] = q_new - q
+                self.q[i] = q_new
+                p[i].rho = rho
+                c = ti.max(e, 0.0) / rho0
+                self.err[None] += ti.cast(c, ti.f64)
+                self.n_real[None] += 1
+                if c > self.stats[ERR_PEAK]:
+                    ti.atomic_max(self.stats[ERR_PEAK], ti.cast(c, ti.f64))
+
+    @ti.func
+    def _push(self, i, j, g, ctx: ti.template()):
+        """m_j (δq_i + δq'_j + s_corr) ∇W_ij, and XSPH's weight of j."""
+        p = ti.static(self.pool.p)
+        l = p[i].level
+        shown = self.coupling.partner_pressure(p[j].kind, self.dq[j])
+        corr = 0.0
+        if self.knobs[AP] > 0.0:
+            d = ti.max(ctx[0] * ctx[0] - (p[i].x - p[j].x).norm_sqr(), 0.0)
+            w = (d * d * d) / self.ap_w[l]
+            corr = (
+                self.knobs[AP] * self.rest_density / self.den_rest[l] * ti.pow(w, self.cfg.artificial_pressure_exponent)
+            )
+        return p[j].m * (self.dq[i] + shown + corr) * g
+
+    @ti.func
+    def _correct_pair(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
+        """An own-level neighbour: its part of i's correction (acc[:d]), the reaction of a
+        virtual j handed to its owners, and XSPH's sums (acc[d:2d]: Σ V_j (u_j − u_i) W)."""
+        ok, g = self.pairs.grad(i, j, xq, L, p0, nrm, check, ctx)
+        p = ti.static(self.pool.p)
+        if ok:
+            f = self._push(i, j, g, ctx)
+            for k in ti.static(range(self.dim)):
+                acc[k] += f[k]
+            self.coupling.hand_reaction(j, -p[i].m * f)
+        r2 = (p[i].x - p[j].x).norm_sqr()
+        if r2 < ctx[0] * ctx[0] and j != i:
+            c6 = self.lev.poly6[p[i].level] * self.coupling.sum_scale()
+            w = self.coupling.sum_mass(j) * c6 / p[j].rho * poly6(r2, ctx[0] * ctx[0], 1.0)
+            dv = (p[j].v - p[i].v) * w
+            for k in ti.static(range(self.dim)):
+                acc[self.dim + k] += dv[k]
+
+    @ti.func
+    def _correct_image(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
+        """A mirror image: its part of the correction; the walls are external, nothing is
+        handed on (and XSPH leaves the walls free-slip)."""
+        ok, g = self.pairs.grad(i, j, xq, L, p0, nrm, check, ctx)
+        if ok:
+            f = self._push(i, j, g, ctx)
+            for k in ti.static(range(self.dim)):
+                acc[k] += f[k]
+
+    @ti.func
+    def _corrections(self, n):
+        """Step 2: Δx_i for every real particle (and XSPH's Δu, applied in the last
+        iteration)."""
+        p = ti.static(self.pool.p)
+        for i in range(n):
+            if is_real(p[i].kind):
+                l, h, ctx = self.pairs.ctx(i)
+                acc = ti.Vector.zero(float, 2 * self.dim)
+                self._visit(i, self._correct_pair, self._correct_images.visit, ctx, acc)
+                self.dx[i] = -ti.Vector([acc[k] for k in ti.static(range(self.dim))])
+                self.dv[i] = self.knobs[XSPH] * ti.Vector([acc[self.dim + k] for k in ti.static(range(self.dim))])
+
+    @ti.func
+    def _apply(self, n):
+        """Step 3: the corrections (with the reactions handed to i) into x and u, the
+        walls; then the virtual particles back on their owners. The last iteration adds
+        XSPH's Δu and sets the pressure whose force moves x by q in a step (what dumps
+        show, and the warm start's)."""
+        p = ti.static(self.pool.p)
+        dt = ti.cast(self.state.dt[None], float)
+        last = self.iteration[None] == ti.static(self.iterations - 1)
+        for i in range(n):
+            if is_real(p[i].kind):
+                d = self.dx[i] + self.coupling.take_reaction(i, ti.Vector.zero(float, self.dim)) / p[i].m
+                x, v = p[i].x + d, p[i].v + d / dt
+                if last:
+                    v += self.dv[i]
+                    p[i].p = self.q[i] * p[i].rho * p[i].rho / (dt * dt)
+                    self.press_term[i] = self.knobs[WARM] * p[i].p / (p[i].rho * p[i].rho)
+                x, v = self.boundary.collide(x, v)
+                p[i].x = x
+                p[i].v = v
+        if ti.static(self.adaptive):
+            for j in range(n):
+                if is_virtual(p[j].kind):
+                    self.coupling.place(j)
+
+    @ti.kernel
+    def begin(self, n: ti.i32):
+        self.begin_func(n)
+
+    @ti.func
+    def begin_func(self, n):
+        """The step's q from the warm start's share of the carried pressure."""
+        p = ti.static(self.pool.p)
+        dt = ti.cast(self.state.dt[None], float)
+        self.iteration[None] = 0
+        for i in range(n):
+            if is_real(p[i].kind):
+                self.q[i] = self.knobs[WARM] * p[i].p * dt * dt / (p[i].rho * p[i].rho)
+
+    @ti.kernel
+    def iterate(self, n: ti.i32):
+        self.iterate_func(n)
+
+    @ti.func
+    def iterate_func(self, n):
+        """One Jacobi iteration: steps 1-3."""
+        self._multipliers(n)
+        self._corrections(n)
+        self._apply(n)
+        self.iteration[None] += 1
+
+    @ti.kernel
+    def end(self, n: ti.i32):
+        self.end_func(n)
+
+    @ti.func
+    def end_func(self, n):
+        """The step's error (the last iteration's, before its corrections) into the stats."""
+        avg = self.err[None] / ti.max(self.n_real[None], 1)
+        self.stats[ERR_SUM] += avg
+        self.stats[ERR_WORST] = ti.max(self.stats[ERR_WORST], avg)
+        self.stats[STEPS] += 1.0
+        if avg > self.tolerance[None]:
+            self.stats[UNCONVERGED] += 1.0
+
+    @ti.kernel
+    def clamp(self, n: ti.i32):
+        self.clamp_func(n)
+
+    @ti.func
+    def clamp_func(self, n):
+        """|u| <= max_displacement s / dt for every real particle, on the kicked velocity
+        (the drift's), those it slows counted."""
+        p = ti.static(self.pool.p)
+        dt = ti.cast(self.state.dt[None], float)
+        for i in range(n):
+            if self.state.go[None] and is_real(p[i].kind):
+                vmax = self.knobs[CLAMP] * self.lev.s[p[i].level] / dt
+                speed = p[i].v.norm()
+                if speed > vmax:
+                    p[i].v *= vmax / speed
+                    ti.atomic_add(self.stats[CLAMPED], 1.0)
