@@ -120,7 +120,7 @@ class Simulation:
             self.viscosity.value,
         )  # fmt: skip
         # a uniform run's force pass takes the accelerations (nothing else adds to a force)
-        accelerate = None if self.adaptive else self.integrator
+        accelerate = None if self.adaptive or not self.pressure.uses_forces else self.integrator
         self.forces = Forces(
             core, fl, self.coupling, self.pressure, self.state, self.viscosity, self.integrator.gravity, accelerate
         )
@@ -145,24 +145,33 @@ class Simulation:
         coupling, density, forces = self.coupling, self.density, self.forces
         integrator, pressure = self.integrator, self.pressure
         adapt_every = self.scene.params.adaptivity.interval
-        return [
-            Pass("emit", "emit", self._emit, when=lambda: bool(self.emitters.specs)),
-            Pass("adapt", "adapt", self._adapt, when=lambda: self.adaptive and self.steps % adapt_every == 0),
+        measure = [
             Pass("grid", "grid", self.sorting.run, self.sorting.run_func, counts=True),
             *coupling.before_density(density),
             Pass("density", "density", density.run, density.run_func),
             *coupling.after_density(forces),
             *pressure.after_density(),
-            Pass("forces", "forces", forces.run, forces.run_func),
-            *coupling.after_forces(forces, self.viscosity),
+            *(
+                [Pass("forces", "forces", forces.run, forces.run_func), *coupling.after_forces(forces, self.viscosity)]
+                if pressure.uses_forces
+                else []
+            ),
+        ]
+        move = [
             integrator.timestep_pass(),
             *integrator.motion(pressure.after_kick(), pressure.after_drift()),
             *([integrator.advect_pass()] if self.adaptive else []),
-            *(
-                [Pass("stirrers", "integrate", self.stirring.run, self.stirring.run_func)]
-                if self.stirring.count
-                else []
-            ),
+        ]
+        stirrers = (
+            [Pass("stirrers", "integrate", self.stirring.run, self.stirring.run_func)] if self.stirring.count else []
+        )
+        return [
+            Pass("emit", "emit", self._emit, when=lambda: bool(self.emitters.specs)),
+            Pass("adapt", "adapt", self._adapt, when=lambda: self.adaptive and self.steps % adapt_every == 0),
+            # a position-based solver predicts first and projects what it predicted; the
+            # forces it ends with (its carried pressure) are the next step's kick
+            *(move + measure if pressure.predicts else measure + move),
+            *stirrers,
             Pass("nozzles", "emit", self._nozzles, when=self.emitters.any_on),
         ]
 
@@ -236,13 +245,24 @@ class Simulation:
         if bad:
             raise ValueError(f"run_phases: unknown phase(s) {bad} (expected some of {known})")
         last = max(names, key=known.index)
-        # "density" runs through the solver's passes after it, "forces" through the coupling's
+        # the measuring block: from the sort to the coupling's passes after the forces (or
+        # to the solver's, where it has no force pass); "density" stops before the forces,
+        # and before a position-based solver's projection, which moves the particles
         inner = [p.name for p in self.stepper.passes]
-        upto = inner[inner.index("forces") - 1] if last == "density" else inner[inner.index("timestep") - 1]
-        if last == "grid":
-            upto = "grid"
+        start = inner.index("grid")
+        move = {p.name for p in self.integrator.motion(self.pressure.after_kick(), self.pressure.after_drift())}
+        move |= {"timestep", "virtual_advect", "stirrers", "nozzles"}
+        block = []
+        for name in inner[start:]:
+            if name in move:
+                break
+            block.append(name)
+        stop = {p.name for p in self.pressure.after_density()} if self.pressure.predicts else set()
+        stop |= {"forces"}
+        density = next((k for k, name in enumerate(block) if name in stop), len(block))
+        upto = {"grid": "grid", "density": block[density - 1], "forces": block[-1]}[last]
         args = self.integrator.step_args(None, int(self.disturbances.any_active()), self.time)
-        n = self.stepper.run_until(upto, args)
+        n = self.stepper.run_span("grid", upto, args)
         ti.sync()
         return n
 

@@ -55,7 +55,7 @@ DIMS_3D_SLOW = [2, pytest.param(3, marks=pytest.mark.slow)]
 
 
 # ------------------------------------------------------------------ pressure solvers
-SOLVERS = ("wcsph", "dfsph")
+SOLVERS = ("wcsph", "dfsph", "pbf")
 
 
 def case_id(dim: int, solver: str) -> str:
@@ -65,14 +65,15 @@ def case_id(dim: int, solver: str) -> str:
 
 
 def dim_solver_params(slow=(), fixture: bool = False) -> list:
-    """The (dim, solver) cases of a test that runs with both pressure solvers, for
+    """The (dim, solver) cases of a test that runs with every pressure solver, for
     ``parametrize(("dim", "solver"), ...)``, or with ``fixture`` the params of a fixture
     (each a (dim, solver) pair); the ids in ``slow`` (see ``case_id``) are marked slow."""
     return [
         pytest.param(
             *(((d, s),) if fixture else (d, s)),
             id=case_id(d, s),
-            marks=[pytest.mark.slow] if case_id(d, s) in slow else [],
+            # the position-based solver's 3D cases join the long tier, to keep the quick one short
+            marks=[pytest.mark.slow] if case_id(d, s) in slow or case_id(d, s) == "3d-pbf" else [],
         )
         for s in SOLVERS
         for d in (2, 3)
@@ -152,14 +153,15 @@ def advance_logged(sim, seconds: float, log: SolveLog) -> None:
 
 
 def watch_solves(sim) -> list:
-    """Wrap the DFSPH solves of ``sim`` (its passes ``divergence_solve`` and
-    ``density_solve``) so that each appends (which, Σ m Δv, Σ m |Δv|, σ) over
+    """Wrap the pressure solves of ``sim`` (DFSPH's passes ``divergence_solve`` and
+    ``density_solve``, PBF's warm start and iterations) so that each appends (which, Σ m Δv, Σ m |Δv|, σ) over
     the real particles: the momentum the solve's pressure accelerations added, how hard
     they pushed, and the float32 round-off of measuring the first. A WCSPH run has no solve: the list stays empty."""
     from mrsph.sph.particles import VIRTUAL_CHILD
 
     out = []
-    if sim.pressure.name != "dfsph":
+    passes = {"dfsph": ("divergence_solve", "density_solve"), "pbf": ("pbf_begin", "pbf_iterate")}
+    if sim.pressure.name not in passes:
         return out
 
     def state():
@@ -193,8 +195,8 @@ def watch_solves(sim) -> list:
             )
         )
 
-    wrap("divergence_solve", "divergence")
-    wrap("density_solve", "density")
+    for name, label in zip(passes[sim.pressure.name], ("divergence", "density")):
+        wrap(name, label)
     return out
 
 
@@ -239,12 +241,14 @@ def case_label(dim: int, solver: str) -> str:
 
 def for_solver(scene: dict, solver: str) -> dict:
     """The scene with ``fluid.solver = solver``. DFSPH's time step is set by the flow
-    speed (dt_max at rest, ~15x the sound step here): its dt_max is pinned to the sound
-    step, so that the paths scripted in sound steps (``sound_step``) take as many steps
-    and the refined box sweeps the fluid alike with both solvers."""
+    speed (dt_max at rest, ~15x the sound step here), PBF's by the frame: each is pinned to
+    the sound step, so that the paths scripted in sound steps (``sound_step``) take as
+    many steps and the refined box sweeps the fluid alike with every solver."""
     out = with_solver(scene, solver)
     if solver == "dfsph":
         out["physics"] = dict(scene["physics"], dt_max=sound_step(scene))
+    if solver == "pbf":
+        out["pbf"] = dict(scene.get("pbf", {}), dt=sound_step(scene))
     return out
 
 

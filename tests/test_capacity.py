@@ -62,10 +62,13 @@ def test_particles_whose_lists_overflowed_move_as_if_listed(dim, solver, monkeyp
     dv = np.abs(a["v"][real] - b["v"][real]).max(axis=1)
     speed = float(np.abs(a["v"][real]).max())
     worst = int(np.argmax(np.where(np.isfinite(dv), dv, np.inf)))
-    assert np.isfinite(b["v"]).all() and dv[worst] <= 1e-4 * speed, (
+    tol = 1e-4 * speed
+    if solver == "pbf":  # its velocity is the position change over dt: a position's ulp / dt
+        tol = max(tol, 8.0 * float(np.spacing(np.float32(np.abs(a["x"]).max()))) / listed.dt)
+    assert np.isfinite(b["v"]).all() and dv[worst] <= tol, (
         f"{case_label(dim, solver)}: a step with every list overflowed moves real particle {worst} at "
         f"{b['v'][real][worst]} m/s, the listed step at {a['v'][real][worst]} (fastest {speed:.3g} m/s; "
-        f"{int((~np.isfinite(b['v'])).any(axis=1).sum())} non-finite velocities)"
+        f"{int((~np.isfinite(b['v'])).any(axis=1).sum())} non-finite velocities; bound {tol:.3g} m/s)"
     )
 
 

@@ -27,6 +27,13 @@ def table_passes() -> list[str]:
     return re.findall(r"^\| `(\w+)` \|", section, flags=re.MULTILINE)
 
 
+def predicted(order) -> list[str]:
+    """The table's order for a solver that predicts first: its time step through the
+    virtual advection, then the grid through the coupling's passes after the forces."""
+    a, b, c = order.index("grid"), order.index("timestep"), order.index("virtual_advect") + 1
+    return order[:a] + order[b:c] + order[a:b] + order[c:]
+
+
 def is_subsequence(names, order) -> bool:
     it = iter(order)
     return all(any(n == o for o in it) for n in names)
@@ -55,7 +62,9 @@ def test_every_scenes_passes_follow_the_table(lists):
     for setup, names in lists.items():
         unknown = [n for n in names if n not in order]
         assert not unknown, f"{setup}: passes {unknown} are not in docs/ARCHITECTURE.md's step table"
-        assert is_subsequence(names, order), f"{setup}: the passes {names} are not in the table's order {order}"
+        assert is_subsequence(names, order) or is_subsequence(names, predicted(order)), (
+            f"{setup}: the passes {names} are not in the table's order {order}"
+        )
 
 
 def test_the_scenes_take_every_pass_of_the_table(lists):

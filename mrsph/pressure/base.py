@@ -62,6 +62,10 @@ class PressureSolver:
     name = ""
     live_keys: tuple = ()
     incompressible = False  # a block at rest starts at ρ0 with its hydrostatic pressure
+    # the step's order: False, sort, measure, push, then integrate; True, integrate (predict)
+    # first, then sort, measure and project the predicted positions (a position-based solver)
+    predicts = False
+    uses_forces = True  # the force pass runs (pair pressure, viscosity); False: the solver's passes do it
 
     # ------------------------------------------------------------------ host
     def bound(self) -> TimeStepBound:

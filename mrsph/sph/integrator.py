@@ -57,7 +57,7 @@ class Integrator:
         self.coupling, self.disturbances, self.pressure = coupling, disturbances, pressure
         self.rest_density = core.lev.rest_density
         # without adaptivity the force pass takes the accelerations (``accelerate_reduce``)
-        self.fused_accelerations = not self.adaptive
+        self.fused_accelerations = not self.adaptive and pressure.uses_forces
         self.gravity = ti.Vector.field(self.dim, float, shape=())
         self.gravity[None] = list(physics.gravity)
         # physics.max_speed: a real particle faster than this is reported as a blow-up
@@ -111,13 +111,21 @@ class Integrator:
         self.red_i[1] = 2147483647
 
     @ti.func
+    def _force(self, i):
+        """F_i as the force pass left it in ``a`` (zero where the solver has no force pass)."""
+        if ti.static(self.pressure.uses_forces):
+            return self.pool.p[i].a
+        else:
+            return ti.Vector.zero(float, self.dim)
+
+    @ti.func
     def accelerate(self, i, g, c_sound, stirred):
         """a_i = F_i/m_i + g + disturbances for real particle i, F_i with the reactions
         the coupling handed to it. Returns i's CFL rate (c + |u|)/h, its force rate
         |a|/h, and whether it is bad: NaN/Inf velocity or acceleration, or a speed above
         ``physics.max_speed``."""
         p = ti.static(self.pool.p)
-        f = self.coupling.take_reaction(i, p[i].a)
+        f = self.coupling.take_reaction(i, self._force(i))
         acc = f / p[i].m + g
         if stirred:
             acc += self.disturbances.accel(p[i].x, p[i].v)

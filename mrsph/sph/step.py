@@ -225,19 +225,19 @@ class Stepper:
                     self._timed(p.timer, p.kernel, None)
         return dt
 
-    def run_until(self, last: str, args: tuple) -> int:
-        """The device passes up to and including ``last`` (a look inside a step, for
-        tests and tools: nothing integrates unless asked); returns n."""
-        if last not in [p.name for p in self._inner]:
-            raise ValueError(f"run_until: no pass {last!r} (expected one of {[p.name for p in self._inner]})")
+    def run_span(self, first: str, last: str, args: tuple) -> int:
+        """The device passes from ``first`` to ``last``, pass by pass (a look inside a step,
+        for tests and tools: nothing integrates unless asked); returns n."""
+        names = [p.name for p in self._inner]
+        for name in (first, last):
+            if name not in names:
+                raise ValueError(f"run_span: no pass {name!r} (expected one of {names})")
         self.state.set(*args)
         n = 0
-        for p in self._inner:
+        for p in self._inner[names.index(first) : names.index(last) + 1]:
             out = self._launch(p, n)
             if p.counts:
                 n = out
-            if p.name == last:
-                break
         return n
 
     def _by_pass(self, args: tuple) -> float:

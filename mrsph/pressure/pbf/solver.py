@@ -4,9 +4,11 @@ particle is a constraint C_i = ρ_i/ρ0 − 1 <= 0, projected on the positions b
 Jacobi iterations a step, with a time step tied to the frame (``pbf.substeps`` a frame),
 not to a sound speed or a CFL bound.
 
-The step, in mrsph's order (``simulation.py`` schedules these passes): the positions a
-step starts from are the last step's predictions, x* = x + dt (u + dt a); the density
-pass measures ρ(x*); then ``pbf_project`` runs ``pbf.iterations`` times
+The step, in mrsph's order (``simulation.py`` schedules these passes): the force pass
+applies ``pbf.warm_start`` of the last step's pressure, the kick adds gravity and
+disturbances, ``pbf_clamp`` keeps each particle within ``pbf.max_displacement`` of its
+spacing a step (counted), the drift predicts x* = x + dt u; then, on x*, ``pbf_iterate``
+runs ``pbf.iterations`` times
 
 1. the multipliers: ρ_i and D_i = |Σ_j m_j ∇W_ij|² + m_i Σ_j m_j |∇W_ij|² over i's
    neighbourhood (virtual particles and mirror images included, ``gradients.py``), and
@@ -22,15 +24,14 @@ pass measures ρ(x*); then ``pbf_project`` runs ``pbf.iterations`` times
 3. x_i += Δx_i and u_i += Δx_i / dt (the velocity from the position change), the walls
    and obstacles (collide), the virtual particles back on their owners;
 
-XSPH smoothing in the last iteration's corrections (u_i += c Σ_j V_j (u_j − u_i) W_ij),
+XSPH smoothing in the last iteration's corrections (u_i += c Σ_j 2 m_j/(ρ_i + ρ_j)
+(u_j − u_i) W_ij, symmetric in the pair so that it keeps momentum),
 and p_i = q_i ρ_i² / dt², the pressure whose force moves x by q in a step: what dumps
-show. The force pass then applies ``pbf.warm_start`` of that pressure (the pair pressure
-term of weakly compressible SPH with this p), the kick adds gravity and disturbances,
-``pbf_clamp`` keeps each particle within ``pbf.max_displacement`` of its spacing a step
-(counted), and the drift predicts the next step's x*. So the pressure that carries the
-water's weight acts as a force and the iterations correct the change: without it, the
-weight is carried by each step's iterations alone and a column H deep compresses by
-about g H D_0 dt² / (ρ0 iterations), 30 % at the bottom of demo_2d's 7 mm level.
+show, and what the next step's force pass applies a share of (the pair pressure term of
+weakly compressible SPH with this p). So part of the pressure that carries the water's
+weight acts as a force and the iterations correct the rest: without it, the weight is
+carried by each step's iterations alone and a column H deep compresses by about
+g H D_0 dt² / (ρ0 iterations), 30 % at the bottom of demo_2d's 7 mm level.
 """
 
 import numpy as np
@@ -47,7 +48,7 @@ from ..gradients import PairGradients
 
 # knobs[]: scene values the kernels read from a field, so that changing one does not
 # compile the solver's kernels again
-WARM, OMEGA, EPS, XSPH, AP, CLAMP = range(6)
+WARM, OMEGA, EPS, XSPH, AP, CLAMP, VISC = range(7)
 # stats[] (f64): Σ over steps of the average error, the largest step average, the
 # largest particle error, steps, steps above the tolerance, clamped particles
 ERR_SUM, ERR_WORST, ERR_PEAK, STEPS, UNCONVERGED, CLAMPED = range(6)
@@ -69,6 +70,8 @@ def rest_denominator(s: float, h: float, m: float, spiky: float, dim: int) -> fl
 class PBF(PressureSolver):
     name = "pbf"
     incompressible = True
+    predicts = True  # the step predicts, then sorts, measures and projects (Macklin & Müller's order)
+    uses_forces = False  # its pressure and viscosity act in the projection, not in a force pass
 
     def __init__(self, core, params, coupling, fade, state, warn):
         cfg = params.pbf
@@ -81,15 +84,18 @@ class PBF(PressureSolver):
         self.iterations = cfg.iterations
         self.scene_viscosity = cfg.viscosity == "scene"
         fl = params.fluid
-        self._damping_c = sound_speed(fl.stiffness, fl.eos) if self.scene_viscosity else 0.0
-        self._viscosity = fl.viscosity if self.scene_viscosity else 0.0
+        self._damping_c = sound_speed(fl.stiffness, fl.eos)
+        self.mu = fl.viscosity if self.scene_viscosity else 0.0
+        if self.mu > 0.0:  # the explicit viscosity's bound (integrator.Integrator.bounds)
+            viscous = params.physics.viscous_factor * core.lev.h0**2 * core.lev.rest_density / self.mu
+            self.step_dt = min(self.step_dt, viscous)
         self.pairs = PairGradients(core, coupling)
         cap = core.pool.capacity
         self.q = ti.field(float, shape=cap)  # the step's accumulated multiplier
+        self.rho = ti.field(float, shape=cap)  # ρ at the last iteration's positions
         self.dq = ti.field(float, shape=cap)  # this iteration's change of it
         self.dx = ti.Vector.field(self.dim, float, shape=cap)  # this iteration's correction
-        self.dv = ti.Vector.field(self.dim, float, shape=cap)  # XSPH's velocity change
-        self.press_term = ti.field(float, shape=cap)  # the warm start's p/ρ², as the force pass reads it
+        self.dv = ti.Vector.field(self.dim, float, shape=cap)  # XSPH's and the viscosity's velocity change
         L = core.levels
         self.den_rest = ti.field(float, shape=L)  # D of a rest lattice, per level
         self.ap_w = ti.field(float, shape=L)  # poly6 at r = Δq h, per level (tensile correction)
@@ -98,10 +104,10 @@ class PBF(PressureSolver):
             self.den_rest[l] = rest_denominator(s, h, self.lev.m[l], self.lev.spiky[l], self.dim)
             dq = cfg.artificial_pressure_radius * h
             self.ap_w[l] = (h * h - dq * dq) ** 3
-        self.knobs = ti.field(float, shape=6)
+        self.knobs = ti.field(float, shape=7)
         for k, v in ((WARM, cfg.warm_start), (OMEGA, cfg.over_relaxation), (EPS, cfg.relaxation),
-                     (XSPH, 0.0 if self.scene_viscosity else cfg.xsph), (AP, cfg.artificial_pressure),
-                     (CLAMP, cfg.max_displacement)):  # fmt: skip
+                     (XSPH, cfg.xsph), (AP, cfg.artificial_pressure),
+                     (CLAMP, cfg.max_displacement), (VISC, self.mu)):  # fmt: skip
             self.knobs[k] = v
         self.err = ti.field(ti.f64, shape=())  # Σ of this iteration's errors
         self.iteration = ti.field(ti.i32, shape=())  # of the step's, the one running
@@ -123,13 +129,13 @@ class PBF(PressureSolver):
         )  # fmt: skip
 
     def damping_speed(self) -> float:
-        """The artificial viscosity's c: with ``pbf.viscosity = "scene"`` the sound speed
-        ``fluid.stiffness`` gives the scene, else none (XSPH damps instead)."""
+        """The sound speed ``fluid.stiffness`` gives the scene: the mouse's cap (no force
+        pass, so no artificial viscosity)."""
         return self._damping_c
 
     def force_viscosity(self, fluid) -> float:
-        """μ of the force pass: the scene's with ``pbf.viscosity = "scene"``, else 0."""
-        return self._viscosity
+        """No force pass: the viscosity (``pbf.viscosity``) acts in the projection."""
+        return 0.0
 
     def reset_counters(self) -> None:
         self.stats.fill(0.0)
@@ -157,8 +163,10 @@ class PBF(PressureSolver):
         }
 
     def after_density(self) -> list:
-        """The projection: its start, ``pbf.iterations`` launches of one Jacobi iteration
-        each (a kernel compiled once, whatever the count), its end."""
+        """The projection of the predicted positions (this solver predicts first, so the
+        density pass measured them): its start,
+        ``pbf.iterations`` launches of one Jacobi iteration each (a kernel compiled once,
+        whatever the count), its end."""
         return [
             Pass("pbf_begin", "pressure", self.begin, self.begin_func),
             Pass("pbf_iterate", "pressure", self.iterate, self.iterate_func, repeat=self.iterations, alone=True),
@@ -167,17 +175,6 @@ class PBF(PressureSolver):
 
     def after_kick(self) -> list:
         return [Pass("pbf_clamp", "integrate", self.clamp, self.clamp_func)]
-
-    # ------------------------------------------------------------------ device: hooks
-    @ti.func
-    def pair_factor(self, i, inv):
-        """The warm start as a force: the pressure i shows its neighbours, times the share."""
-        p = ti.static(self.pool.p)
-        self.press_term[i] = self.knobs[WARM] * self.coupling.partner_pressure(p[i].kind, p[i].p) * inv * inv
-
-    @ti.func
-    def pair_term(self, i, j, grad):
-        return -(self.press_term[i] + self.press_term[j]) * grad
 
     # ------------------------------------------------------------------ device: the iterations
     @ti.func
@@ -234,7 +231,7 @@ class PBF(PressureSolver):
                 q_new = ti.max(q + self.knobs[OMEGA] * step, 0.0)
                 self.dq[i] = q_new - q
                 self.q[i] = q_new
-                p[i].rho = rho
+                self.rho[i] = rho
                 c = ti.max(e, 0.0) / rho0
                 self.err[None] += ti.cast(c, ti.f64)
                 self.n_real[None] += 1
@@ -259,7 +256,7 @@ class PBF(PressureSolver):
     @ti.func
     def _correct_pair(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
         """An own-level neighbour: its part of i's correction (acc[:d]), the reaction of a
-        virtual j handed to its owners, and XSPH's sums (acc[d:2d]: Σ V_j (u_j − u_i) W)."""
+        virtual j handed to its owners, and the velocity smoothing's (acc[d:2d])."""
         ok, g = self.pairs.grad(i, j, xq, L, p0, nrm, check, ctx)
         p = ti.static(self.pool.p)
         if ok:
@@ -268,10 +265,18 @@ class PBF(PressureSolver):
                 acc[k] += f[k]
             self.coupling.hand_reaction(j, -p[i].m * f)
         r2 = (p[i].x - p[j].x).norm_sqr()
-        if r2 < ctx[0] * ctx[0] and j != i:
-            c6 = self.lev.poly6[p[i].level] * self.coupling.sum_scale()
-            w = self.coupling.sum_mass(j) * c6 / p[j].rho * poly6(r2, ctx[0] * ctx[0], 1.0)
-            dv = (p[j].v - p[i].v) * w
+        h = ctx[0]
+        if r2 < h * h and j != i and is_real(p[j].kind):
+            # XSPH with 2 m_j / (ρ_i + ρ_j), symmetric in the pair so that the smoothing
+            # keeps momentum, and the viscosity of Eq. 19 over the step, μ dt m_j (h − r)
+            # ∇²W / (ρ_i ρ_j) (``pbf.viscosity = "scene"``; 0 otherwise); between real
+            # particles only, each pair twice, so that neither hands anything on
+            l = p[i].level
+            m_j = self.coupling.sum_mass(j) * self.coupling.sum_scale()
+            xsph = self.knobs[XSPH] * 2.0 * m_j * self.lev.poly6[l] / (p[i].rho + p[j].rho) * poly6(r2, h * h, 1.0)
+            dt = ti.cast(self.state.dt[None], float)
+            visc = self.knobs[VISC] * dt * m_j * self.lev.visc[l] * (h - ti.sqrt(r2)) / (p[i].rho * p[j].rho)
+            dv = (p[j].v - p[i].v) * (xsph + visc)
             for k in ti.static(range(self.dim)):
                 acc[self.dim + k] += dv[k]
 
@@ -287,8 +292,8 @@ class PBF(PressureSolver):
 
     @ti.func
     def _corrections(self, n):
-        """Step 2: Δx_i for every real particle (and XSPH's Δu, applied in the last
-        iteration)."""
+        """Step 2: Δx_i for every real particle (and the smoothing's Δu, applied in the
+        last iteration)."""
         p = ti.static(self.pool.p)
         for i in range(n):
             if is_real(p[i].kind):
@@ -296,14 +301,14 @@ class PBF(PressureSolver):
                 acc = ti.Vector.zero(float, 2 * self.dim)
                 self._visit(i, self._correct_pair, self._correct_images.visit, ctx, acc)
                 self.dx[i] = -ti.Vector([acc[k] for k in ti.static(range(self.dim))])
-                self.dv[i] = self.knobs[XSPH] * ti.Vector([acc[self.dim + k] for k in ti.static(range(self.dim))])
+                self.dv[i] = ti.Vector([acc[self.dim + k] for k in ti.static(range(self.dim))])
 
     @ti.func
     def _apply(self, n):
         """Step 3: the corrections (with the reactions handed to i) into x and u, the
         walls; then the virtual particles back on their owners. The last iteration adds
-        XSPH's Δu and sets the pressure whose force moves x by q in a step (what dumps
-        show, and the warm start's)."""
+        the smoothing's Δu and sets the pressure whose force would move x by q in a step
+        (what dumps show, and the next step's warm start)."""
         p = ti.static(self.pool.p)
         dt = ti.cast(self.state.dt[None], float)
         last = self.iteration[None] == ti.static(self.iterations - 1)
@@ -313,8 +318,8 @@ class PBF(PressureSolver):
                 x, v = p[i].x + d, p[i].v + d / dt
                 if last:
                     v += self.dv[i]
-                    p[i].p = self.q[i] * p[i].rho * p[i].rho / (dt * dt)
-                    self.press_term[i] = self.knobs[WARM] * p[i].p / (p[i].rho * p[i].rho)
+                    rho = self.rho[i]
+                    p[i].p = self.q[i] * rho * rho / (dt * dt)
                 x, v = self.boundary.collide(x, v)
                 p[i].x = x
                 p[i].v = v
@@ -329,13 +334,23 @@ class PBF(PressureSolver):
 
     @ti.func
     def begin_func(self, n):
-        """The step's q from the warm start's share of the carried pressure."""
+        """The warm start: q from ``pbf.warm_start`` of the last step's pressure, and its
+        correction applied before the first iteration measures (as DFSPH's warm start),
+        so that the iterations correct only what it leaves (none with a cold start: the
+        loops' bound is then 0)."""
         p = ti.static(self.pool.p)
         dt = ti.cast(self.state.dt[None], float)
-        self.iteration[None] = 0
+        self.iteration[None] = -1  # not the last: the smoothing waits for the iterations
         for i in range(n):
+            q = 0.0
             if is_real(p[i].kind):
-                self.q[i] = self.knobs[WARM] * p[i].p * dt * dt / (p[i].rho * p[i].rho)
+                q = self.knobs[WARM] * p[i].p * dt * dt / (p[i].rho * p[i].rho)
+            self.q[i] = q
+            self.dq[i] = q
+        warm = ti.select(self.knobs[WARM] > 0.0, n, 0)
+        self._corrections(warm)
+        self._apply(warm)
+        self.iteration[None] = 0
 
     @ti.kernel
     def iterate(self, n: ti.i32):
