@@ -130,7 +130,12 @@ class Simulation:
         self.seeder = Seeder(core, fl, self.integrator.gravity, self.pressure.stiffness)
         self.emitters = Emitters(core, prm.emitters, self.seeder)
         self.stepper = Stepper(
-            self._passes(), self.state, fuse=True, profile=lambda: self.profile, count=self.sorting.count_func
+            self._passes(),
+            self.state,
+            fuse=True,
+            profile=lambda: self.profile,
+            count=self.sorting.count_func,
+            count_host=self.pool.count,
         )
 
     def _solver(self, core, prm):

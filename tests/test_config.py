@@ -1117,3 +1117,18 @@ def test_docs_example_scene_is_valid():
     assert examples
     for example in examples:
         load_scene(tomllib.loads(example))
+
+
+def test_pbf_refuses_an_odd_iteration_count_at_full_relaxation():
+    """An odd count of Jacobi iterations at omega near 1 grows the checkerboard mode (the
+    error of that mode flips sign each iteration and overshoots): refused in one line
+    naming the key, its value and what to use; the rule is pbf's (its package's rules)."""
+    base = ['fluid.solver="pbf"', "pbf.iterations=3"]
+    with pytest.raises(SceneError) as e:
+        load_scene("dam_break_2d", base + ["pbf.over_relaxation=0.9"])
+    (line,) = e.value.problems
+    assert "pbf.over_relaxation" in line and "0.9" in line and "at most 0.7" in line, line
+    load_scene("dam_break_2d", base + ["pbf.over_relaxation=0.7"])
+    load_scene("dam_break_2d", ['fluid.solver="pbf"', "pbf.iterations=4", "pbf.over_relaxation=1.0"])
+    with pytest.raises(SceneError, match="pbf.min_iterations: above pbf.iterations"):
+        load_scene("dam_break_2d", ['fluid.solver="pbf"', "pbf.min_iterations=5"])

@@ -1,22 +1,26 @@
 """The step taken two ways, fused and profiled, moves the particles alike.
 
 ``bench`` times each phase with a profiled step (one launch a phase, ``Simulation(profile=True)``);
-a plain step is one fused launch (``mrsph/sph/fused.py``). A test holds them to the same physics,
+a plain step is as few fused launches as its list allows (``mrsph/sph/step.py``). A test holds them to the same physics,
 so that what ``bench`` times is what the window runs.
 """
 
 import numpy as np
 import pytest
-from scenekit import moving_region_scene, raw_pool
+from scenekit import for_solver, moving_region_scene, raw_pool
 
 from mrsph.scene.config import load_scene
 
 pytestmark = pytest.mark.usefixtures("fresh_program")
 
 
-@pytest.mark.slow_params("2d-adaptive", "3d-adaptive", "3d-uniform")
-@pytest.mark.parametrize("adaptive", [True, False], ids=["adaptive", "uniform"])
-def test_profiled_steps_take_the_same_physics_as_fused_ones(dim, adaptive):
+@pytest.mark.slow_params("2d-adaptive", "3d-adaptive", "3d-uniform", "3d-adaptive-pbf")
+@pytest.mark.parametrize(
+    ("adaptive", "solver"),
+    [(True, "wcsph"), (False, "wcsph"), (True, "pbf")],
+    ids=["adaptive", "uniform", "adaptive-pbf"],
+)
+def test_profiled_steps_take_the_same_physics_as_fused_ones(dim, adaptive, solver):
     """``bench`` times each phase by calling the fused end of the step (accelerations, dt,
     integration, boundaries, virtual advection) one phase a call. Both ways must move the
     particles alike. Adaptive: a slab falling onto the floor through a moving refinement
@@ -30,7 +34,7 @@ def test_profiled_steps_take_the_same_physics_as_fused_ones(dim, adaptive):
     two plain runs of it already part at round-off (see the restored-state test below)."""
     from mrsph.simulation import Simulation
 
-    scene = moving_region_scene(dim)
+    scene = for_solver(moving_region_scene(dim), solver)
     scene["physics"]["gravity"] = [0.0, -9.81] + [0.0] * (dim - 2)
     scene["adaptivity"]["enabled"] = adaptive
     block = scene["fluid"]["blocks"][0]

@@ -18,15 +18,22 @@ import taichi as ti
 
 @ti.data_oriented
 class PairGradients:
-    def __init__(self, core, coupling):
+    def __init__(self, core, coupling, calibrated: bool = True):
+        """calibrated: the spiky constant divided by the lattice calibration
+        (``kernels.lattice_gradient_factor``), exact for a linear field on the rest
+        lattice; else the kernel's own, for particles that do not stay on one."""
         self.dim, self.pool, self.lev, self.nb, self.coupling = core.dim, core.pool, core.lev, core.nb, coupling
+        self.scale = 1.0 if calibrated else core.lev.grad_factor
 
     @ti.func
     def ctx(self, i):
         """(level, h, the visits' context: h, the level's spiky constant, i's skip²)."""
         p = ti.static(self.pool.p)
         l = p[i].level
-        return l, self.lev.h[l], ti.Vector([self.lev.h[l], self.lev.spiky[l], self.coupling.skip2(i, l)])
+        spiky = self.lev.spiky[l]
+        if ti.static(self.scale != 1.0):
+            spiky *= self.scale
+        return l, self.lev.h[l], ti.Vector([self.lev.h[l], spiky, self.coupling.skip2(i, l)])
 
     @ti.func
     def grad(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template()):

@@ -160,10 +160,14 @@ class Stepper:
     and after them: one, unless a pass asks to be launched alone (``Pass.alone``: a
     large one, whose compile time would otherwise grow that of all the rest) or again
     and again (``Pass.repeat``: an iteration of a solver), each such a launch of its own.
-    ``count``: a device function that returns the pool's particle count (the sort's)."""
+    ``count``: a device function that returns the pool's particle count (the sort's),
+    ``count_host`` the same on the host (for passes before the sort: a step that predicts
+    first)."""
 
-    def __init__(self, passes: list[Pass], state: StepState, fuse: bool, profile: Callable[[], bool], count):
-        self.state, self.profile, self.fuse, self.count = state, profile, fuse, count
+    def __init__(
+        self, passes: list[Pass], state: StepState, fuse: bool, profile: Callable[[], bool], count, count_host
+    ):
+        self.state, self.profile, self.fuse, self.count, self.count_host = state, profile, fuse, count, count_host
         self._layout(tuple(passes))
         self.timers = dict.fromkeys((p.timer for p in self.passes), 0.0)
 
@@ -242,7 +246,7 @@ class Stepper:
 
     def _by_pass(self, args: tuple) -> float:
         self._timed("timestep", self.state.set, None, *args)
-        n, dt = 0, 0.0
+        n, dt = (0 if self._inner[0].counts else self.count_host()), 0.0
         for p in self._inner:
             for _ in range(p.repeat):
                 out = self._launch(p, n)

@@ -50,8 +50,8 @@ from ..gradients import PairGradients
 # compile the solver's kernels again
 WARM, OMEGA, EPS, XSPH, AP, CLAMP, VISC = range(7)
 # stats[] (f64): Σ over steps of the average error, the largest step average, the
-# largest particle error, steps, steps above the tolerance, clamped particles
-ERR_SUM, ERR_WORST, ERR_PEAK, STEPS, UNCONVERGED, CLAMPED = range(6)
+# largest particle error, steps, steps above the tolerance, clamped particles, iterations
+ERR_SUM, ERR_WORST, ERR_PEAK, STEPS, UNCONVERGED, CLAMPED, ITERS = range(7)
 
 
 def rest_denominator(s: float, h: float, m: float, spiky: float, dim: int) -> float:
@@ -112,7 +112,11 @@ class PBF(PressureSolver):
         self.err = ti.field(ti.f64, shape=())  # Σ of this iteration's errors
         self.iteration = ti.field(ti.i32, shape=())  # of the step's, the one running
         self.n_real = ti.field(ti.i32, shape=())
-        self.stats = ti.field(ti.f64, shape=6)
+        self.stats = ti.field(ti.f64, shape=7)
+        self.running = ti.field(ti.i32, shape=())  # the step's solve goes on
+        self.avg = ti.field(ti.f64, shape=())  # its last measured average error
+        self.peak = ti.field(float, shape=())  # and largest
+        self.min_iterations = cfg.iterations if cfg.min_iterations < 0 else cfg.min_iterations
         self.tolerance = ti.field(ti.f64, shape=())
         self.tolerance[None] = cfg.tolerance
         self._warned = False
@@ -145,17 +149,17 @@ class PBF(PressureSolver):
         """The steps since the last call: the mean of their average density errors (at
         the last iteration's multipliers, before its corrections), the steps above
         ``pbf.tolerance`` (warned about once) and the particles the clamp slowed."""
-        err_sum, worst, peak, steps, unconverged, clamped = self.stats.to_numpy().tolist()
+        err_sum, worst, peak, steps, unconverged, clamped, iters = self.stats.to_numpy().tolist()
         self.stats.fill(0.0)
         if unconverged and not self._warned:
             self._warned = True
             self.warn(
-                f"pbf: {int(unconverged)} of {int(steps)} steps ended with an average density error above "
-                f"pbf.tolerance = {self.cfg.tolerance:g} (worst {worst:.3g}): raise pbf.iterations "
-                f"(now {self.iterations}) or pbf.substeps (counted in stats as unconverged; warned once)"
+                f"pbf: {int(unconverged)} of {int(steps)} steps stopped at pbf.iterations = {self.iterations} "
+                f"with an average density error above pbf.tolerance = {self.cfg.tolerance:g} (worst {worst:.3g}): "
+                "raise pbf.iterations or pbf.substeps (counted in stats as unconverged; warned once)"
             )
         return {
-            "density_iterations": float(self.iterations),
+            "density_iterations": iters / steps if steps else 0.0,
             "divergence_iterations": 0.0,
             "density_error": err_sum / steps if steps else 0.0,
             "unconverged": int(unconverged),
@@ -210,11 +214,12 @@ class PBF(PressureSolver):
 
     @ti.func
     def _multipliers(self, n):
-        """Step 1 for every real particle: ρ_i, D_i, the Jacobi step on q_i, δq_i; the
-        average error into ``err``."""
+        """Step 1 for every real particle: ρ_i, D_i, the Jacobi step's δq_i (added to q_i
+        with the correction); the average error into ``err``, the largest into ``peak``."""
         p = ti.static(self.pool.p)
         rho0 = ti.static(self.rest_density)
         self.err[None] = 0.0
+        self.peak[None] = 0.0
         self.n_real[None] = 0
         for i in range(n):
             if is_real(p[i].kind):
@@ -228,15 +233,13 @@ class PBF(PressureSolver):
                 step = 0.0
                 if den > 1e-12 * rho * rho:  # an isolated particle has nothing to push
                     step = e / (den + self.knobs[EPS] * self.den_rest[l])
-                q_new = ti.max(q + self.knobs[OMEGA] * step, 0.0)
-                self.dq[i] = q_new - q
-                self.q[i] = q_new
+                self.dq[i] = ti.max(q + self.knobs[OMEGA] * step, 0.0) - q  # applied with the correction
                 self.rho[i] = rho
                 c = ti.max(e, 0.0) / rho0
                 self.err[None] += ti.cast(c, ti.f64)
                 self.n_real[None] += 1
-                if c > self.stats[ERR_PEAK]:
-                    ti.atomic_max(self.stats[ERR_PEAK], ti.cast(c, ti.f64))
+                if c > self.peak[None]:
+                    ti.atomic_max(self.peak[None], c)
 
     @ti.func
     def _push(self, i, j, g, ctx: ti.template()):
@@ -304,22 +307,20 @@ class PBF(PressureSolver):
                 self.dv[i] = ti.Vector([acc[self.dim + k] for k in ti.static(range(self.dim))])
 
     @ti.func
-    def _apply(self, n):
-        """Step 3: the corrections (with the reactions handed to i) into x and u, the
-        walls; then the virtual particles back on their owners. The last iteration adds
-        the smoothing's Δu and sets the pressure whose force would move x by q in a step
-        (what dumps show, and the next step's warm start)."""
+    def _apply(self, n, smooth: ti.template()):
+        """Step 3: the corrections (with the reactions handed to i) into x and u, q_i += δq_i,
+        the walls; then the virtual particles back on their owners. ``smooth``: add the
+        velocity smoothing's Δu (the warm start's pass, which computes it)."""
         p = ti.static(self.pool.p)
         dt = ti.cast(self.state.dt[None], float)
-        last = self.iteration[None] == ti.static(self.iterations - 1)
         for i in range(n):
             if is_real(p[i].kind):
                 d = self.dx[i] + self.coupling.take_reaction(i, ti.Vector.zero(float, self.dim)) / p[i].m
                 x, v = p[i].x + d, p[i].v + d / dt
-                if last:
+                if ti.static(smooth):
                     v += self.dv[i]
-                    rho = self.rho[i]
-                    p[i].p = self.q[i] * rho * rho / (dt * dt)
+                else:
+                    self.q[i] += self.dq[i]
                 x, v = self.boundary.collide(x, v)
                 p[i].x = x
                 p[i].v = v
@@ -334,23 +335,22 @@ class PBF(PressureSolver):
 
     @ti.func
     def begin_func(self, n):
-        """The warm start: q from ``pbf.warm_start`` of the last step's pressure, and its
+        """The warm start, q from ``pbf.warm_start`` of the last step's pressure, and its
         correction applied before the first iteration measures (as DFSPH's warm start),
-        so that the iterations correct only what it leaves (none with a cold start: the
-        loops' bound is then 0)."""
+        so that the iterations correct what it leaves; the same pass smooths the
+        velocities (XSPH, the viscosity)."""
         p = ti.static(self.pool.p)
         dt = ti.cast(self.state.dt[None], float)
-        self.iteration[None] = -1  # not the last: the smoothing waits for the iterations
+        self.iteration[None] = 0
+        self.running[None] = 1
         for i in range(n):
             q = 0.0
             if is_real(p[i].kind):
                 q = self.knobs[WARM] * p[i].p * dt * dt / (p[i].rho * p[i].rho)
             self.q[i] = q
             self.dq[i] = q
-        warm = ti.select(self.knobs[WARM] > 0.0, n, 0)
-        self._corrections(warm)
-        self._apply(warm)
-        self.iteration[None] = 0
+        self._corrections(n)
+        self._apply(n, True)
 
     @ti.kernel
     def iterate(self, n: ti.i32):
@@ -358,11 +358,21 @@ class PBF(PressureSolver):
 
     @ti.func
     def iterate_func(self, n):
-        """One Jacobi iteration: steps 1-3."""
-        self._multipliers(n)
-        self._corrections(n)
-        self._apply(n)
-        self.iteration[None] += 1
+        """One Jacobi iteration, steps 1-3, while the step's solve runs: it stops once the
+        average error measured is within ``pbf.tolerance`` after at least
+        ``pbf.min_iterations`` corrections, or after ``pbf.iterations``; decided here, on
+        the device (the loops' bounds 0 once it stops)."""
+        self._multipliers(ti.select(self.running[None] != 0, n, 0))
+        if self.running[None] != 0:
+            avg = self.err[None] / ti.max(self.n_real[None], 1)
+            self.avg[None] = avg
+            if avg <= self.tolerance[None] and self.iteration[None] >= self.min_iterations:
+                self.running[None] = 0
+        m = ti.select(self.running[None] != 0, n, 0)
+        self._corrections(m)
+        self._apply(m, False)
+        if self.running[None] != 0:
+            self.iteration[None] += 1
 
     @ti.kernel
     def end(self, n: ti.i32):
@@ -370,11 +380,20 @@ class PBF(PressureSolver):
 
     @ti.func
     def end_func(self, n):
-        """The step's error (the last iteration's, before its corrections) into the stats."""
-        avg = self.err[None] / ti.max(self.n_real[None], 1)
+        """The pressure whose force would move x by q in a step (what dumps show, and the
+        next step's warm start), and the step's last measured error into the stats."""
+        p = ti.static(self.pool.p)
+        dt = ti.cast(self.state.dt[None], float)
+        for i in range(n):
+            if is_real(p[i].kind):
+                rho = self.rho[i]
+                p[i].p = self.q[i] * rho * rho / (dt * dt)
+        avg = self.avg[None]
         self.stats[ERR_SUM] += avg
         self.stats[ERR_WORST] = ti.max(self.stats[ERR_WORST], avg)
+        self.stats[ERR_PEAK] = ti.max(self.stats[ERR_PEAK], ti.cast(self.peak[None], ti.f64))
         self.stats[STEPS] += 1.0
+        self.stats[ITERS] += ti.cast(self.iteration[None], ti.f64)
         if avg > self.tolerance[None]:
             self.stats[UNCONVERGED] += 1.0
 
