@@ -153,11 +153,14 @@ class Simulation:
         measure = [
             Pass("grid", "grid", self.sorting.run, self.sorting.run_func, counts=True),
             *coupling.before_density(density),
-            Pass("density", "density", density.run, density.run_func),
+            Pass("density", "density", density.run, density.run_func, loops=1),
             *coupling.after_density(forces),
             *pressure.after_density(),
             *(
-                [Pass("forces", "forces", forces.run, forces.run_func), *coupling.after_forces(forces, self.viscosity)]
+                [
+                    Pass("forces", "forces", forces.run, forces.run_func, loops=1),
+                    *coupling.after_forces(forces, self.viscosity),
+                ]
                 if pressure.uses_forces
                 else []
             ),
@@ -233,6 +236,11 @@ class Simulation:
         self.steps += 1
         self.dt = dt
         return dt
+
+    def neighbour_passes(self, stats: dict) -> float:
+        """Loops over every particle's neighbours a step makes: the passes' own, and an
+        iterative solver's (from ``stats``, a stats row: its iterations a step)."""
+        return sum(p.loops * p.repeat for p in self.stepper.passes) + self.pressure.solve_loops(stats)
 
     def _where(self) -> str:
         """The step and time, for a refused step's message (built only then)."""

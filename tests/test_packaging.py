@@ -56,7 +56,12 @@ def _imports(path: Path) -> set[str]:
             base = package.rsplit(".", node.level - 1)[0] if node.level > 1 else package if node.level else ""
             mod = ".".join(p for p in (base, node.module) if p)
             subs = {f"{mod}.{a.name}" for a in node.names}
-            subs = {m for m in subs if (REPO / Path(*m.split("."))).with_suffix(".py").exists()}
+            subs = {
+                m
+                for m in subs
+                if (REPO / Path(*m.split("."))).with_suffix(".py").exists()
+                or (REPO / Path(*m.split(".")) / "__init__.py").exists()
+            }
             # from . import bench imports the module bench; from .x import y the module x
             found.update(subs or {mod})
     return {m for m in found if m == "mrsph" or m.startswith("mrsph.")}

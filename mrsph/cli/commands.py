@@ -224,7 +224,7 @@ def _cmd_list(argv) -> int:
 
 def _cmd_bench(argv) -> int:
     if importlib.util.find_spec("mrsph.cli.bench") is None:
-        print("mrsph: benchmarks are not available in this version (mrsph/cli/bench.py is missing)", file=sys.stderr)
+        print("mrsph: benchmarks are not available in this version (mrsph/cli/bench/ is missing)", file=sys.stderr)
         return EXIT_USAGE
     from . import bench
 

@@ -138,8 +138,8 @@ class Adaptive(Uniform):
         if self.limiter is None:
             return []
         return [
-            Pass("list_fine", "density", density.list_fine, density.list_fine_func),
-            Pass("limit_virtual", "virtual_coupling", self.limiter.limit, self.limiter.limit_func),
+            Pass("list_fine", "density", density.list_fine, density.list_fine_func, loops=1),
+            Pass("limit_virtual", "virtual_coupling", self.limiter.limit, self.limiter.limit_func, loops=1),
         ]
 
     @ti.func
@@ -323,7 +323,7 @@ class Symmetric(Adaptive):
 
     def after_forces(self, forces, viscosity) -> list:
         reactions = SymmetricReactions(self, forces, viscosity)
-        return [Pass("virtual_reactions", "virtual_coupling", reactions.run, reactions.run_func)]
+        return [Pass("virtual_reactions", "virtual_coupling", reactions.run, reactions.run_func, loops=1)]
 
 
 @ti.data_oriented

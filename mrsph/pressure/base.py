@@ -112,6 +112,10 @@ class PressureSolver:
     def reset_counters(self) -> None:
         pass
 
+    def solve_loops(self, stats: dict) -> float:
+        """Neighbour loops a step of its host-driven solves (``stats``: a stats row)."""
+        return 0.0
+
     def set_param(self, key: str, value) -> None:
         raise ValueError(f"{key}: not live-tunable with fluid.solver = {self.name}")
 

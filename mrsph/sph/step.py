@@ -43,7 +43,8 @@ class Pass(NamedTuple):
     for work the host drives (an iterative solve's stopping, particles appended).
     ``when``: for a host pass, whether it runs this step (evaluated each step).
     ``repeat``: launches a step (a solver's iterations); ``alone``: a launch of its own
-    when fused."""
+    when fused; ``loops``: the loops over every particle's neighbours a launch makes (what
+    ``bench`` counts as neighbour passes)."""
 
     name: str
     timer: str
@@ -54,6 +55,7 @@ class Pass(NamedTuple):
     when: Callable[[], bool] | None = None
     repeat: int = 1
     alone: bool = False
+    loops: int = 0
 
 
 @ti.data_oriented

@@ -143,13 +143,18 @@ class DFSPH(PressureSolver):
 
     def after_density(self) -> list:
         """The factors α, then the divergence solve (with the last step's dt)."""
-        passes = [Pass("dfsph_factors", "pressure", self._factors)]
+        passes = [Pass("dfsph_factors", "pressure", self._factors, loops=1)]
         if self.divergence:
             passes.append(Pass("divergence_solve", "divergence", self._divergence_solve))
         return passes
 
     def after_kick(self) -> list:
         return [Pass("density_solve", "pressure", self._density_solve)]
+
+    def solve_loops(self, stats: dict) -> float:
+        """Two loops a Jacobi sweep (the rate, the push), the warm start's one sweep."""
+        warm = 1.0 if self.warm_start > 0.0 else 0.0
+        return 2.0 * (stats["density_iterations"] + stats["divergence_iterations"] + warm)
 
     def _divergence_solve(self, n: int) -> None:
         self.counts.add(DIVERGENCE, *self._solve(n, DIVERGENCE))

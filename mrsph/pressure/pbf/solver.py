@@ -172,8 +172,10 @@ class PBF(PressureSolver):
         ``pbf.iterations`` launches of one Jacobi iteration each (a kernel compiled once,
         whatever the count), its end."""
         return [
-            Pass("pbf_begin", "pressure", self.begin, self.begin_func),
-            Pass("pbf_iterate", "pressure", self.iterate, self.iterate_func, repeat=self.iterations, alone=True),
+            Pass("pbf_begin", "pressure", self.begin, self.begin_func, loops=1),
+            Pass(
+                "pbf_iterate", "pressure", self.iterate, self.iterate_func, repeat=self.iterations, alone=True, loops=2
+            ),
             Pass("pbf_end", "pressure", self.end, self.end_func),
         ]
 
