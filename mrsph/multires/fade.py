@@ -12,7 +12,7 @@ compression of the fluid, but the pressure took it for one: a child at 1.24 ρ0 
 99th percentile) pushed with 29 times the hydrostatic pressure at the bottom of the pool
 (demo_2d's linear equation of state, k = 400 m²/s²), and a cursor entering resting
 water threw it about. demo_2d at 2.5 s, a still cursor of radius 0.128 m refining
-level 2 to 0 at (0.5, 0.12) (docs/performance.md, "Found in session 32"), 2.5 ms later:
+level 2 to 0 at (0.5, 0.12) (docs/validation.md, "A cursor in resting water"), 2.5 ms later:
 1,638 of 6,144 particles above 1 m/s, the fastest at 11 m/s.
 
 So each child carries ``drho``, what it reads above a reference density ``rho_ref``
