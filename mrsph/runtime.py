@@ -26,6 +26,16 @@ _state: dict = {"key": None, "arch_name": None, "notice": None, "affinity": None
 AUTO_ONE_THREAD_BELOW = {2: 12000, 3: 4000}
 
 
+#: Taichi's offline cache keeps at most 100 MB of kernels by default and then drops the
+#: least recently used quarter. One scene with one solver leaves 1-3 MB (demo_2d: 3.1 MB,
+#: with wcsph as well 4.0 MB), and the test suite's kernels, compiled without the advanced
+#: optimisations, far more: after a test run the window's scenes compiled again (20-30 s
+#: each instead of 3-5). 1 GiB holds them all; TI_OFFLINE_CACHE_MAX_SIZE_OF_FILES, when
+#: set, has the last word.
+CACHE_MAX_BYTES = 1 << 30
+CACHE_SIZE_ENV = "TI_OFFLINE_CACHE_MAX_SIZE_OF_FILES"
+
+
 # CUDA and Metal only: Taichi's Vulkan backend would also run on a software Vulkan
 # device (lavapipe, installed for offscreen rendering), which is far slower than ti.cpu.
 _GPU_ARCHES = ("cuda", "metal")
@@ -79,6 +89,8 @@ def ensure(arch: str = "cpu", precision: str = "f32", threads: int | None = None
     )
     if threads:
         kwargs["cpu_max_num_threads"] = threads
+    if not os.environ.get(CACHE_SIZE_ENV):
+        kwargs["offline_cache_max_size_of_files"] = CACHE_MAX_BYTES
     _pin(threads == 1)  # before ti.init: its pool threads inherit the affinity
     if not (arch in ("auto", "gpu") and _try_gpu(kwargs)):
         if arch == "gpu":
