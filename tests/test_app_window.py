@@ -42,7 +42,7 @@ STIR_EFFICIENCY = 0.003
 EXIT_TIMEOUT_S = 60
 # Parts of the window covered by panels (legend top-left, HUD on the right), whose
 # coloured text must not be taken for fluid.
-LEGEND_PX = (140, 250)  # rows, columns
+LEGEND_PX = (175, 275)  # rows, columns
 HUD_PX_FROM_RIGHT = 350
 
 
@@ -236,13 +236,11 @@ def fluid_box(img: np.ndarray, levels: int):
 
 
 def loading_text_pixels(img: np.ndarray) -> int:
-    """Pixels of the loading message's colour inside its panel (mrsph.app.loading)."""
+    """Pixels of the loading panel's title colour (mrsph.app.loading) outside the HUD."""
     from mrsph.app import loading
 
-    h, w = img.shape[:2]
-    x0, y0 = int(loading.PANEL_POS[0] * w), int(loading.PANEL_POS[1] * h)
-    patch = img[y0 : y0 + loading.PANEL_SIZE_PX[1], x0 : x0 + loading.PANEL_SIZE_PX[0], :3] / 255.0
-    return int((np.abs(patch - np.asarray(loading.TEXT_COLOUR)).max(axis=-1) < 0.1).sum())
+    patch = img[:, : img.shape[1] - HUD_PX_FROM_RIGHT, :3] / 255.0
+    return int((np.abs(patch - np.asarray(loading.TITLE_COLOUR)).max(axis=-1) < 0.1).sum())
 
 
 def loading_shots(app: App, scene: str) -> list[Path]:
@@ -367,9 +365,11 @@ def test_window_real_scene_stir_and_quit(xdisplay, tmp_path):
 
 def test_window_switches_to_a_scene_that_auto_runs_on_more_threads(xdisplay, tmp_path):
     """Tab from pool_2d (small: ``--threads auto`` gives it one thread) to pool_3d (large:
-    all cores). The window keeps the first scene's thread count: re-initialising Taichi
-    for another one freed the window's fields under it, and the process died with a
-    segmentation fault."""
+    all cores) and back. In one process, re-initialising Taichi for another thread count
+    freed the window's fields under it (a segmentation fault); each scene now runs in a
+    process of its own. While pool_3d opens, the window goes on drawing pool_2d (dimmed)
+    under the panel that says so; then pool_3d's first frame runs; shift+Tab opens the
+    pool_2d it kept, at once."""
     from mrsph import runtime
     from mrsph.scene.config import load_scene
 
@@ -401,23 +401,33 @@ def test_window_switches_to_a_scene_that_auto_runs_on_more_threads(xdisplay, tmp
         assert "--frames applies to headless runs and recordings" in app.output(), app.output()
         assert "the window does not dump" in app.output(), app.output()
         assert not no_dump.exists(), f"the window made the --dump folder {no_dump}, which it never fills"
+        before = len(app.stats())
         app.xdo("key", "Tab")
         deadline = time.time() + FIRST_FRAMES_TIMEOUT_S
-        while sum(r["scene"] == "pool_3d" for r in app.stats()) < 3:
+        while sum(r["scene"] == "pool_3d" and not r["loading"] for r in app.stats()) < 3:
             app.alive()
             assert time.time() < deadline, f"no 3 frames of pool_3d after Tab:\n{app.output()}"
             time.sleep(0.5)
-        # Tab draws "loading pool_3d" at once, then the first frame of pool_3d shows its
-        # particles (and says the step is compiling) before the step compiles
-        first = next(r for r in app.stats() if r["scene"] == "pool_3d")
-        assert first["loading"] and first["n_real"] > 0, first
+        rows = app.stats()[before:]
+        opening = [r for r in rows if r["loading"]]
+        assert opening and opening[0]["opening"] == "pool_3d" and opening[0]["scene"] == "pool_2d", opening[:1]
+        assert all(r["n_real"] > 0 for r in opening), "the scene left is not drawn while the next one opens"
+        first = next(r for r in rows if r["scene"] == "pool_3d")
+        assert not first["loading"] and first["n_real"] > 0, first
         shots = loading_shots(app, "pool_3d")
-        assert len(shots) >= 2, f"loading frames of pool_3d saved: {[p.name for p in shots]}"
-        switch, first_frame = iio.imread(shots[0]), iio.imread(shots[1])
-        assert loading_text_pixels(switch) > 100, "the switch's loading frame has no message"
-        assert fluid_box(switch, 1) is None, "the switch's loading frame shows fluid already"
-        assert loading_text_pixels(first_frame) > 100, "pool_3d's first frame does not say it is compiling"
-        assert fluid_box(first_frame, 1) is not None, "pool_3d's first frame shows no particles"
+        assert shots, f"no loading frame of pool_3d saved: {sorted(p.name for p in tmp_path.iterdir())}"
+        shot = iio.imread(shots[-1])
+        assert loading_text_pixels(shot) > 100, "the loading frame has no message"
+        assert fluid_box(shot, 3) is not None, "the scene left is not drawn under the loading panel"
+        before = len(app.stats())
+        app.xdo("key", "shift+Tab")
+        deadline = time.time() + FIRST_FRAMES_TIMEOUT_S
+        while not any(r["scene"] == "pool_2d" and not r["loading"] for r in app.stats()[before:]):
+            app.alive()
+            assert time.time() < deadline, f"shift+Tab did not open pool_2d again:\n{app.output()}"
+            time.sleep(0.2)
+        back = next(r for r in app.stats()[before:] if r["scene"] == "pool_2d" and not r["loading"])
+        assert back["time"] < 0.2 and back["message"].startswith("opened pool_2d in "), back
         assert app.quit() == 0, app.output()
     finally:
         app.close()
@@ -449,10 +459,9 @@ def test_window_blow_up_pauses_and_prints_one_line(xdisplay, tmp_path):
 
 
 def test_window_draws_the_loading_message(xdisplay, tmp_path):
-    """A scene's first frames say "loading SCENE (compiling ...)" (their stats lines say
-    loading, and the screenshot of the last of them, just before the step compiles, has
-    the message's colour in the message's panel); a later frame does not. With one such
-    frame the message never showed: ImGui draws a new panel from its second frame."""
+    """Until the first scene runs, the window's frames say "opening SCENE" (their stats
+    lines say loading, and the last one's screenshot has the panel's title colour); a
+    later frame does not."""
     app = App(
         ["-m", "mrsph.app", "--fake", "2", "--width", WIDTH, "--height", HEIGHT, "--frame-budget", "0"],
         xdisplay,
@@ -461,14 +470,12 @@ def test_window_draws_the_loading_message(xdisplay, tmp_path):
     try:
         app.wait_window(120)
         rows = app.wait_frames(12, 120)
-        assert rows[0]["loading"] and not rows[-1]["loading"], [r["loading"] for r in rows]
+        assert rows[0]["loading"] and rows[0]["opening"] == "fake_2d" and not rows[-1]["loading"], rows[0]
         shots = sorted(tmp_path.glob("shot_loading_*.png"))
         assert shots, f"no loading frame saved: {sorted(p.name for p in tmp_path.iterdir())}"
-        # the last before the step compiles (ImGui draws a new panel from its second frame)
-        loading, later = iio.imread(shots[-1]), iio.imread(app.shot_path)  # frame 10's
-        assert loading_text_pixels(loading) > 100, (
-            f"{loading_text_pixels(loading)} pixels of the loading message in its panel"
-        )
+        # the last (ImGui draws a new panel from its second frame)
+        loading, later = iio.imread(shots[-1]), iio.imread(app.shot_path)  # the 10th frame run
+        assert loading_text_pixels(loading) > 30, f"{loading_text_pixels(loading)} pixels of the loading title"
         assert loading_text_pixels(later) < 10, "the message is still drawn after loading"
         assert app.quit() == 0, app.output()
     finally:
@@ -511,31 +518,35 @@ def test_window_latches_a_tapped_key_and_toggles_the_water_view(xdisplay, tmp_pa
 
 
 def test_window_s_switches_the_solver_and_frames_keep_coming(xdisplay, tmp_path):
-    """s on pool_2d rebuilds it with ``fluid.solver = "dfsph"``: the stats line's solver
-    turns from wcsph to dfsph, the switch's first frames say loading (the new step
-    compiles), and then dfsph frames keep coming with simulated time advancing and the
-    density solve iterating."""
+    """s on pool_2d opens it with the next solver of the schema's list (dfsph): pool_2d
+    goes on being drawn while that opens (the frames say loading), then the stats line's
+    solver turns from wcsph to dfsph and dfsph frames keep coming with simulated time
+    advancing and the density solve iterating; the HUD says what opened, how fast."""
+    from mrsph.app.switch import next_solver
+
     app = App([str(REPO / "main.py"), "pool_2d", "--width", WIDTH, "--height", HEIGHT], xdisplay, tmp_path)
     try:
         app.wait_window(FIRST_FRAMES_TIMEOUT_S)
         rows = app.wait_frames(3, FIRST_FRAMES_TIMEOUT_S)
         assert {r["solver"] for r in rows} == {"wcsph"}, "pool_2d no longer opens with wcsph"
+        want = next_solver("wcsph")
         app.xdo("key", "s")
         deadline = time.time() + FIRST_FRAMES_TIMEOUT_S
         while True:
             app.alive()
-            new = [r for r in app.stats()[len(rows) :] if r["solver"] == "dfsph"]
-            running = [r for r in new if not r["loading"]]
+            new = app.stats()[len(rows) :]
+            running = [r for r in new if r["solver"] == want and not r["loading"]]
             if len(running) >= 5:
                 break
-            assert time.time() < deadline, (
-                f"{len(new)} dfsph frames ({len(running)} past loading) after s:\n{app.output()}"
-            )
+            assert time.time() < deadline, f"{len(running)} {want} frames after s:\n{app.output()}"
             time.sleep(0.5)
-        assert new[0]["loading"], f"the switch's first frame did not say loading: {new[0]}"
-        assert new[0]["message"] == "solver dfsph", new[0]["message"]
+        opening = [r for r in new if r["loading"]]
+        assert opening and opening[0]["opening"] == f"pool_2d with {want}" and opening[0]["solver"] == "wcsph", opening[
+            :1
+        ]
+        assert running[0]["message"].startswith(f"opened pool_2d with {want} in "), running[0]["message"]
         times = [r["time"] for r in running]
-        assert times[-1] > times[0] > 0.0, f"dfsph frames did not advance: {times}"
+        assert times[-1] > times[0] > 0.0, f"{want} frames did not advance: {times}"
         assert running[-1]["density_iterations"] > 0, running[-1]
         assert app.quit() == 0, app.output()
     finally:

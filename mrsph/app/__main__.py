@@ -2,12 +2,14 @@
 
 The project's ``main.py`` is the full command line; this entry point exists so the app
 can be started (and smoke-tested) on its own. ``--fake 2`` or ``--fake 3`` runs the
-stand-in simulation of :mod:`mrsph.app.fake` instead of the solver.
+stand-in simulation of the tests (``tests/fake_app.py`` of a checkout) instead of the
+solver.
 """
 from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from mrsph.cli.options import WINDOW_FRAME_BUDGET_MS, frame_budget_arg
 
@@ -24,12 +26,16 @@ def main(argv=None) -> int:
                         f"(default: {WINDOW_FRAME_BUDGET_MS}; 0 = whole frames)")
     args = parser.parse_args(argv)
 
-    from mrsph import runtime
     from .window import run_window
 
     if args.fake:
-        from .fake import FakeSimulation
-        runtime.ensure("cpu")
+        tests = Path(__file__).resolve().parents[2] / "tests"
+        if not (tests / "fake_app.py").is_file():
+            print(f"python -m mrsph.app: --fake runs the tests' stand-in, {tests / 'fake_app.py'}, "
+                  "which only a checkout has", file=sys.stderr)
+            return 2
+        sys.path.insert(0, str(tests))
+        from fake_app import FakeSimulation
 
         def make_sim(name, overrides=None):
             return FakeSimulation(dim=args.fake)

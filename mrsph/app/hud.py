@@ -1,44 +1,44 @@
-"""The window's panels: the HUD on the right (stats, buttons, sliders) and the help,
-plus the rate counters it shows. GGUI/ImGui calls only; the state is the window's."""
+"""The window's panels: the HUD on the right (figures, buttons, sliders) and the help,
+plus the rate counters the HUD shows. GGUI/ImGui calls only; the state is the window's.
+
+Each panel is first planned as rows (text or a widget), so that its height is known
+before ImGui draws it: a panel fits its rows, and its window (at 1280x720 the HUD
+needs 660 px at most). ImGui sizes a panel only when it first appears, so a panel's
+name carries its size; the rows whose number would change from frame to frame (the
+last message, the solver's counts) keep their place, blank when there is nothing to
+say, so the HUD changes size only when the scene or solver does.
+"""
 
 from __future__ import annotations
 
 import collections
 import math
 import textwrap
+import time
 
-from . import palette
+from . import keys
+from .loading import CHAR_PX, LINE_PX, PAD_PX, TITLE_PX
 from .switch import next_solver
 
-#: HUD panel on the right: width in pixels (fits the slider labels of ImGui's default
-#: 13 px font) and height in pixels (cut to the window, less the margins).
+#: HUD panel on the right: width in pixels (a line of HUD_TEXT_CHARS characters of ImGui's
+#: 7 px glyphs, and the slider labels) and its margin from the window's edges.
 HUD_WIDTH_PX = 330
-HUD_TEXT_CHARS = 40  # characters a line of the panel holds (ImGui's 7 px wide glyphs)
-HUD_HEIGHT_PX = 600
+HUD_TEXT_CHARS = 44
 HUD_MARGIN_PX = 8
+#: Height of a widget row (button, slider, checkbox): ImGui's 19 px frame and 4 px spacing.
+WIDGET_PX = 23
 #: The colour of the HUD's message lines (what an action did, or why it could not).
 MESSAGE_COLOUR = (1.0, 0.75, 0.3)
+DIM_COLOUR = (0.65, 0.68, 0.72)
+#: Lines kept for the message and for the solver's figures.
+MESSAGE_LINES = 2
+SOLVER_LINES = 4
+#: How long a message stays (one that says something went wrong stays until the next).
+MESSAGE_S = 8.0
 #: Window over which splits/s and merges/s are counted (simulated seconds).
 RATE_WINDOW_S = 1.0
-_HELP = """\
-space     pause / run          n   step one frame
-r         reset                tab next scene (list below)
-c         colour mode          v   show virtual particles
-s         pressure solver: wcsph <-> dfsph (rebuilds)
-h         this help            p   screenshot (out/screenshots)
-left drag push the fluid       right drag / shift+left: pull
-q / e     mouse radius - / +   u   hide / show the HUD
-w         water view (surface)
-Esc       quit
-3D: right drag or arrows orbit, middle drag pan,
-    z / x zoom in / out, f frame the domain"""
-
-
-def hud_rect_px(size) -> tuple[int, int, int, int]:
-    """(x0, y0, x1, y1) of the HUD panel in pixels, y down from the top."""
-    w, h = size
-    x0 = w - HUD_WIDTH_PX - HUD_MARGIN_PX
-    return x0, HUD_MARGIN_PX, w - HUD_MARGIN_PX, min(HUD_MARGIN_PX + HUD_HEIGHT_PX, h - HUD_MARGIN_PX)
+#: The help panel: characters a line, at most.
+HELP_CHARS = 96
 
 
 class Rates:
@@ -93,113 +93,199 @@ class Speed:
         return (t1 - t0) / (w1 - w0) if w1 > w0 else None
 
 
-def solver_lines(st: dict, solver: str | None, tolerance: float | None = None) -> list[str]:
+class Message:
+    """The HUD's last message: what an action did (it goes after MESSAGE_S) or what went
+    wrong (``sticky``: it stays until the next message)."""
+
+    def __init__(self):
+        self.text, self.until = "", None
+
+    def set(self, text: str, sticky: bool = False, now: float | None = None) -> None:
+        now = time.perf_counter() if now is None else now
+        self.text, self.until = str(text), None if sticky else now + MESSAGE_S
+
+    def shown(self, now: float | None = None) -> str:
+        now = time.perf_counter() if now is None else now
+        if self.until is not None and now > self.until:
+            return ""
+        return self.text
+
+
+def _number(st: dict, key: str) -> float | None:
+    """A figure of the stats row, or None where the row has none."""
+    value = st.get(key)
+    try:
+        return None if value is None else float(value)
+    except (TypeError, ValueError):
+        return None
+
+
+def solver_lines(st: dict, solver: str | None, tolerance: float | None = None, seen: set | None = None) -> list[str]:
     """The HUD's lines on the pressure solver, from a stats row ``st`` of
-    ``Simulation.stats()`` (``solver``, ``density_iterations``, ``divergence_iterations``,
-    ``density_error``, ``unconverged``); ``solver``: the running scene's, for a row
-    without it; ``tolerance``: ``dfsph.density_tolerance``, shown beside the error. The
-    iterations are the mean velocity updates a step since the last row, the error the
-    average density error (DFSPH: its last density solve's; WCSPH: the mean compression).
-    No lines for a simulation without a pressure solver (the app's stand-in)."""
+    ``Simulation.stats()``: ``solver`` (else the running scene's ``solver``), the mean
+    iterations a step since the last row of its solves (``density_iterations``,
+    ``divergence_iterations``: shown once one has been above 0, which ``seen`` remembers
+    across rows), ``density_error`` (an iterating solver's last solve's, else the mean
+    compression), ``unconverged`` and ``clamped`` (shown when above 0); ``tolerance``:
+    ``dfsph.density_tolerance``, shown beside the error. Any key may be missing. No
+    lines for a simulation without a pressure solver (the app's stand-in)."""
     name = st.get("solver") or solver
     if not name:
         return []
-    lines = [f"solver {name}   (s: switch to {next_solver(name)})"]
-    err = st.get("density_error")
-    if name == "dfsph":
-        lines.append(
-            f"iterations/step: density {float(st.get('density_iterations') or 0.0):.1f}, "
-            f"div {float(st.get('divergence_iterations') or 0.0):.1f}"
-        )
-        tol = f" (tol {100.0 * tolerance:.3g} %)" if tolerance else ""
-        lines.append(f"density error {100.0 * float(err or 0.0):.3g} %{tol}")
-        if st.get("unconverged"):
-            lines.append(f"{int(st['unconverged'])} solves stopped at max iterations")
-    elif err is not None:
-        lines.append(f"mean compression {100.0 * float(err):.3g} %")
+    seen = set() if seen is None else seen
+    nxt = next_solver(name)
+    lines = [f"solver {name}" + (f"   (s: next {nxt})" if nxt != name else "")]
+    its = {}
+    for key, label in (("density_iterations", "density"), ("divergence_iterations", "divergence")):
+        value = _number(st, key)
+        if value is not None and (value > 0 or key in seen):
+            seen.add(key)
+            its[label] = value
+    if its:
+        lines.append("iterations/step: " + ", ".join(f"{k} {v:.1f}" for k, v in its.items()))
+    err = _number(st, "density_error")
+    if err is not None:
+        if "density_iterations" in seen:
+            tol = f" (tolerance {100.0 * tolerance:.3g} %)" if tolerance else ""
+            lines.append(f"density error {100.0 * err:.3g} %{tol}")
+        else:
+            lines.append(f"mean compression {100.0 * err:.3g} %")
+    unconverged, clamped = _number(st, "unconverged"), _number(st, "clamped")
+    if unconverged:
+        lines.append(f"{int(unconverged)} solves stopped at max. iterations")
+    if clamped:
+        lines.append(f"clamped: {int(clamped)} (see docs/output.md)")
     return lines
+
+
+def hud_rect_px(size) -> tuple[int, int, int, int]:
+    """(x0, y0, x1, y1) of the HUD's column in pixels, y down from the top."""
+    w, h = size
+    x0 = w - HUD_WIDTH_PX - HUD_MARGIN_PX
+    return x0, HUD_MARGIN_PX, w - HUD_MARGIN_PX, h - HUD_MARGIN_PX
+
+
+def panel_height(rows) -> int:
+    """Pixels a panel of ``rows`` needs: text rows LINE_PX, widgets WIDGET_PX."""
+    body = sum(LINE_PX if r[0] == "text" else WIDGET_PX for r in rows)
+    return TITLE_PX + 2 * PAD_PX + body
+
+
+def draw_rows(gui, rows) -> None:
+    """Draw planned rows: ("text", str, colour), ("button", label, act),
+    ("slider", label, value, lo, hi, act(new)), ("checkbox", label, value, act(new))."""
+    for row in rows:
+        kind = row[0]
+        if kind == "text":
+            if row[2] is None:
+                gui.text(row[1])
+            else:
+                gui.text(row[1], color=row[2])
+        elif kind == "button":
+            if gui.button(row[1]):
+                row[2]()
+        elif kind == "slider":
+            _, label, value, lo, hi, act = row
+            new = gui.slider_float(label, value, lo, hi)
+            if not math.isclose(new, value, rel_tol=1e-6, abs_tol=1e-12):
+                act(float(new))
+        elif kind == "checkbox":
+            _, label, value, act = row
+            new = gui.checkbox(label, value)
+            if new != value:
+                act(new)
+
+
+def _text(s, colour=None):
+    return ("text", s, colour)
+
+
+def hud_rows(self, snap) -> list:
+    """The HUD's rows for the window ``self`` (an ``_App``) and its snapshot."""
+    st = snap.stats or {}
+    rows = [_text(f"scene {self.scene_name} ({snap.dim}D)"[:HUD_TEXT_CHARS])]
+    rows.append(_text(f"t = {float(snap.time):.3f} s   dt = {float(st.get('dt', 0.0)):.2e} s"))
+    rows.append(_text(f"frame {snap.frame}   drawn at {self.fps:.1f} frames/s"))
+    speed = self.speed.value()
+    if self.opening is not None:
+        rows.append(_text("speed: paused while the next scene opens"))
+    elif speed is None:
+        rows.append(_text("speed: paused" if self.paused else "speed: measuring"))
+    else:
+        slow = " (slow motion)" if self.frame_sim < 0.999 * self.frame_dt else ""
+        rows.append(_text(f"speed {speed:.3g}x real time{slow}"))
+    solver = solver_lines(st, self.solver, self.tolerance, self.solver_seen) if self.solver else []
+    if solver:
+        solver = (solver + [""] * SOLVER_LINES)[:SOLVER_LINES]
+    rows += [_text(line) for line in solver]
+    message = textwrap.wrap(self.message.shown(), HUD_TEXT_CHARS)[:MESSAGE_LINES]
+    rows += [_text(line, MESSAGE_COLOUR) for line in message + [""] * (MESSAGE_LINES - len(message))]
+    counts = (st.get(k, "?") for k in ("n_real", "n_virtual", "n_transient"))
+    rows.append(_text("real {}   virtual {}   transient {}".format(*counts)))
+    splits, merges = self.rates.rates()
+    rows.append(_text(f"splits {splits:.0f}/s   merges {merges:.0f}/s   levels {int(snap.levels)}"))
+    unit = "kg" if snap.dim == 3 else "kg/m"
+    mass, ratio = float(st.get("total_mass", 0.0)), float(st.get("max_density_ratio", 0.0))
+    rows.append(_text(f"mass {mass:.4g} {unit}   max rho/rho0 {ratio:.3f}"))
+    rows.append(("button", ("Run" if self.paused else "Pause") + " (space)", self.toggle_pause))
+    rows.append(("button", "Step one frame (n)", self.step_frame))
+    rows.append(("button", "Reset (r)", self.reset_sim))
+    if self.solver:
+        rows.append(("button", f"Solver: {self.solver} -> {next_solver(self.solver)} (s)", self.switch_solver))
+    rows.append(("button", "Next scene (tab)", lambda: self.later(self.step_scene)))
+    rows.append(("button", "Scenes and keys (h)", self.toggle_help))
+    rows.append(_text("fluid", DIM_COLOUR))
+    for key, label in (("fluid.viscosity", "viscosity"), ("fluid.stiffness", "stiffness")):
+        if self.takes(key):  # dfsph has no stiffness
+            lo = 0.0 if key == "fluid.viscosity" else 0.1 * self.slider_max[key] / 4.0
+            rows.append(("slider", label, self.params[key], lo, self.slider_max[key], _setter(self, key)))
+    rows.append(("slider", "gravity y", self.params["gravity_y"], -20.0, 5.0, self._set_gravity_y))
+    rows.append(_text(f"mouse (q / e: radius), cap {self.mouse.max_speed:.2g} m/s", DIM_COLOUR))
+    m = self.mouse
+    rows.append(("slider", "radius", m.radius, m.radius_min, m.radius_max, lambda v: setattr(m, "radius", v)))
+    rows.append(("slider", "strength", m.strength, 0.0, 100.0, lambda v: setattr(m, "strength", v)))
+    rows.append(("checkbox", "refinement", self.refinement, lambda new: self.later(lambda: self.set_refinement(new))))
+    rows.append(("checkbox", "show virtual (v)", self.show_virtual, lambda new: setattr(self, "show_virtual", new)))
+    rows.append(("checkbox", "water view (w)", self.surface, lambda new: setattr(self, "surface", new)))
+    rows.append(("checkbox", "water tinted by colour (t)", self.tint, lambda new: setattr(self, "tint", new)))
+    rows.append(("button", f"colour: {self.color_mode} (c)", self.next_colour))
+    return rows
+
+
+def _setter(self, key):
+    return lambda value: self._set_param(key, value)
+
+
+def help_rows(self) -> list:
+    """The help panel's rows: the keys (mrsph.app.keys), then a button per scene."""
+    # ImGui's font has Latin-1 only: arrows as ASCII
+    table = keys.text_table(HELP_CHARS, indent=0).replace("→", "->").replace("↔", "<->")
+    rows = [_text(line) for line in table.splitlines()]
+    rows.append(_text(""))
+    rows.append(_text("scenes (a button opens one):", DIM_COLOUR))
+    for name in self.scene_names:
+        label = f"{name} (running)" if name == self.scene_name else name
+        rows.append(("button", label, lambda name=name: self.later(lambda: self.open_scene(name))))
+    return rows
 
 
 def draw_hud(self, snap) -> None:
     """The HUD panel (right) and the help panel of the window ``self`` (an ``_App``)."""
     gui = self.window.get_gui()
     w, h = self.renderer.size
-    x0, y0, x1, y1 = hud_rect_px(self.renderer.size)
-    st = snap.stats or {}
     if self.show_help:
-        rows = len(_HELP.splitlines()) + 2 + len(self.scene_names)
-        with gui.sub_window("Help", 0.2, 0.15, min(440 / w, 0.9), min((40 + 23 * rows) / h, 0.9)):
-            for line in _HELP.splitlines():
-                gui.text(line)
-            gui.text("scenes:")
-            for name in self.scene_names:
-                if name != self.scene_name and gui.button(name):
-                    self.later(lambda name=name: self.switch_scene(name))
-    if not self.show_hud:
+        rows = help_rows(self)
+        pw = min(CHAR_PX * HELP_CHARS + 2 * PAD_PX + 8, w - 2 * HUD_MARGIN_PX)
+        ph = min(panel_height(rows), h - 2 * HUD_MARGIN_PX)
+        x0, _, x1, _ = self.view_area()
+        x = int(max(HUD_MARGIN_PX, (x0 + x1 - pw) / 2))
+        y = int(max(HUD_MARGIN_PX, (h - ph) / 2))
+        with gui.sub_window(f"Help: keys and scenes (h closes)##{x},{y},{pw}x{ph}", x / w, y / h, pw / w, ph / h):
+            draw_rows(gui, rows)
+    if not self.show_hud or snap is None:
         return
-    with gui.sub_window("mrsph", x0 / w, y0 / h, (x1 - x0) / w, (y1 - y0) / h):
-        gui.text(f"scene {self.scene_name} ({snap.dim}D)")
-        gui.text("h: help   u: hide this panel")
-        gui.text(f"{self.fps:5.1f} fps   frame {snap.frame}" + ("   PAUSED" if self.paused else ""))
-        gui.text(f"t = {float(snap.time):.3f} s   dt = {float(st.get('dt', 0.0)):.2e} s")
-        speed = self.speed.value()
-        if speed is None:
-            gui.text("speed: paused" if self.paused else "speed: measuring")
-        else:
-            slow = "   (slow motion)" if self.frame_sim < 0.999 * self.frame_dt else ""
-            gui.text(f"speed {speed:.3g}x real time{slow}")
-        for line in solver_lines(st, self.solver, self.tolerance):
-            gui.text(line)
-        # the last message under the figures, where it is seen at any window height (at
-        # the panel's foot it fell below the fold of a 600-pixel window)
-        for line in textwrap.wrap(self.message, HUD_TEXT_CHARS):
-            gui.text(line, color=MESSAGE_COLOUR)
-        gui.text(
-            f"real {st.get('n_real', '?')}   virtual {st.get('n_virtual', '?')}"
-            f"   transient {st.get('n_transient', '?')}"
-        )
-        for lvl in range(int(snap.levels)):
-            gui.text(
-                f"  level {lvl}: {st.get(f'n_level_{lvl}', '?')} real, {st.get(f'n_virtual_level_{lvl}', '?')} virtual",
-                color=tuple(float(c) for c in palette.level_colour(lvl)),
-            )
-        splits, merges = self.rates.rates()
-        gui.text(f"splits {splits:.0f}/s   merges {merges:.0f}/s")
-        unit = "kg" if snap.dim == 3 else "kg/m"
-        gui.text(
-            f"mass {float(st.get('total_mass', 0.0)):.4g} {unit}   "
-            f"max rho/rho0 {float(st.get('max_density_ratio', 0.0)):.3f}"
-        )
-        if gui.button("Run" if self.paused else "Pause"):
-            self.paused = not self.paused
-        if gui.button("Step"):
-            self.paused, self.step_once = True, True
-        if gui.button("Reset"):
-            self._reset()
-        if self.solver and gui.button(f"Solver: {self.solver} -> {next_solver(self.solver)} (s)"):
-            self.later(self.switch_solver)
-        if gui.button("Next scene (tab)"):
-            self.later(self._next_scene)
-        if gui.button("Scenes and keys (h)"):
-            self.show_help = not self.show_help
-        gui.text("fluid")
-        for key, label in (("fluid.viscosity", "viscosity"), ("fluid.stiffness", "stiffness")):
-            if not self.takes(key):  # dfsph has no stiffness
-                continue
-            lo = 0.0 if key == "fluid.viscosity" else 0.1 * self.slider_max[key] / 4.0
-            new = gui.slider_float(label, self.params[key], lo, self.slider_max[key])
-            if not math.isclose(new, self.params[key], rel_tol=1e-6, abs_tol=1e-12):
-                self._set_param(key, float(new))
-        new = gui.slider_float("gravity y", self.params["gravity_y"], -20.0, 5.0)
-        if not math.isclose(new, self.params["gravity_y"], abs_tol=1e-9):
-            self._set_gravity_y(new)
-        gui.text(f"mouse (q / e: radius), cap {self.mouse.max_speed:.2g} m/s")
-        self.mouse.radius = gui.slider_float("radius", self.mouse.radius, self.mouse.radius_min, self.mouse.radius_max)
-        self.mouse.strength = gui.slider_float("strength", self.mouse.strength, 0.0, 100.0)
-        new = gui.checkbox("refinement", self.refinement)
-        if new != self.refinement:
-            self.later(lambda new=new: self.set_refinement(new))
-        self.show_virtual = gui.checkbox("show virtual (v)", self.show_virtual)
-        self.surface = gui.checkbox("water view (w)", self.surface)
-        if gui.button(f"colour: {self.color_mode} (c)"):
-            self.color_mode = palette.next_mode(self.color_mode)
+    rows = hud_rows(self, snap)
+    x0, y0, x1, y1 = hud_rect_px(self.renderer.size)
+    ph = min(panel_height(rows), y1 - y0)
+    with gui.sub_window(f"mrsph##{x0},{y0},{ph},{len(rows)}", x0 / w, y0 / h, (x1 - x0) / w, ph / h):
+        draw_rows(gui, rows)
