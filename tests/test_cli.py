@@ -255,7 +255,8 @@ def test_help_lists_every_option_and_its_default():
     ]:
         assert default in out, default
     assert out.count("(default:") >= len(options) - 1  # --help itself has none
-    assert "python3 main.py list" in out and "python3 main.py bench" in out
+    assert "python3 main.py list" in out and "python3 main.py bench" in out and "python3 main.py keys" in out
+    assert "the window's keys and mouse:" in out and "next / previous scene" in out
 
 
 def test_list_takes_no_arguments_and_commands_come_first():
@@ -263,12 +264,41 @@ def test_list_takes_no_arguments_and_commands_come_first():
     assert proc.returncode == 2 and proc.stderr.strip() == (
         "python3 main.py list: error: unrecognized arguments: extra (list takes none)"
     ), proc.stderr
-    for command in ("list", "bench"):
+    for command in ("list", "keys", "bench"):
         proc = run("--quiet", command)
         assert proc.returncode == 2 and proc.stderr.strip() == (
             f"python3 main.py: error: '{command}' is a command: it comes first "
             f"(python3 main.py {command} ...), before any option"
         ), proc.stderr
+
+
+def _readme_keys_table() -> str:
+    """The first table of the README's "Controls (window)" section."""
+    section = (REPO / "README.md").read_text(encoding="utf-8").split("## Controls (window)\n", 1)[1]
+    lines = section.strip().splitlines()
+    return "\n".join(lines[: next((i for i, line in enumerate(lines) if not line.startswith("|")), len(lines))])
+
+
+def test_the_window_keys_come_from_one_table():
+    """The README's table, ``python3 main.py keys`` and ``--help`` all come from
+    mrsph/app/keys.py (the help panel draws the same text: mrsph.app.hud.help_rows)."""
+    from mrsph.app.keys import KEYS, markdown_table, plain, text_table
+
+    assert _readme_keys_table() == markdown_table(), (
+        "README.md's Controls table is not mrsph/app/keys.py's: python3 main.py keys --markdown prints it"
+    )
+    table = text_table()
+    flat = " ".join(table.split())
+    for k in KEYS:  # every row is in the text, its action's words in order
+        words = plain(k.action).split()
+        assert " ".join(words[:2]) in flat, k
+    keys, help_ = run("keys"), run("--help")
+    assert keys.returncode == 0 and help_.returncode == 0, keys.stderr + help_.stderr
+    assert keys.stdout.strip("\n") == table, keys.stdout
+    assert table in help_.stdout, help_.stdout[-2000:]
+    assert run("keys", "--markdown").stdout.strip() == markdown_table()
+    proc = run("keys", "extra")
+    assert proc.returncode == 2 and "keys takes only --markdown" in proc.stderr, proc.stderr
 
 
 def test_list_shows_every_scene_with_its_description():

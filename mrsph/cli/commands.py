@@ -1,5 +1,5 @@
 """The command line: ``python3 main.py [SCENE] [options]``, ``python3 main.py list``,
-``python3 main.py bench ...``.
+``python3 main.py keys``, ``python3 main.py bench ...``.
 
 Without ``--headless`` an interactive window opens when a display is available;
 otherwise a short video is recorded instead. ``--headless`` runs a fixed number of
@@ -55,6 +55,7 @@ def _default_scene() -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from mrsph.app.keys import text_table
     from mrsph.io.output import FORMATS
 
     parser = Parser(
@@ -64,6 +65,7 @@ def build_parser() -> argparse.ArgumentParser:
         "short video of it); --headless runs it without a window.",
         epilog="commands:\n"
         "  python3 main.py list          the scenes in scenes/ with a one-line description\n"
+        "  python3 main.py keys          the window's keys and mouse (below)\n"
         "  python3 main.py bench ...     benchmarks (python3 main.py bench --help)\n"
         "\nexamples:\n"
         "  python3 main.py dam_break_2d\n"
@@ -71,7 +73,8 @@ def build_parser() -> argparse.ArgumentParser:
         "  python3 main.py pool_3d --out out/pool.mp4 --frames 150\n"
         "  python3 main.py dam_break_obstacle_2d --set fluid.viscosity=2.0 --set adaptivity.enabled=false\n"
         "\nexit status: 0 done, 1 the simulation failed, 2 usage or scene error, "
-        "130 interrupted",
+        "130 interrupted\n"
+        "\nthe window's keys and mouse:\n" + text_table(),
         formatter_class=HelpFormatter,
     )
     parser.add_argument(
@@ -219,6 +222,23 @@ def _cmd_list(argv) -> int:
     width = max(len(name) for name, _ in scenes)
     for name, description in scenes:
         print(f"{name:<{width}}  {description}")
+    return EXIT_OK
+
+
+def _cmd_keys(argv) -> int:
+    from mrsph.app.keys import markdown_table, text_table
+
+    if argv and argv[0] in ("-h", "--help"):
+        print("usage: python3 main.py keys [--markdown]\n")
+        print("The window's keys and mouse (--markdown: as the README's table).")
+        return EXIT_OK
+    if argv not in ([], ["--markdown"]):
+        print(
+            f"python3 main.py keys: error: unrecognized arguments: {' '.join(argv)} (keys takes only --markdown)",
+            file=sys.stderr,
+        )
+        return EXIT_USAGE
+    print(markdown_table() if argv else text_table())
     return EXIT_OK
 
 
@@ -447,12 +467,14 @@ def main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] == "list":
         return _cmd_list(argv[1:])
+    if argv and argv[0] == "keys":
+        return _cmd_keys(argv[1:])
     if argv and argv[0] == "bench":
         return _cmd_bench(argv[1:])
     from mrsph.scene.config import SceneError
 
     args = build_parser().parse_args(argv)
-    if args.scene in ("list", "bench") and not Path(args.scene).exists():
+    if args.scene in ("list", "keys", "bench") and not Path(args.scene).exists():
         # "--quiet list": the commands come first, before any option
         _err(
             f"python3 main.py: error: '{args.scene}' is a command: it comes first "
