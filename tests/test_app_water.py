@@ -42,10 +42,14 @@ def render(request):
 
     runtime.reset()
     runtime.ensure("cpu")
+    from mrsph.app.render import image_from_window
+
     frames = _GguiFrames(W, H, Style(), None)
 
     def draw(snap, marks, surface):
-        return frames.render(snap, "level", False, None, marks, surface)
+        # no legend: the scene framed on the whole image, as _project frames it
+        frames.renderer.draw(snap, "level", False, legend=False, marks=marks, surface=surface)
+        return image_from_window(frames.window)
 
     draw.renderer = frames.renderer
     yield draw
@@ -178,7 +182,9 @@ def test_a_3d_water_mesh_of_200k_vertices_is_drawn(render, monkeypatch):
     snap = _snap(3)
     once = geometry.water(snap, palette.colours(snap, "level"))
     reps = 3 * 65535 // len(once[1]) + 1
-    monkeypatch.setattr(geometry, "water", lambda s, rgb: ("mesh",) + tuple(np.tile(a, (reps, 1)) for a in once[1:]))
+    monkeypatch.setattr(
+        geometry, "water", lambda s, rgb, *_: ("mesh",) + tuple(np.tile(a, (reps, 1)) for a in once[1:])
+    )
     assert reps * len(once[1]) > 3 * 65535
     frac = _filled_top(render, snap)
     assert frac > 0.98, f"a mesh of {reps * len(once[1])} vertices fills {frac:.1%} of the top face"
@@ -193,7 +199,7 @@ def test_water_view_is_not_recomputed_for_the_same_snapshot(render, monkeypatch,
     renderer = _ggui(render)
     calls = []
     real = geometry.water
-    monkeypatch.setattr(geometry, "water", lambda s, rgb: calls.append(1) or real(s, rgb))
+    monkeypatch.setattr(geometry, "water", lambda s, rgb, *more: calls.append(1) or real(s, rgb, *more))
     snap = _snap(dim)
     render(snap, [], True)
     render(snap, [], True)

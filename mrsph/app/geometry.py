@@ -61,6 +61,18 @@ def obstacle_triangles(obstacle: dict) -> np.ndarray:
     return np.zeros((0, 2))
 
 
+def outside_domain_triangles(view, domain_min, domain_max) -> np.ndarray:
+    """Four rectangles round the 2D domain out to the window's edges, in canvas
+    coordinates: triangles (24, 2)."""
+    (x0, y0), (x1, y1) = view.world_to_canvas(np.array([domain_min[:2], domain_max[:2]], np.float64))
+    far = 4.0  # beyond the canvas' [0, 1]
+    rects = ((-far, -far, x0, far), (x1, -far, far, far), (x0, -far, x1, y0), (x0, y1, x1, far))
+    tri = []
+    for a0, b0, a1, b1 in rects:
+        tri += [(a0, b0), (a1, b0), (a1, b1), (a0, b0), (a1, b1), (a0, b1)]
+    return np.asarray(tri, np.float64)
+
+
 def obstacle_shell(obstacle: dict):
     """3D obstacle surface sampled by points: (points (K, 3), point radius).
 
@@ -144,12 +156,101 @@ def mark_segments(mark: Mark, dim: int, facing=None) -> np.ndarray:
     return np.concatenate(rings)
 
 
-def water(snapshot, rgb):
-    """The water view's surface of a snapshot (``mrsph.io.surface.surface``), coloured by
-    the particles' colours ``rgb`` (N, 3) mixed into the water's (palette.WATER_TINT)."""
+class Water2D(NamedTuple):
+    """The 2D water view of a snapshot (world coordinates): the body as triangles with a
+    colour per vertex, its lit free surface as segments, and the drops that left it."""
+
+    triangles: np.ndarray  # (3T, 2)
+    colours: np.ndarray  # (3T, 3)
+    surface: np.ndarray  # (2S, 2): segments of the free surface (facing up)
+    drops: np.ndarray  # (D, 2) centres
+    drop_radius: np.ndarray  # (D,) world radii
+    drop_colours: np.ndarray  # (D, 3)
+    grid: object  # the mrsph.io.surface.Grid, its rgb the nodes' colours (the rasteriser's)
+
+
+#: The 2D water body darkens with the depth under its free surface: half way from the
+#: shallow colour to the deep one at DEPTH_FRACTION of the domain's height (a scene's
+#: depths are some tenths of its height), and lightens within a few cells of the
+#: surface (the lit surface: RIM_CELLS cells, by RIM_LIGHT of the way to the edge colour).
+DEPTH_FRACTION = 0.25
+RIM_CELLS = 1.8
+RIM_LIGHT = 0.55
+#: A tinted body keeps its colour at the surface and darkens to this share of it deep down.
+TINT_DEEP = 0.5
+#: The free surface's lit line: segments whose outward normal points this much up.
+SURFACE_FACING_UP = 0.3
+#: A drop (a particle outside the body) is drawn this many times its particle's radius.
+DROP_SCALE = 1.15
+
+
+def water_colours(depth, scale: float, cell: float, base=None) -> np.ndarray:
+    """Colours of the body's nodes from their depth under the free surface: the shallow
+    water's colour to the deep's (or the tint ``base`` to TINT_DEEP of it), and lighter
+    just under the surface."""
+    from . import palette
+
+    t = (1.0 - np.exp(-np.asarray(depth) * (np.log(2.0) / max(scale, 1e-9))))[..., None]
+    if base is None:
+        col = (1.0 - t) * np.asarray(palette.WATER_SHALLOW) + t * np.asarray(palette.WATER_DEEP)
+    else:
+        col = np.asarray(base) * (1.0 - (1.0 - TINT_DEEP) * t)
+    rim = np.exp(-np.asarray(depth) / (RIM_CELLS * cell))[..., None] * RIM_LIGHT
+    return np.clip(col + rim * (np.asarray(palette.WATER_EDGE) - col), 0.0, 1.0)
+
+
+def water_2d(snapshot, rgb=None, dim_factor: float = 1.0) -> Water2D | None:
+    """The 2D water view: the body (mrsph.io.surface: the volume fraction with the
+    particles mirrored at the walls, filled by marching squares) shaded by depth, its
+    free surface and its drops. ``rgb`` (N, 3): the tint (per particle), or None."""
+    from mrsph.io import surface as sf
+
+    from . import palette
+
+    walls = (snapshot.domain_min, snapshot.domain_max, snapshot.obstacles)
+    grid = sf.volume_fraction(snapshot.x, snapshot.m, snapshot.rho, snapshot.level, snapshot.kind, rgb, walls)
+    if grid is None:
+        return None
+    solid = sf.inside_obstacles(grid, snapshot.obstacles)
+    depth = sf.depth_below_surface(grid, solid)
+    height = float(np.asarray(snapshot.domain_max)[1] - np.asarray(snapshot.domain_min)[1])
+    base = grid.rgb if grid.rgb is not None else grid.colour
+    grid.rgb = water_colours(depth, DEPTH_FRACTION * height, grid.cell, base) * dim_factor
+    grid.colour = None
+    tri, tri_rgb, seg = sf.marching_squares(grid)
+    # the lit line: the contour inside the domain where it faces up (the free surface)
+    if len(seg):
+        mid = 0.5 * (seg[0::2] + seg[1::2])
+        gy = np.gradient(grid.phi, axis=1)
+        node = np.clip(np.rint((mid - grid.origin) / grid.cell).astype(np.int64), 0, np.array(grid.phi.shape) - 1)
+        gx = np.gradient(grid.phi, axis=0)[tuple(node.T)]
+        up = -gy[tuple(node.T)] / np.maximum(np.hypot(gx, gy[tuple(node.T)]), 1e-12)
+        lo, hi = np.asarray(snapshot.domain_min)[:2], np.asarray(snapshot.domain_max)[:2]
+        keep = (up > SURFACE_FACING_UP) & np.all((mid > lo) & (mid < hi), axis=1) & ~solid[tuple(node.T)]
+        seg = seg.reshape(-1, 2, 2)[keep].reshape(-1, 2)
+    # drops: real particles outside the body
+    real = ~palette.is_virtual(snapshot.kind)
+    x = np.asarray(snapshot.x, np.float64)[real, :2]
+    out = sf.phi_at(grid, x) < sf.ISO
+    level = np.asarray(snapshot.level)[real][out]
+    if rgb is None:
+        drop_rgb = np.tile(np.asarray(palette.WATER_SPRAY, np.float32), (int(out.sum()), 1))
+    else:
+        drop_rgb = np.asarray(rgb, np.float32)[real][out]
+    radius = np.asarray(snapshot.radius, np.float64)[level] * DROP_SCALE
+    return Water2D(tri, tri_rgb, seg, x[out], radius, drop_rgb * dim_factor, grid)
+
+
+def water(snapshot, rgb, tint: bool = False, dim_factor: float = 1.0):
+    """The water view of a snapshot: 2D a :class:`Water2D` (the body, its surface, the
+    drops), 3D ``("mesh", vertices, normals, colours)``. Untinted, the 2D body is the
+    water's colours by depth and the 3D mesh palette.WATER_COLOUR; tinted, both take the
+    particles' colours ``rgb`` (N, 3), the legend's."""
     from mrsph.io.surface import surface
 
     from . import palette
 
-    tint = (1.0 - palette.WATER_TINT) * np.asarray(palette.WATER_COLOUR) + palette.WATER_TINT * np.asarray(rgb)
-    return surface(snapshot.x, snapshot.m, snapshot.rho, snapshot.level, snapshot.kind, snapshot.dim, tint)
+    if snapshot.dim == 2:
+        return water_2d(snapshot, np.asarray(rgb) if tint else None, dim_factor)
+    colour = np.asarray(rgb) if tint else np.broadcast_to(np.asarray(palette.WATER_COLOUR), (len(snapshot.x), 3))
+    return surface(snapshot.x, snapshot.m, snapshot.rho, snapshot.level, snapshot.kind, 3, colour * dim_factor)

@@ -27,11 +27,16 @@ OBSTACLE_EDGE = (0.78, 0.80, 0.84)
 #: Marks of what acts on the water (geometry.Mark): the mouse's reach white, the scene's
 #: stirrers magenta, a hue no level colour (Okabe-Ito) and no colormap comes near.
 MARK_COLOURS = {"mouse": (1.0, 1.0, 1.0), "stirrer": (1.0, 0.2, 1.0)}
-#: Water view: the fluid's colour, and how much of the particles' colour (level, speed...)
-#: tints it, so the levels stay visible under the surface.
+#: Water view: the water at its surface and deep down (the 2D body is shaded between the
+#: two by the depth under its free surface), its lit surface line, and the drops that
+#: left it. With the tint (key t) the body takes the particles' colours (level, speed...)
+#: instead, shaded the same way, so that the legend's colours are the water's.
+WATER_SHALLOW = (0.33, 0.64, 0.90)
+WATER_DEEP = (0.05, 0.19, 0.42)
+WATER_SPRAY = (0.78, 0.90, 1.0)
+WATER_EDGE = (0.86, 0.95, 1.0)
+#: The 3D mesh's colour (lit by the scene's light).
 WATER_COLOUR = (0.16, 0.42, 0.78)
-WATER_TINT = 0.3
-WATER_EDGE = (0.75, 0.88, 1.0)
 
 # Okabe-Ito, reordered so that consecutive levels differ in both hue and lightness.
 _LEVEL_HEX = (
@@ -113,6 +118,13 @@ DENSITY_RATIO_HALF_RANGE = 0.05
 #: Gravity used only to pick a stable speed scale for the colormap when the caller
 #: gives none (the snapshot does not carry gravity).
 _G_FOR_SPEED_SCALE = 9.81
+
+
+#: 2D particles are drawn as discs of this many times their radius (half their level's
+#: spacing): 1/sqrt(2) of the spacing covers the lattice whole, so that the fluid reads
+#: as one body at every level and a split's children (at a quarter of their parent's
+#: spacing from its centre) cover their parent's square without holes.
+DISC_SCALE = 2.0**0.5
 
 
 @dataclass(frozen=True)

@@ -20,8 +20,11 @@ import functools
 import numpy as np
 
 from . import geometry, palette
+from .legend import MARGIN_PX as LEGEND_MARGIN_PX
+from .legend import box_px as legend_box
+from .legend import lines as legend_lines
 from .palette import Style
-from .view import OrbitCamera, View2D
+from .view import OrbitCamera, View2D, fitted_view, framed_camera
 
 #: Lighting shared with the GGUI renderer (render.py sets the same ambient and
 #: light colour): colour * (AMBIENT + DIFFUSE * max(n.l, 0)).
@@ -99,21 +102,28 @@ class Rasterizer:
         rest_density: float | None = None,
         marks=(),
         surface: bool = False,
+        tint: bool = False,
     ) -> np.ndarray:
         """Draw one frame. ``camera`` is used in 3D (default: framed on the domain).
-        ``marks`` and ``surface`` as for :meth:`mrsph.app.render.Renderer.draw`."""
-        self.marks, self.surface = list(marks or ()), bool(surface)
+        ``marks``, ``surface`` and ``tint`` as for :meth:`mrsph.app.render.Renderer.draw`."""
+        self.marks, self.surface, self.tint = list(marks or ()), bool(surface), bool(tint)
+        self.legend = bool(legend)
         w, h = self.width, self.height
         self.style = style or Style()
         self._img = np.empty((h * w, 3), dtype=np.float32)
         self._img[:] = self.style.background
         rgb = palette.colours(snapshot, color_mode, rest_density=rest_density)
         keep = np.ones(len(rgb), dtype=bool) if show_virtual else ~palette.is_virtual(snapshot.kind)
+        self.avoid = None
+        if legend:  # the GGUI legend's place, so that both renderers frame alike
+            rows = len(legend_lines(snapshot, color_mode, self.surface, self.tint))
+            lx, ly, lw, lh = legend_box((w, h), rows)
+            self.avoid = (lx, h - ly - lh - LEGEND_MARGIN_PX, lx + lw + LEGEND_MARGIN_PX, h)
         if snapshot.dim == 2:
             self._render_flat(snapshot, rgb, keep)
         else:
             if camera is None:
-                camera = OrbitCamera.from_box(snapshot.domain_min, snapshot.domain_max, w / h)
+                camera = framed_camera(None, snapshot.domain_min, snapshot.domain_max, (w, h), avoid=self.avoid)
             self._render_perspective(snapshot, rgb, keep, camera)
         if legend:
             self._legend(snapshot, color_mode)
@@ -121,24 +131,38 @@ class Rasterizer:
         return np.ascontiguousarray(out[::-1])  # pixel rows are y-up; images are top-down
 
     # -- 2D ----------------------------------------------------------------------------
+    def view2d(self, snap) -> View2D:
+        """The frame's 2D view: the domain fitted clear of the legend, as the GGUI
+        renderer fits it (mrsph.app.render.Renderer.view2d), so both frame it alike."""
+        return fitted_view(snap.domain_min, snap.domain_max, self.width, self.height, avoid=self.avoid)
+
     def _render_flat(self, snap, rgb, keep):
-        view = View2D(snap.domain_min, snap.domain_max, self.width, self.height)
-        for obs in snap.obstacles:
-            self._fill_triangles(view.world_to_px(geometry.obstacle_triangles(obs)), palette.OBSTACLE_FILL)
+        view = self.view2d(snap)
         level = np.asarray(snap.level)
         virt = palette.is_virtual(snap.kind)
         edge = None
         if self.surface:
-            edge = self._fill_water(snap, rgb, view)
+            water = self._fill_water(snap, rgb, view)
+            edge = water.surface if water is not None else None
             keep = keep & virt
         px = view.world_to_px(np.asarray(snap.x)[:, :2])
-        radius_px = view.radius_px(np.asarray(snap.radius, dtype=np.float64)) * self.style.point_scale
+        scale = palette.DISC_SCALE * self.style.point_scale
+        radius_px = view.radius_px(np.asarray(snap.radius, dtype=np.float64)) * scale
         # Painter's order: virtual below real, coarse below fine (fine detail on top).
         for want_virtual in (True, False):
             for lvl in range(int(snap.levels) - 1, -1, -1):
                 sel = keep & (level == lvl) & (virt == want_virtual)
                 if sel.any():
                     self._stamp_flat(px[sel], _quantise(radius_px[lvl]), rgb[sel])
+        # outside the domain is background (the discs and the body stop at the walls),
+        # and the obstacles cover what reached into them
+        (x0, y0), (x1, y1) = view.world_to_px(np.array([snap.domain_min[:2], snap.domain_max[:2]], np.float64))
+        img = self._img.reshape(self.height, self.width, 3)
+        cols, rows = np.arange(self.width) + 0.5, np.arange(self.height) + 0.5
+        img[:, (cols < x0) | (cols > x1)] = self.style.background
+        img[(rows < y0) | (rows > y1), :] = self.style.background
+        for obs in snap.obstacles:
+            self._fill_triangles(view.world_to_px(geometry.obstacle_triangles(obs)), palette.OBSTACLE_FILL)
         lw = max(LINE_WIDTH_FRACTION * self.height, 1.0)
         for obs in snap.obstacles:
             self._lines_flat(view.world_to_px(geometry.obstacle_segments(obs, 2)), palette.OBSTACLE_EDGE, lw)
@@ -151,14 +175,15 @@ class Rasterizer:
             self._lines_flat(view.world_to_px(geometry.mark_segments(mark, 2)), palette.MARK_COLOURS[mark.kind], lw)
 
     def _fill_water(self, snap, rgb, view):
-        """2D water view: pixels whose φ (bilinear on the surface grid) reaches the
-        level set take the grid's colour; returns the outline segments (world)."""
-        from mrsph.io.surface import ISO, marching_squares, volume_fraction
+        """2D water view: pixels whose φ (bilinear on the body's grid) reaches the level
+        set take the colour of the nearest node; the drops are stamped as discs. Returns
+        the body (its lit surface is drawn with the lines)."""
+        from mrsph.io.surface import ISO
 
-        tint = (1.0 - palette.WATER_TINT) * np.asarray(palette.WATER_COLOUR) + palette.WATER_TINT * rgb
-        grid = volume_fraction(snap.x, snap.m, snap.rho, snap.level, snap.kind, tint)
-        if grid is None:
+        water = geometry.water(snap, rgb, self.tint)
+        if water is None:
             return None
+        grid = water.grid
         ys, xs = np.mgrid[0 : self.height, 0 : self.width]
         world = view.px_to_world(np.stack([xs.ravel() + 0.5, ys.ravel() + 0.5], axis=1))
         u = (world - grid.origin) / grid.cell
@@ -176,7 +201,13 @@ class Rasterizer:
         inside = np.nonzero(ok)[0][phi >= ISO]
         near = np.rint(u[inside]).astype(np.int64)
         self._img[inside] = grid.rgb[near[:, 0], near[:, 1]]
-        return marching_squares(grid)[2]
+        if len(water.drops):
+            r_q = _quantise(view.radius_px(water.drop_radius))
+            px = view.world_to_px(water.drops)
+            for q in np.unique(r_q):
+                sel = r_q == q
+                self._stamp_flat(px[sel], q, water.drop_colours[sel])
+        return water
 
     def _indices(self, px: np.ndarray, dx: np.ndarray, dy: np.ndarray):
         """Flat pixel indices (n, k) of stamps at pixel positions px, and a validity mask."""
@@ -380,8 +411,9 @@ def rasterize(
     rest_density: float | None = None,
     marks=(),
     surface: bool = False,
+    tint: bool = False,
 ) -> np.ndarray:
     """One-shot convenience: render ``snapshot`` into an (height, width, 3) uint8 image."""
     return Rasterizer(width, height).render(
-        snapshot, color_mode, show_virtual, camera, legend, style, rest_density, marks, surface
+        snapshot, color_mode, show_virtual, camera, legend, style, rest_density, marks, surface, tint
     )

@@ -24,16 +24,16 @@ field, so unused slots are parked far outside the view (``_PARK``) with radius 0
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
 import taichi as ti
 
 from . import geometry, palette
+from . import legend as key_panel
 from .palette import Style
 from .raster import AMBIENT, DIFFUSE, LINE_WIDTH_FRACTION
-from .view import OrbitCamera, View2D, camera_for_scene, scene_setting
+from .view import OrbitCamera, View2D, fitted_view, framed_camera
 
 #: Where unused slots go: far outside the [0, 1]^2 canvas and any 3D view.
 _PARK = -1.0e6
@@ -47,12 +47,8 @@ MESH_CHUNK = 65535
 _GROWTH = 1.5
 #: 3D line width handed to scene.lines (pixels where the driver supports wide lines).
 LINE_WIDTH_3D = 2.0
-#: Legend sub-window size in pixels: ImGui's default font is 13 px with ~4 px spacing,
-#: plus a title bar; sized in pixels so the text fits at any window size.
-LEGEND_WIDTH_PX = 230
-LEGEND_LINE_PX = 17
-LEGEND_CHROME_PX = 38
-LEGEND_MARGIN_PX = 8
+#: The 2D water view's lit free surface: its line width (a fraction of the height).
+SURFACE_LINE_FRACTION = 1.6 * LINE_WIDTH_FRACTION
 
 
 class _Buffer:
@@ -122,6 +118,20 @@ class Renderer:
         self._mesh: list = []  # 3D water: (vertices, normals, colours) per chunk
         self._mesh_c = _Buffer(3, 0.0)
         self._area_v = _Buffer(2, _PARK)
+        self._swatch_v = _Buffer(2, _PARK)
+        self._outside = _Buffer(2, _PARK)
+        self._surface_line = _Buffer(2, _PARK)
+        self._drop_pos = _Buffer(2, _PARK)
+        self._drop_col = _Buffer(3, 0.0)
+        self._drop_rad = _Buffer(0, 0.0)
+        self._water_edge = None
+        self.dim, self.tint, self.surface = 1.0, False, False
+        self._swatch_c = _Buffer(3, 0.0)
+        self.legend_shown = False
+        self._legend_rows: list = []
+        #: the window keeps the legend one size in every colour mode (the view would jump
+        #: on c); a recording sizes it to its mode
+        self.legend_rows_for_all = False
         #: wall seconds the last frame spent on the water view's surface (bench reads it)
         self.surface_s = 0.0
         self._water_cache = None  # (snapshot, colours, surface) of the last frame
@@ -136,30 +146,48 @@ class Renderer:
 
     def view2d(self, snapshot) -> View2D:
         """The 2D world -> canvas map for the current window size (mouse mapping uses
-        this same object, so a click lands where it is drawn)."""
+        this same object, so a click lands where it is drawn): the domain fitted into
+        ``viewport``, clear of the legend when it is drawn."""
         w, h = self.size
         x0, y0, x1, y1 = self.viewport
-        return View2D(snapshot.domain_min, snapshot.domain_max, w, h, region=(x0 * w, y0 * h, x1 * w, y1 * h))
+        region = (x0 * w, y0 * h, x1 * w, y1 * h)
+        avoid = self._legend_avoid(snapshot)
+        return fitted_view(snapshot.domain_min, snapshot.domain_max, w, h, region=region, avoid=avoid)
+
+    def legend_box_px(self, snapshot=None) -> tuple[int, int, int, int]:
+        """(x, y, width, height) of the legend in pixels, y down; zero when not drawn.
+        Its rows: as many as the longest list of any colour mode where the window keeps
+        one size for all (``legend_rows_for_all``), else the frame's own."""
+        if not self.legend_shown:
+            return (0, 0, 0, 0)
+        rows = key_panel.MAX_ROWS if self.legend_rows_for_all or snapshot is None else len(self._legend_rows)
+        return key_panel.box_px(self.size, rows)
+
+    def clear(self) -> None:
+        """A frame of background only (nothing to show yet)."""
+        self.canvas.set_background_color(tuple(float(c) for c in self.style.background))
 
     def ensure_camera(self, snapshot) -> OrbitCamera:
         """The 3D camera; framed, when there is none, within ``viewport`` (the window
-        leaves out its HUD panel): on the domain box fitted to the viewport's width, or
-        from the scene's ``render.camera_position`` (framed for a whole image) moved back
-        by the viewport's share of the width; its target, the pivot of orbit and zoom, is
-        seen at the viewport's centre (``OrbitCamera.lateral``: the projection spans the
-        whole window)."""
+        leaves out its HUD panel) and clear of the legend (mrsph.app.view.framed_camera)."""
         if self.camera is None:
-            w, h = self.size
-            x0, y0, x1, y1 = self.viewport
-            cam = camera_for_scene(
-                self.scene_settings, snapshot.domain_min, snapshot.domain_max, (x1 - x0) * w / max((y1 - y0) * h, 1.0)
+            self.camera = framed_camera(
+                self.scene_settings,
+                snapshot.domain_min,
+                snapshot.domain_max,
+                self.size,
+                self.viewport,
+                self._legend_avoid(snapshot),
             )
-            if scene_setting(self.scene_settings, "render.camera_position", None) is not None:
-                cam.distance /= x1 - x0
-            centre = x0 + x1 - 1.0  # the viewport's centre, in [-1, 1] across the window
-            cam.lateral = centre * math.tan(math.radians(cam.fov) / 2.0) * w / h
-            self.camera = cam
         return self.camera
+
+    def _legend_avoid(self, snapshot):
+        """The legend's box in pixels (x0, y0, x1, y1; y up), with its margin, or None."""
+        if not self.legend_shown:
+            return None
+        w, h = self.size
+        lx, ly, lw, lh = self.legend_box_px(snapshot)
+        return (lx, h - ly - lh - key_panel.MARGIN_PX, lx + lw + key_panel.MARGIN_PX, h)
 
     def reset_view(self, scene=None, style: Style | None = None) -> None:
         """Forget the camera (re-framed on the next draw); optionally a new scene/style."""
@@ -179,13 +207,21 @@ class Renderer:
         rest_density: float | None = None,
         marks=(),
         surface: bool = False,
+        tint: bool = False,
+        dim: float = 1.0,
     ) -> None:
         """Draw one frame (call ``window.show()`` or read the image buffer afterwards).
         ``marks``: :class:`~mrsph.app.geometry.Mark` circles to draw over the fluid;
-        ``surface``: the water view."""
-        self.marks, self.surface = list(marks or ()), bool(surface)
+        ``surface``: the water view, ``tint``: in the colour mode's colours; ``dim``:
+        the fluid's brightness (the window dims a scene it is leaving)."""
+        self.marks, self.surface, self.tint = list(marks or ()), bool(surface), bool(tint)
+        self.legend_shown = bool(legend)
+        self._legend_rows = key_panel.lines(snapshot, color_mode, self.surface, self.tint) if legend else []
+        self.dim = float(dim)
         self.canvas.set_background_color(tuple(float(c) for c in self.style.background))
         rgb = palette.colours(snapshot, color_mode, rest_density=rest_density)
+        if self.dim != 1.0:
+            rgb = (rgb * self.dim).astype(np.float32)
         keep = np.ones(len(rgb), dtype=bool) if show_virtual else ~palette.is_virtual(snapshot.kind)
         # GGUI's own staging kernels, compiled in an f64 program, warn "Assign may lose
         # precision: f32 <- f64" a dozen times: not ours to fix, so not shown (mrsph.runtime
@@ -196,41 +232,62 @@ class Renderer:
                 self._draw_canvas(snapshot, rgb, keep)
             else:
                 self._draw_scene(snapshot, rgb, keep)
+            if legend:
+                rows = self._legend_rows
+                tri, col = key_panel.swatch_triangles(rows, self.size, self.legend_box_px(snapshot))
+                self.canvas.triangles(self._swatch_v.upload(tri), per_vertex_color=self._swatch_c.upload(col))
         finally:
             ti.set_logging_level(ti.WARN)
         if legend:
-            draw_legend(self.window.get_gui(), snapshot, color_mode, self.size, rest_density=rest_density)
+            key_panel.draw_panel(self.window.get_gui(), rows, self.size, self.legend_box_px(snapshot))
 
     def _draw_canvas(self, snap, rgb, keep):
+        """2D, in painter's order: the water body (water view), the particles, the
+        drops, the world outside the domain covered, the obstacles, the lines."""
         view = self.view2d(snap)
         h = view.height
-        tris = [geometry.obstacle_triangles(o) for o in snap.obstacles]
-        if tris:
-            tri = view.world_to_canvas(np.concatenate(tris))
-            self.canvas.triangles(self._tri.upload(tri), color=palette.OBSTACLE_FILL)
         level = np.asarray(snap.level)
         virt = palette.is_virtual(snap.kind)
         water = self._water(snap, rgb)
         if water is not None:
-            tri, tri_rgb, edge = water[1], water[2], water[3]
-            if len(tri):
-                self.canvas.triangles(
-                    self._area_v.upload(view.world_to_canvas(tri)), per_vertex_color=self._mesh_c.upload(tri_rgb)
-                )
-            keep = keep & virt  # the surface stands for the real particles
-            self._water_edge = edge
+            if len(water.triangles):
+                tri = view.world_to_canvas(water.triangles)
+                self.canvas.triangles(self._area_v.upload(tri), per_vertex_color=self._mesh_c.upload(water.colours))
+            keep = keep & virt  # the body stands for the real particles
+            self._water_edge = water.surface
         idx = np.nonzero(keep)[0]
         # Painter's order: virtual first, then coarse to fine, so fine detail is on top.
         idx = idx[np.lexsort((-level[idx], ~virt[idx]))]
         if len(idx):
             pos = view.world_to_canvas(np.asarray(snap.x)[idx, :2])
             # per_vertex_radius is a fraction of the window height in GGUI's canvas.
-            rad = view.radius_px(np.asarray(snap.radius)[level[idx]]) * self.style.point_scale / h
+            rad = view.radius_px(np.asarray(snap.radius)[level[idx]]) * palette.DISC_SCALE * self.style.point_scale / h
             self.canvas.circles(
                 self._pos2.upload(pos),
                 radius=0.0,
                 per_vertex_color=self._col.upload(rgb[idx]),
                 per_vertex_radius=self._rad.upload(rad),
+            )
+        if water is not None and len(water.drops):
+            self.canvas.circles(
+                self._drop_pos.upload(view.world_to_canvas(water.drops)),
+                radius=0.0,
+                per_vertex_color=self._drop_col.upload(water.drop_colours),
+                per_vertex_radius=self._drop_rad.upload(view.radius_px(water.drop_radius) / h),
+            )
+        # what lies outside the domain is the background: the discs and the body's
+        # edge at the walls stop at them (and the obstacles, drawn next, cover theirs)
+        outside = geometry.outside_domain_triangles(view, snap.domain_min, snap.domain_max)
+        self.canvas.triangles(self._outside.upload(outside), color=tuple(float(c) for c in self.style.background))
+        tris = [geometry.obstacle_triangles(o) for o in snap.obstacles]
+        if tris:
+            tri = view.world_to_canvas(np.concatenate(tris))
+            self.canvas.triangles(self._tri.upload(tri), color=palette.OBSTACLE_FILL)
+        if self._water_edge is not None and len(self._water_edge):
+            self.canvas.lines(
+                self._surface_line.upload(view.world_to_canvas(self._water_edge)),
+                width=SURFACE_LINE_FRACTION,
+                color=tuple(float(c) * self.dim for c in palette.WATER_EDGE),
             )
         segs, cols = self._outline_segments(snap, 2)
         self.canvas.lines(
@@ -240,7 +297,8 @@ class Renderer:
         )
 
     def _water(self, snap, rgb):
-        """The water view's surface, or None when it is off (timed: surface_s)."""
+        """The water view (mrsph.app.geometry.water), or None when it is off; the time
+        it took in ``surface_s`` (the same snapshot and colours: reused, at no cost)."""
         import time
 
         self._water_edge = None
@@ -248,16 +306,16 @@ class Renderer:
             self.surface_s = 0.0
             self._water_cache = None
             return None
+        key = (self.tint, self.dim)
         cached = self._water_cache
-        if cached is not None and cached[0] is snap and np.array_equal(cached[1], rgb):
-            # the same snapshot and colours (paused, or the simulation did not advance):
-            # the same surface, at no cost
+        if cached is not None and cached[0] is snap and cached[1] == key and np.array_equal(cached[2], rgb):
+            # the same snapshot and colours (paused, or the simulation did not advance)
             self.surface_s = 0.0
-            return cached[2]
+            return cached[3]
         t0 = time.perf_counter()
-        out = geometry.water(snap, rgb)
+        out = geometry.water(snap, rgb, self.tint, self.dim)
         self.surface_s = time.perf_counter() - t0
-        self._water_cache = (snap, np.array(rgb), out)
+        self._water_cache = (snap, key, np.array(rgb), out)
         return out
 
     def _outline_segments(self, snap, dim):
@@ -267,8 +325,6 @@ class Renderer:
         for o in snap.obstacles:
             if dim == 2 or o.get("shape") == "box":
                 parts.append((geometry.obstacle_segments(o, dim), palette.OBSTACLE_EDGE))
-        if getattr(self, "_water_edge", None) is not None and len(self._water_edge):
-            parts.append((self._water_edge, palette.WATER_EDGE))
         facing = self.camera.basis()[0] if dim == 3 and self.camera is not None else None
         for mark in getattr(self, "marks", ()):
             parts.append((geometry.mark_segments(mark, dim, facing), palette.MARK_COLOURS[mark.kind]))
@@ -346,51 +402,6 @@ class Renderer:
         if self._shell_n:
             colour = tuple(min(c * 1.5, 1.0) for c in palette.OBSTACLE_FILL)
             scene.particles(self._shell_pos.field, radius=self._shell_r, color=colour, index_count=self._shell_n)
-
-
-def legend_rect(snapshot, color_mode: str, window_size) -> tuple[float, float, float, float]:
-    """(x, y, width, height) of the legend as fractions of the window: top-left corner."""
-    lines = 1 + {"level": int(snapshot.levels), "kind": len(palette.KIND_NAMES), "speed": 3, "density": 4}.get(
-        color_mode, 0
-    )
-    w, h = window_size
-    return (
-        LEGEND_MARGIN_PX / w,
-        LEGEND_MARGIN_PX / h,
-        min(LEGEND_WIDTH_PX / w, 0.5),
-        min((LEGEND_CHROME_PX + LEGEND_LINE_PX * lines) / h, 0.9),
-    )
-
-
-def draw_legend(gui, snapshot, color_mode: str, window_size, rest_density=None) -> None:
-    """Legend sub-window: what the colours mean, and the simulated time."""
-    x, y, w, h = legend_rect(snapshot, color_mode, window_size)
-    # ImGui applies a panel's size only when it first appears: one panel per (mode,
-    # level count) so each gets the size its lines need ("##..." is not shown).
-    with gui.sub_window(f"Legend##{color_mode}{int(snapshot.levels)}", x, y, w, h):
-        gui.text(f"t = {float(snapshot.time):.3f} s")
-        if color_mode == "level":
-            stats = getattr(snapshot, "stats", {}) or {}
-            for lvl in range(int(snapshot.levels)):
-                tag = " (finest)" if lvl == 0 and snapshot.levels > 1 else ""
-                count = stats.get(f"n_level_{lvl}")
-                count = f"  {count}" if count is not None else ""
-                gui.text(f"level {lvl}{tag}{count}", color=tuple(float(c) for c in palette.level_colour(lvl)))
-        elif color_mode == "kind":
-            for code, name in enumerate(palette.KIND_NAMES):
-                gui.text(f"{code} {name}", color=tuple(float(c) for c in palette.KIND_COLOURS[code]))
-        elif color_mode == "speed":
-            top = palette.default_speed_scale(snapshot.domain_min, snapshot.domain_max)
-            gui.text("speed |v|")
-            gui.text("0 m/s", color=tuple(float(c) for c in palette.speed_colormap(np.array([0.0]))[0]))
-            gui.text(
-                f"{top:.2f} m/s and above", color=tuple(float(c) for c in palette.speed_colormap(np.array([1.0]))[0])
-            )
-        elif color_mode == "density":
-            hw = palette.DENSITY_RATIO_HALF_RANGE
-            gui.text("density rho / rho0")
-            for t, label in ((0.0, f"{1 - hw:.2f} and below"), (0.5, "1.00 (rest)"), (1.0, f"{1 + hw:.2f} and above")):
-                gui.text(label, color=tuple(float(c) for c in palette.density_colormap(np.array([t]))[0]))
 
 
 class ImguiIniGuard:

@@ -67,6 +67,25 @@ class View2D:
         return np.asarray(r_world, dtype=np.float64) * self.scale
 
 
+def fitted_view(domain_min, domain_max, width: int, height: int, region=None, avoid=None) -> View2D:
+    """The View2D that fits the domain into ``region`` (x0, y0, x1, y1 pixels, y up;
+    default the whole image) and keeps it clear of the box ``avoid`` (same form: the
+    legend): where the domain would reach under the box, it is fitted to the right of
+    it or below it, whichever draws it larger."""
+    full = View2D(domain_min, domain_max, width, height, region=region)
+    if avoid is None:
+        return full
+    x0, y0, x1, y1 = region if region is not None else (0, 0, width, height)
+    ax0, ay0, ax1, ay1 = avoid
+    lo = full.world_to_px(full.domain_min[None])[0]
+    hi = full.world_to_px(full.domain_max[None])[0]
+    if lo[0] >= ax1 or hi[0] <= ax0 or lo[1] >= ay1 or hi[1] <= ay0:
+        return full  # clear of it already
+    options = [(max(ax1, x0), y0, x1, y1), (x0, y0, x1, min(ay0, y1))]
+    views = [View2D(domain_min, domain_max, width, height, region=r) for r in options if r[2] > r[0] and r[3] > r[1]]
+    return max(views, key=lambda v: v.scale) if views else full
+
+
 class OrbitCamera:
     """Perspective camera orbiting a target point, y up.
 
@@ -88,6 +107,7 @@ class OrbitCamera:
         self.pitch = float(pitch)
         self.fov = float(fov)
         self.lateral = 0.0  # sideways shift of the view, in distances (see look_at)
+        self.rise = 0.0  # and upward
         self.min_distance = 1e-3
         self.max_distance = 1e6
 
@@ -130,12 +150,14 @@ class OrbitCamera:
     @property
     def look_at(self) -> np.ndarray:
         """The point the view centre looks at: the target, shifted sideways (along the
-        view's right) by ``lateral`` times the distance. The target stays the pivot of
-        orbit and zoom, and is seen at lateral / (tan(fov/2) aspect) across the image
-        (NDC): the window puts it at the centre of the area its panel leaves free."""
-        if self.lateral == 0.0:
+        view's right) by ``lateral`` times the distance, and up by ``rise`` times it. The
+        target stays the pivot of orbit and zoom, and is seen at lateral / (tan(fov/2)
+        aspect) across the image and rise / tan(fov/2) up it (NDC): the window puts it at
+        the centre of the area its panels leave free."""
+        if self.lateral == 0.0 and self.rise == 0.0:
             return self.target.copy()
-        return self.target - self.basis()[1] * (self.lateral * self.distance)
+        _, right, up = self.basis()
+        return self.target - (right * self.lateral + up * self.rise) * self.distance
 
     def basis(self):
         """(forward, right, up) unit vectors of the view."""
@@ -274,10 +296,10 @@ def scene_setting(scene, dotted: str, default):
     return default if node is None else node
 
 
-def camera_for_scene(scene, box_min, box_max, aspect: float) -> OrbitCamera:
+def camera_for_scene(scene, box_min, box_max, aspect: float, fov: float = 45.0) -> OrbitCamera:
     """The initial 3D camera: ``render.camera_position`` / ``render.camera_lookat`` from
     the scene when given, else framed automatically on the domain box."""
-    cam = OrbitCamera.from_box(box_min, box_max, aspect)
+    cam = OrbitCamera.from_box(box_min, box_max, aspect, fov=fov)
     pos = scene_setting(scene, "render.camera_position", None)
     look = scene_setting(scene, "render.camera_lookat", None)
     if pos is not None or look is not None:
@@ -289,4 +311,43 @@ def camera_for_scene(scene, box_min, box_max, aspect: float) -> OrbitCamera:
             cam.target, cam.distance = target, dist
             cam.yaw = math.atan2(d[0], d[2])
             cam.pitch = float(np.clip(math.asin(d[1] / dist), -cam.PITCH_LIMIT, cam.PITCH_LIMIT))
+    return cam
+
+
+def framed_camera(scene, box_min, box_max, size, viewport=(0.0, 0.0, 1.0, 1.0), avoid=None) -> OrbitCamera:
+    """The 3D camera framed within ``viewport`` (x0, y0, x1, y1 fractions of the window,
+    y up): on the domain box fitted to it, or from the scene's ``render.camera_position``
+    (framed for a whole image) moved back by the viewport's share of the window; its
+    target, the pivot of orbit and zoom, seen at the viewport's centre (the projection
+    spans the whole window: ``lateral``, ``rise``). Where the box would reach under
+    ``avoid`` (x0, y0, x1, y1 pixels, y up: the legend), it is framed below it."""
+    cam = _frame(scene, box_min, box_max, size, viewport)
+    if avoid is None:
+        return cam
+    w, h = size
+    lo, hi = np.asarray(box_min, np.float64), np.asarray(box_max, np.float64)
+    corners = np.array([[hi[k] if (c >> k) & 1 else lo[k] for k in range(3)] for c in range(8)])
+    px, depth = cam.project(corners, w, h)
+    ax0, ay0, ax1, ay1 = avoid
+    if (depth > 0).all() and (px[:, 0].min() >= ax1 or px[:, 1].max() <= ay0):
+        return cam  # clear of it already
+    x0, y0, x1, _ = viewport
+    top = min(viewport[3], ay0 / h)
+    return _frame(scene, box_min, box_max, size, (x0, y0, x1, top)) if top > y0 + 0.2 else cam
+
+
+def _frame(scene, box_min, box_max, size, viewport) -> OrbitCamera:
+    w, h = size
+    x0, y0, x1, y1 = viewport
+    fx, fy = max(x1 - x0, 1e-3), max(y1 - y0, 1e-3)
+    fov = OrbitCamera().fov
+    # framed for the viewport's height: a vertical angle of its share of the window's
+    fov_part = math.degrees(2.0 * math.atan(math.tan(math.radians(fov) / 2.0) * fy))
+    cam = camera_for_scene(scene, box_min, box_max, fx * w / max(fy * h, 1.0), fov=fov_part)
+    cam.fov = fov
+    if scene_setting(scene, "render.camera_position", None) is not None:
+        cam.distance /= min(fx, fy)
+    tan = math.tan(math.radians(fov) / 2.0)
+    cam.lateral = (x0 + x1 - 1.0) * tan * w / h  # the viewport's centre, in [-1, 1] across
+    cam.rise = (y0 + y1 - 1.0) * tan
     return cam

@@ -69,10 +69,13 @@ def _spacing(volume: np.ndarray, dim: int) -> float:
     return float(np.median(volume)) ** (1.0 / dim)
 
 
-def volume_fraction(x, m, rho, level, kind=None, rgb=None) -> Grid | None:
+def volume_fraction(x, m, rho, level, kind=None, rgb=None, walls=None) -> Grid | None:
     """The smoothed volume fraction φ of the real particles (kind < 4) on a grid that
     covers them with room for the smoothing; None when there are none. ``rgb`` (N, 3):
-    a colour per particle, averaged into ``Grid.rgb`` with the same weights.
+    a colour per particle, averaged into ``Grid.rgb`` with the same weights. ``walls``:
+    (domain_min, domain_max, obstacles): the particles near a wall or an obstacle are
+    mirrored across it (``mirrored``), so that φ stays at 1 up to the wall instead of
+    falling to 1/2 there, and the body drawn reaches the wall.
 
     Each level is deposited and smoothed on the part of the grid its particles reach
     only (a few fine particles near an obstacle do not cost a pass over the whole
@@ -96,6 +99,16 @@ def volume_fraction(x, m, rho, level, kind=None, rgb=None) -> Grid | None:
     levels = np.unique(level)
     by_level = [level == l for l in levels] if len(levels) > 1 else [slice(None)]
     spacing = [_spacing(vol[sel], dim) for sel in by_level]
+    if walls is not None:
+        s_of = np.zeros(int(levels.max()) + 1)
+        s_of[levels] = spacing
+        src, ghosts = mirrored(x, TRUNCATE_SIGMAS * SIGMA_SPACINGS * s_of[level] + max(spacing), *walls)
+        if len(src):
+            x, vol = np.concatenate([x, ghosts]), np.concatenate([vol, vol[src]])
+            level = np.concatenate([level, level[src]])
+            if col is not None:
+                col = np.concatenate([col, col[src]])
+            by_level = [level == l for l in levels] if len(levels) > 1 else [slice(None)]
     cell = CELL_SPACINGS[dim] * min(spacing)
     reach = TRUNCATE_SIGMAS * SIGMA_SPACINGS * max(spacing) + 2.0 * cell
     lo, hi = x.min(axis=0) - reach, x.max(axis=0) + reach
@@ -122,6 +135,110 @@ def volume_fraction(x, m, rho, level, kind=None, rgb=None) -> Grid | None:
     if col is not None:
         grid_rgb = acc[..., 1:] / np.maximum(phi, 1e-6)[..., None]
     return Grid(lo, cell, phi, grid_rgb, uniform)
+
+
+def mirrored(x, reach, domain_min, domain_max, obstacles=()):
+    """Mirror images of the particles near the domain's walls and the obstacles' faces:
+    (the indices of the particles mirrored, the images' positions). ``reach`` (N,): how
+    near a particle must be (its smoothing's reach). A particle within reach of a wall
+    is mirrored across it; of a box's face (beside the face), across the face; of a
+    sphere (a circle in 2D), radially, as deep inside as it is outside."""
+    x = np.asarray(x, np.float64)
+    reach = np.broadcast_to(np.asarray(reach, np.float64), (len(x),))
+    lo, hi = np.asarray(domain_min, np.float64), np.asarray(domain_max, np.float64)
+    dim = x.shape[1]
+    src, out = [], []
+    for a in range(dim):
+        for wall, sign in ((lo[a], 1.0), (hi[a], -1.0)):
+            d = (x[:, a] - wall) * sign
+            near = np.nonzero((d >= 0.0) & (d < reach))[0]
+            g = x[near].copy()
+            g[:, a] = 2.0 * wall - g[:, a]
+            src.append(near)
+            out.append(g)
+    for o in obstacles or ():
+        if o.get("shape") == "box":
+            b0, b1 = np.asarray(o["min"], np.float64)[:dim], np.asarray(o["max"], np.float64)[:dim]
+            for a in range(dim):
+                others = [k for k in range(dim) if k != a]
+                beside = np.all([(x[:, k] >= b0[k] - reach) & (x[:, k] <= b1[k] + reach) for k in others], axis=0)
+                for face, sign in ((b0[a], -1.0), (b1[a], 1.0)):
+                    d = (x[:, a] - face) * sign
+                    near = np.nonzero(beside & (d >= 0.0) & (d < reach))[0]
+                    g = x[near].copy()
+                    g[:, a] = 2.0 * face - g[:, a]
+                    src.append(near)
+                    out.append(g)
+        elif o.get("shape") == "sphere":
+            c, r = np.asarray(o["center"], np.float64)[:dim], float(o["radius"])
+            rel = x - c
+            dist = np.linalg.norm(rel, axis=1)
+            d = dist - r
+            near = np.nonzero((d >= 0.0) & (d < np.minimum(reach, r)))[0]
+            n = rel[near] / np.maximum(dist[near], 1e-12)[:, None]
+            src.append(near)
+            out.append(c + (r - d[near])[:, None] * n)
+    if not src:
+        return np.zeros(0, np.int64), np.zeros((0, dim))
+    return np.concatenate(src), np.concatenate(out)
+
+
+def inside_obstacles(grid: Grid, obstacles) -> np.ndarray:
+    """Nodes of ``grid`` inside any obstacle (bool, the grid's shape)."""
+    shape = grid.phi.shape
+    dim = len(shape)
+    axes = [grid.origin[a] + grid.cell * np.arange(shape[a]) for a in range(dim)]
+    solid = np.zeros(shape, bool)
+    for o in obstacles or ():
+        if o.get("shape") == "box":
+            b0, b1 = np.asarray(o["min"], np.float64)[:dim], np.asarray(o["max"], np.float64)[:dim]
+            box = tuple(slice(*np.searchsorted(axes[a], (b0[a], b1[a]), side="left")) for a in range(dim))
+            solid[box] = True
+        elif o.get("shape") == "sphere":
+            c, r = np.asarray(o["center"], np.float64)[:dim], float(o["radius"])
+            box = tuple(slice(*np.searchsorted(axes[a], (c[a] - r, c[a] + r), side="left")) for a in range(dim))
+            sub = np.meshgrid(*[axes[a][box[a]] for a in range(dim)], indexing="ij")
+            solid[box] |= sum((sub[a] - c[a]) ** 2 for a in range(dim)) <= r * r
+    return solid
+
+
+def depth_below_surface(grid: Grid, solid=None, iso: float = ISO) -> np.ndarray:
+    """Per node of a 2D or 3D grid: how far it is below the first node above it (along
+    +y, axis 1) that is outside the fluid (φ < iso and not ``solid``): 0 at and above
+    the free surface, the depth under it inside. An obstacle counts as fluid, so the
+    water under a floating body is as deep as it is beside it."""
+    outside = grid.phi < iso
+    if solid is not None:
+        outside &= ~solid
+    ny = outside.shape[1]
+    j = np.arange(ny).reshape((1, ny) + (1,) * (outside.ndim - 2))
+    first_out = np.where(outside, j, ny)
+    # the first outside node at or above each node: a minimum from the top down
+    above = np.minimum.accumulate(first_out[:, ::-1], axis=1)[:, ::-1]
+    return (above - j).astype(np.float64) * grid.cell
+
+
+def phi_at(grid: Grid, p) -> np.ndarray:
+    """φ at points p (N, d), bilinear (trilinear) between the nodes; 0 off the grid."""
+    u = (np.asarray(p, np.float64) - grid.origin) / grid.cell
+    shape = np.array(grid.phi.shape)
+    i0 = np.floor(u).astype(np.int64)
+    ok = np.all((i0 >= 0) & (i0 < shape - 1), axis=1)
+    f = u - i0
+    out = np.zeros(len(u))
+    i0, f = i0[ok], f[ok]
+    dim = u.shape[1]
+    acc = np.zeros(len(i0))
+    for corner in range(2**dim):
+        w = np.ones(len(i0))
+        idx = []
+        for a in range(dim):
+            bit = (corner >> a) & 1
+            w *= f[:, a] if bit else 1.0 - f[:, a]
+            idx.append(i0[:, a] + bit)
+        acc += w * grid.phi[tuple(idx)]
+    out[ok] = acc
+    return out
 
 
 def _deposit(u, w, shape) -> np.ndarray:
