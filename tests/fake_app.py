@@ -33,7 +33,9 @@ class FakeSimulation:
         fps: float = 30.0,
         seed: int = 0,
         obstacles: bool = True,
+        build_s: float = 0.0,
     ):
+        time.sleep(build_s)  # as long as a real scene's build, where a test asks
         self.dim, self.levels, self.fps = dim, levels, fps
         self.seed = seed
         if dim == 2:

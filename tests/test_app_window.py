@@ -345,7 +345,7 @@ def test_window_real_scene_stir_and_quit(xdisplay, tmp_path):
         ke_before, ke_stirred, rows, hand = stir_and_check(
             app, int(config.get("adaptivity.levels")), FIRST_FRAMES_TIMEOUT_S, points=4
         )
-        assert all(r["n_real"] > 0 for r in rows), "no fluid particles"
+        assert all(r["n_real"] > 0 for r in rows if not r["loading"]), "no fluid particles"
         assert hand > MIN_HAND_SPEED, (
             f"the drag's hand speed was {hand:.3g} m/s (expected > {MIN_HAND_SPEED} m/s: four points across the pool)"
         )
@@ -461,9 +461,10 @@ def test_window_blow_up_pauses_and_prints_one_line(xdisplay, tmp_path):
 def test_window_draws_the_loading_message(xdisplay, tmp_path):
     """Until the first scene runs, the window's frames say "opening SCENE" (their stats
     lines say loading, and the last one's screenshot has the panel's title colour); a
-    later frame does not."""
+    later frame does not. The stand-in takes 3 s to build here, as a scene would."""
     app = App(
-        ["-m", "mrsph.app", "--fake", "2", "--width", WIDTH, "--height", HEIGHT, "--frame-budget", "0"],
+        ["-m", "mrsph.app", "--fake", "2", "--fake-build-s", "3", "--width", WIDTH, "--height", HEIGHT]
+        + ["--frame-budget", "0"],
         xdisplay,
         tmp_path,
     )
@@ -496,7 +497,6 @@ def test_window_latches_a_tapped_key_and_toggles_the_water_view(xdisplay, tmp_pa
     try:
         app.wait_window(120)
         rows = app.wait_frames(5, 120)
-        assert rows[0]["loading"], "the first frame did not say that the step is compiling"
         before = rows[-1]["camera_distance"]
         app.xdo("key", "z")
         app.xdo("key", "w")
@@ -528,7 +528,7 @@ def test_window_s_switches_the_solver_and_frames_keep_coming(xdisplay, tmp_path)
     try:
         app.wait_window(FIRST_FRAMES_TIMEOUT_S)
         rows = app.wait_frames(3, FIRST_FRAMES_TIMEOUT_S)
-        assert {r["solver"] for r in rows} == {"wcsph"}, "pool_2d no longer opens with wcsph"
+        assert {r["solver"] for r in rows if not r["loading"]} == {"wcsph"}, "pool_2d no longer opens with wcsph"
         want = next_solver("wcsph")
         app.xdo("key", "s")
         deadline = time.time() + FIRST_FRAMES_TIMEOUT_S

@@ -15,6 +15,13 @@ solver of the scene schema's list, Tab to the next scene of ``python3 main.py li
 shift+Tab to the one before. Each key waits for the window to be quiet (--settle
 seconds of frames after the last switch) first.
 
+``--levers`` measures, without a window, the three ways of opening the scenes of
+``--sequence`` one after another (each way in a process of its own): all in one Taichi
+program ("one program", what the window did before), ``ti.reset()`` before each build
+("reset"), and each in a worker process with the used ones kept (``mrsph.app.host``,
+"processes", what the window does). A time is from the request to the first frame
+advanced (the build, a step that compiles it, a reset, one frame of 40 ms).
+
 The times are wall-clock seconds on this machine, with the Taichi kernel cache as it
 is: the first run after a change of the code compiles (tens of seconds), later runs
 read the cache. docs/app.md records what this printed.
@@ -37,6 +44,8 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 DEFAULT_KEYS = "s,s,tab,shift+tab,tab"
+DEFAULT_SEQUENCE = "demo_2d,demo_2d:wcsph,demo_2d,demo_3d,demo_2d:wcsph"
+LEVERS = ("one program", "reset", "processes")
 #: Seconds a switch may take before the tool gives up on it.
 TIMEOUT_S = 240.0
 
@@ -129,6 +138,76 @@ def settle(win: Window, seconds: float) -> None:
         time.sleep(0.1)
 
 
+def _make_sim(name, overrides=None):
+    from mrsph import runtime
+    from mrsph.scene.config import load_scene
+    from mrsph.simulation import Simulation
+
+    scene = load_scene(name)
+    if overrides:
+        scene = scene.with_overrides(overrides)
+    return Simulation(scene, arch="cpu", threads=runtime.auto_threads(scene))
+
+
+def _parse(item: str):
+    name, _, solver = item.partition(":")
+    return name, ({"fluid.solver": solver} if solver else None)
+
+
+def lever_child(lever: str, sequence: list[str]) -> None:
+    """One lever's times, one line per item: ``item seconds``."""
+    from mrsph import runtime
+    from mrsph.app.host import Sims, build
+
+    if lever == "processes":
+        sims = Sims(_make_sim, True)
+        runtime.ensure("cpu")  # the window's own program, as the window has one
+        running = None
+    for item in sequence:
+        name, overrides = _parse(item)
+        t0 = time.perf_counter()
+        if lever == "processes":
+            sim = sims.open(name, overrides)
+            while sim.poll() == "busy":
+                time.sleep(0.005)
+            sims.put_back(running)
+            running = sim
+        else:
+            if lever == "reset":
+                runtime.reset()
+            sim = build(_make_sim, True, name, overrides)
+        sim.advance_frame(0.04)
+        sim.snapshot()
+        print(f"{item} {time.perf_counter() - t0:.2f}", flush=True)
+    if lever == "processes":
+        sims.put_back(running)
+        sims.close()
+
+
+def levers(sequence: list[str], cache=None) -> int:
+    times = {}
+    env = dict(os.environ)
+    if cache:
+        env["TI_OFFLINE_CACHE_FILE_PATH"] = str(Path(cache).resolve())
+    for lever in LEVERS:
+        proc = subprocess.run(
+            [sys.executable, __file__, "--lever-child", lever, "--sequence", ",".join(sequence)],
+            capture_output=True,
+            text=True,
+            env=env,
+        )
+        if proc.returncode != 0:
+            raise SystemExit(f"switch_times: {lever}: {proc.stderr[-2000:]}")
+        times[lever] = [line.split()[-1] for line in proc.stdout.splitlines() if line.strip()]
+    seen = set()
+    print(f"{'opens':24s} {'':18s}" + "".join(f"{lv:>13s}" for lv in LEVERS))
+    for i, item in enumerate(sequence):
+        note = "seen in this run" if item in seen else "first in this run"
+        seen.add(item)
+        print(f"{item.replace(':', ' '):24s} {note:18s}" + "".join(f"{times[lv][i]:>13s}" for lv in LEVERS))
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", default="demo_2d")
@@ -141,8 +220,19 @@ def main(argv=None) -> int:
         help="Taichi's kernel cache for the window (TI_OFFLINE_CACHE_FILE_PATH; default: Taichi's own): a folder "
         "no other run cleans, on a machine where other runs fill the shared cache",
     )
+    ap.add_argument("--levers", action="store_true", help="time the three ways of opening scenes, no window")
+    ap.add_argument(
+        "--sequence", default=DEFAULT_SEQUENCE, help=f"--levers: scenes[:solver] in turn (default {DEFAULT_SEQUENCE})"
+    )
+    ap.add_argument("--lever-child", help=argparse.SUPPRESS)
     ap.add_argument("args", nargs="*", help="more arguments for main.py (after --)")
     a = ap.parse_args(argv)
+    sequence = [x.strip() for x in a.sequence.split(",") if x.strip()]
+    if a.lever_child:
+        lever_child(a.lever_child, sequence)
+        return 0
+    if a.levers:
+        return levers(sequence, a.cache)
     for tool in ("xdotool",):
         if shutil.which(tool) is None:
             raise SystemExit(f"switch_times: {tool} is not installed")

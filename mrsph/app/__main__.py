@@ -21,6 +21,8 @@ def main(argv=None) -> int:
     parser.add_argument("--width", type=int, default=1280)
     parser.add_argument("--height", type=int, default=720)
     parser.add_argument("--fake", type=int, choices=(2, 3), help="use the stand-in simulation")
+    parser.add_argument("--fake-build-s", type=float, default=0.0, metavar="S",
+                        help="the stand-in takes S seconds to build, as a real scene would (tests)")
     parser.add_argument("--frame-budget", type=frame_budget_arg, default=WINDOW_FRAME_BUDGET_MS,
                         metavar="MS", help="milliseconds of simulation per drawn frame "
                         f"(default: {WINDOW_FRAME_BUDGET_MS}; 0 = whole frames)")
@@ -38,7 +40,7 @@ def main(argv=None) -> int:
         from fake_app import FakeSimulation
 
         def make_sim(name, overrides=None):
-            return FakeSimulation(dim=args.fake)
+            return FakeSimulation(dim=args.fake, build_s=args.fake_build_s)
         run_window(make_sim, f"fake_{args.fake}d", [f"fake_{args.fake}d"], args.width, args.height,
                    args.frame_budget)
         return 0
