@@ -258,8 +258,7 @@ def _setter(self, key):
 
 def help_rows(self) -> list:
     """The help panel's rows: the keys (mrsph.app.keys), then a button per scene."""
-    # ImGui's font has Latin-1 only: arrows as ASCII
-    table = keys.text_table(HELP_CHARS, indent=0).replace("→", "->").replace("↔", "<->")
+    table = keys.text_table(HELP_CHARS, indent=0, ascii_only=True)  # ImGui's font: Latin-1 only
     rows = [_text(line) for line in table.splitlines()]
     rows.append(_text(""))
     rows.append(_text("scenes (a button opens one):", DIM_COLOUR))

@@ -37,9 +37,11 @@ KEYS = (
 )
 
 
-def plain(text: str) -> str:
-    """A Markdown text of the table without its backticks."""
-    return text.replace("`", "")
+def plain(text: str, ascii_only: bool = False) -> str:
+    """A Markdown text of the table without its backticks (``ascii_only``: and its
+    arrows as ASCII, for ImGui's font, which has Latin-1 only)."""
+    text = text.replace("`", "")
+    return text.replace("→", "->").replace("↔", "<->") if ascii_only else text
 
 
 def markdown_table() -> str:
@@ -49,13 +51,13 @@ def markdown_table() -> str:
     return "\n".join(rows)
 
 
-def text_table(width: int = 100, indent: int = 2, key_chars: int = 30) -> str:
+def text_table(width: int = 100, indent: int = 2, key_chars: int = 30, ascii_only: bool = False) -> str:
     """The table as plain text in two columns (keys ``key_chars`` wide), both wrapped
     so that no line passes ``width`` characters."""
     out = []
     for k in KEYS:
-        keys = textwrap.wrap(plain(k.keys), key_chars - 2)
-        action = textwrap.wrap(plain(k.action), max(width - indent - key_chars, 20))
+        keys = textwrap.wrap(plain(k.keys, ascii_only), key_chars - 2)
+        action = textwrap.wrap(plain(k.action, ascii_only), max(width - indent - key_chars, 20))
         for i in range(max(len(keys), len(action))):
             left = keys[i] if i < len(keys) else ""
             right = action[i] if i < len(action) else ""

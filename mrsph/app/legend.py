@@ -24,7 +24,7 @@ MARGIN_PX = 8
 SWATCH_STRIP_PX = 22
 SWATCH_PX = 11
 #: Characters of the longest line, and rows at most: the time and mode, six kinds.
-CHARS = 30
+CHARS = 32
 MAX_ROWS = 7
 #: The strip's background: ImGui's panel colour (its dark style, over the background).
 STRIP_COLOUR = (0.065, 0.065, 0.07)
@@ -41,6 +41,8 @@ def _rgb(c) -> tuple:
 
 def entries(snapshot, color_mode: str, surface: bool = False, tint: bool = False) -> list[Entry]:
     """The legend's lines after the time: a title, then each colour with its meaning."""
+    if surface and not tint and int(snapshot.dim) == 3:
+        return [Entry("water view", None), Entry("water (a lit surface)", _rgb(palette.WATER_COLOUR))]
     if surface and not tint:
         return [
             Entry("water view", None),
@@ -48,7 +50,7 @@ def entries(snapshot, color_mode: str, surface: bool = False, tint: bool = False
             Entry("deep water", _rgb(palette.WATER_DEEP)),
             Entry("spray and drops", _rgb(palette.WATER_SPRAY)),
         ]
-    title = f"colour: {color_mode}" + (", water" if surface else "")
+    title = f"water by {color_mode}" if surface else f"colour: {color_mode}"
     out = [Entry(title, None)]
     if color_mode == "level":
         stats = getattr(snapshot, "stats", {}) or {}
@@ -86,7 +88,7 @@ def box_px(window_size, rows: int = MAX_ROWS) -> tuple[int, int, int, int]:
 def lines(snapshot, color_mode: str, surface: bool = False, tint: bool = False) -> list[Entry]:
     """Every line of the panel: the simulated time with the title, then the entries."""
     title, *rest = entries(snapshot, color_mode, surface, tint)
-    return [Entry(f"t = {float(snapshot.time):.3f} s   {title.text}", None)] + rest
+    return [Entry(f"t = {float(snapshot.time):.3f} s  {title.text}", None)] + rest
 
 
 def swatch_triangles(rows: list[Entry], window_size, box=None):

@@ -203,11 +203,14 @@ def inside_obstacles(grid: Grid, obstacles) -> np.ndarray:
 
 
 def depth_below_surface(grid: Grid, solid=None, iso: float = ISO) -> np.ndarray:
-    """Per node of a 2D or 3D grid: how far it is below the first node above it (along
-    +y, axis 1) that is outside the fluid (φ < iso and not ``solid``): 0 at and above
-    the free surface, the depth under it inside. An obstacle counts as fluid, so the
-    water under a floating body is as deep as it is beside it."""
-    outside = grid.phi < iso
+    """Per node of a 2D or 3D grid: how far it is below the free surface above it (along
+    +y, axis 1): the crossing of φ = iso between the first node above that is outside
+    the fluid (φ < iso and not ``solid``) and the node under that one, interpolated, so
+    that the depth varies smoothly along the surface (whole cells drew stripes); 0 at and
+    above the surface. An obstacle counts as fluid, so the water under a floating body
+    is as deep as it is beside it."""
+    phi = grid.phi
+    outside = phi < iso
     if solid is not None:
         outside &= ~solid
     ny = outside.shape[1]
@@ -215,7 +218,13 @@ def depth_below_surface(grid: Grid, solid=None, iso: float = ISO) -> np.ndarray:
     first_out = np.where(outside, j, ny)
     # the first outside node at or above each node: a minimum from the top down
     above = np.minimum.accumulate(first_out[:, ::-1], axis=1)[:, ::-1]
-    return (above - j).astype(np.float64) * grid.cell
+    top = np.clip(above, 1, ny - 1)
+    p_out = np.take_along_axis(phi, top, axis=1)
+    p_in = np.take_along_axis(phi, top - 1, axis=1)
+    # where φ crosses iso between them, as a fraction of the cell below the outside node
+    t = np.clip((p_in - iso) / np.maximum(p_in - p_out, 1e-9), 0.0, 1.0)
+    depth = (above - 1 - j) + np.where(above < ny, t, 1.0)
+    return np.maximum(depth, 0.0) * grid.cell * (above > j)
 
 
 def phi_at(grid: Grid, p) -> np.ndarray:
