@@ -315,3 +315,56 @@ def test_renderer_reallocates_only_when_growing(offscreen):
     r.draw(small)
     r.draw(big)
     assert r._pos2.field is f1, "field recreated although the capacity sufficed"
+
+
+# ----------------------------------------------------------------------------- legend, layout
+@pytest.mark.parametrize("dim", DIMS)
+def test_every_legend_entry_has_its_swatch_and_fits_the_panel(dim):
+    """In every colour mode, particles or water, tinted or not: each line after the
+    first (the time and title) has a colour, the swatch strip gets a square for each,
+    and no line is longer than the panel holds."""
+    from mrsph.app import legend
+
+    snap = fake_snapshot(dim)
+    for mode in palette.COLOR_MODES:
+        for surface, tint in ((False, False), (True, False), (True, True)):
+            rows = legend.lines(snap, mode, surface, tint)
+            assert rows[0].colour is None and all(r.colour is not None for r in rows[1:]), (mode, surface, rows)
+            assert all(len(r.text) <= legend.CHARS for r in rows), [r.text for r in rows if len(r.text) > legend.CHARS]
+            assert len(rows) <= legend.MAX_ROWS, (mode, len(rows))
+            tri, col = legend.swatch_triangles(rows, (1280, 720))
+            assert len(tri) == 6 * len(rows), "one square per entry and the strip"
+    # the speed legend's top entry is near white: it has its square like the rest
+    top = legend.lines(snap, "speed")[-1]
+    assert top.text.endswith("and above") and min(top.colour) > 0.8
+
+
+def test_the_2d_view_keeps_the_domain_clear_of_the_legend():
+    from mrsph.app.view import fitted_view
+
+    w, h = 960, 540
+    box = (8, h - 8 - 120, 8 + 272, h)  # the legend, pixels y up
+    view = fitted_view((0.0, 0.0), (1.6, 0.8), w, h, avoid=box)
+    (x0, y0), (x1, y1) = view.world_to_px(np.array([[0.0, 0.0], [1.6, 0.8]]))
+    assert x0 >= box[2] or y1 <= box[1], f"the domain ({x0:.0f}, {y0:.0f}) .. ({x1:.0f}, {y1:.0f}) under {box}"
+    full = fitted_view((0.0, 0.0), (1.6, 0.8), w, h)
+    assert view.scale > 0.7 * full.scale, "clear of the legend at too high a price"
+    tall_window = fitted_view((0.0, 0.0), (1.6, 0.8), 900, 1400, avoid=(8, 1400 - 128, 280, 1400))
+    assert tall_window.scale == fitted_view((0.0, 0.0), (1.6, 0.8), 900, 1400).scale, "moved where it was clear"
+
+
+@pytest.mark.parametrize("given", [False, True], ids=["auto", "scene-camera"])
+def test_the_3d_camera_keeps_the_box_clear_of_the_legend(given):
+    from mrsph.app.view import framed_camera
+    from mrsph.scene.config import load_scene
+
+    w, h = 1280, 720
+    scene = load_scene("demo_3d")
+    lo, hi = np.asarray(scene.domain.min, float), np.asarray(scene.domain.max, float)
+    box = (8, h - 8 - 154, 8 + 272, h)
+    cam = framed_camera(scene if given else None, lo, hi, (w, h), (0.0, 0.0, 0.73, 1.0), avoid=box)
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    px, depth = cam.project(corners, w, h)
+    assert (depth > 0).all()
+    assert px[:, 0].min() >= box[2] or px[:, 1].max() <= box[1], f"box corners {np.round(px).tolist()} under {box}"
+    assert px[:, 0].max() <= 0.73 * w, "the box reaches under the HUD"

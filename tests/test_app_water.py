@@ -208,3 +208,85 @@ def test_water_view_is_not_recomputed_for_the_same_snapshot(render, monkeypatch,
     assert len(calls) == 2, "other colours did not recompute the surface"
     render(_snap(dim), [], True)
     assert len(calls) == 3, "a new snapshot did not recompute the surface"
+
+
+def _pool_snapshot(width=1.0, depth=0.3, s=0.01, drop=None):
+    """A 2D pool from wall to wall of a 1 x 0.6 m domain, and optionally one particle (a
+    drop) at ``drop``."""
+    from mrsph.io.snapshot import Snapshot
+
+    x = np.stack(np.meshgrid(np.arange(s / 2, width, s), np.arange(s / 2, depth, s), indexing="ij"), -1).reshape(-1, 2)
+    if drop is not None:
+        x = np.concatenate([x, [drop]])
+    n = len(x)
+    return Snapshot(
+        dim=2,
+        levels=1,
+        time=0.0,
+        frame=0,
+        x=x,
+        v=np.zeros_like(x),
+        m=np.full(n, 1000.0 * s * s),
+        rho=np.full(n, 1000.0),
+        level=np.zeros(n, np.int32),
+        kind=np.zeros(n, np.int32),
+        radius=np.array([s / 2]),
+        domain_min=np.array([0.0, 0.0]),
+        domain_max=np.array([1.0, 0.6]),
+        obstacles=[],
+        stats={},
+    )
+
+
+def test_the_2d_water_body_meets_the_walls_and_darkens_with_depth():
+    """The body reaches the walls and the floor (the particles mirrored there: without,
+    its edge stood half a spacing and more inside them), its free surface is lit, and
+    its colour goes from the shallow water's at the surface to darker at the floor."""
+    from mrsph.app import geometry
+    from mrsph.io.surface import ISO, phi_at
+
+    water = geometry.water(_pool_snapshot(), None)
+    lo, hi = water.triangles.min(axis=0), water.triangles.max(axis=0)
+    assert lo[0] <= 0.0 and hi[0] >= 1.0 and lo[1] <= 0.0, f"the body spans {lo} .. {hi}"
+    corners = np.array([[0.002, 0.002], [0.998, 0.002], [0.002, 0.15], [0.5, 0.002]])
+    phi = phi_at(water.grid, corners)
+    assert np.all(phi >= ISO), f"the body leaves the floor's corners and walls: phi {np.round(phi, 3)} there"
+    assert abs(hi[1] - 0.3) < 0.01, f"the surface at {hi[1]:.4f} m, the pool 0.3 m deep"
+    seg = water.surface.reshape(-1, 2, 2)
+    assert len(seg) and np.all(np.abs(seg[..., 1] - 0.3) < 0.01), "lit segments off the free surface"
+    assert seg[..., 0].min() < 0.05 and seg[..., 0].max() > 0.95, "the lit surface does not span the pool"
+    y = water.triangles[:, 1]
+    top, bottom = water.colours[y > 0.28].mean(axis=0), water.colours[(y < 0.02) & (y > -0.001)].mean(axis=0)
+    assert top.sum() > bottom.sum() + 0.3, f"colour at the surface {top}, at the floor {bottom}"
+    assert len(water.drops) == 0, f"{len(water.drops)} drops in a calm pool"
+
+
+def test_a_particle_away_from_the_body_is_a_drop():
+    from mrsph.app import geometry
+
+    water = geometry.water(_pool_snapshot(drop=(0.5, 0.5)), None)
+    assert len(water.drops) == 1 and np.allclose(water.drops[0], (0.5, 0.5)), water.drops
+    tinted = geometry.water(_pool_snapshot(drop=(0.5, 0.5)), np.tile([1.0, 0.5, 0.0], (3001, 1)), tint=True)
+    assert np.allclose(tinted.drop_colours, [1.0, 0.5, 0.0]), "a tinted drop is not the particle's colour"
+
+
+def test_depth_is_measured_to_the_interpolated_surface():
+    """Depth under a flat surface is the height below it, within a tenth of a cell, not
+    a whole number of cells (those drew stripes along an uneven surface)."""
+    from mrsph.io import surface as sf
+
+    snap = _pool_snapshot()
+    top = snap.x[:, 1] > 0.29
+    snap.x[top, 1] += 0.0037  # the top row up: the surface near 0.3037 m, between two nodes
+    grid = sf.volume_fraction(snap.x, snap.m, snap.rho, snap.level, snap.kind)
+    depth = sf.depth_below_surface(grid)
+    y = grid.origin[1] + np.arange(grid.phi.shape[1]) * grid.cell
+    col = depth[grid.phi.shape[0] // 2]
+    inside = (y > 0.05) & (y < 0.25)
+    surface_y = y[inside] + col[inside]
+    assert np.ptp(surface_y) < 0.1 * grid.cell, f"surface heights {surface_y.min():.5f} .. {surface_y.max():.5f}"
+    upper = y > 0.1
+    crossing = np.interp(-sf.ISO, -grid.phi[grid.phi.shape[0] // 2][upper], y[upper])  # where φ falls through ISO
+    assert abs(surface_y.mean() - crossing) < 0.05 * grid.cell, (surface_y.mean(), crossing)
+    assert abs(crossing - y[np.searchsorted(y, crossing)]) > 0.2 * grid.cell, "the surface is on a node"
+    assert np.all(col[y > 0.32] == 0.0)

@@ -19,8 +19,11 @@ seconds of frames after the last switch) first.
 ``--sequence`` one after another (each way in a process of its own): all in one Taichi
 program ("one program", what the window did before), ``ti.reset()`` before each build
 ("reset"), and each in a worker process with the used ones kept (``mrsph.app.host``,
-"processes", what the window does). A time is from the request to the first frame
-advanced (the build, a step that compiles it, a reset, one frame of 40 ms).
+"processes", what the window does). First each scene runs alone in a new process, twice
+(the first compiles it, the second is "new process": what a scene seen on this machine
+takes), in a kernel cache of its own (``--cache``: that one instead). A time is from the
+request to the first frame advanced (the build, a step that compiles it, a reset, one
+frame of 40 ms).
 
 The times are wall-clock seconds on this machine, with the Taichi kernel cache as it
 is: the first run after a change of the code compiles (tens of seconds), later runs
@@ -46,6 +49,7 @@ if str(ROOT) not in sys.path:
 DEFAULT_KEYS = "s,s,tab,shift+tab,tab"
 DEFAULT_SEQUENCE = "demo_2d,demo_2d:wcsph,demo_2d,demo_3d,demo_2d:wcsph"
 LEVERS = ("one program", "reset", "processes")
+MARK = "switch_times: "  # the children's lines (Taichi prints its own beside them)
 #: Seconds a switch may take before the tool gives up on it.
 TIMEOUT_S = 240.0
 
@@ -178,33 +182,46 @@ def lever_child(lever: str, sequence: list[str]) -> None:
             sim = build(_make_sim, True, name, overrides)
         sim.advance_frame(0.04)
         sim.snapshot()
-        print(f"{item} {time.perf_counter() - t0:.2f}", flush=True)
+        print(f"{MARK}{item} {time.perf_counter() - t0:.2f}", flush=True)
     if lever == "processes":
         sims.put_back(running)
         sims.close()
 
 
+def _run_child(lever: str, items: list[str], env) -> list[str]:
+    proc = subprocess.run(
+        [sys.executable, __file__, "--lever-child", lever, "--sequence", ",".join(items)],
+        capture_output=True,
+        text=True,
+        env=env,
+    )
+    if proc.returncode != 0:
+        raise SystemExit(f"switch_times: {lever}: {proc.stderr[-2000:]}")
+    return [line[len(MARK) :].split()[-1] for line in proc.stdout.splitlines() if line.startswith(MARK)]
+
+
 def levers(sequence: list[str], cache=None) -> int:
-    times = {}
+    """Each item once in a process of its own first (so that every scene and solver has
+    run on this machine, and Taichi's cache holds it), then the sequence by each lever."""
     env = dict(os.environ)
-    if cache:
-        env["TI_OFFLINE_CACHE_FILE_PATH"] = str(Path(cache).resolve())
-    for lever in LEVERS:
-        proc = subprocess.run(
-            [sys.executable, __file__, "--lever-child", lever, "--sequence", ",".join(sequence)],
-            capture_output=True,
-            text=True,
-            env=env,
-        )
-        if proc.returncode != 0:
-            raise SystemExit(f"switch_times: {lever}: {proc.stderr[-2000:]}")
-        times[lever] = [line.split()[-1] for line in proc.stdout.splitlines() if line.strip()]
+    scratch = None
+    if not cache:  # a cache of its own: no earlier run of the sequence in one program is in it
+        scratch = cache = tempfile.mkdtemp(prefix="mrsph_levers_cache_")
+    env["TI_OFFLINE_CACHE_FILE_PATH"] = str(Path(cache).resolve())
+    fresh = {}
+    for item in dict.fromkeys(sequence):
+        fresh[item] = _run_child("one program", [item], env)[0]  # compiles it, cold
+        fresh[item] = _run_child("one program", [item], env)[0]  # a new process, warm
+    times = {lever: _run_child(lever, sequence, env) for lever in LEVERS}
+    if scratch:
+        shutil.rmtree(scratch, ignore_errors=True)
     seen = set()
-    print(f"{'opens':24s} {'':18s}" + "".join(f"{lv:>13s}" for lv in LEVERS))
+    print(f"{'opens':22s} {'':18s} {'new process':>12s}" + "".join(f"{lv:>12s}" for lv in LEVERS))
     for i, item in enumerate(sequence):
         note = "seen in this run" if item in seen else "first in this run"
         seen.add(item)
-        print(f"{item.replace(':', ' '):24s} {note:18s}" + "".join(f"{times[lv][i]:>13s}" for lv in LEVERS))
+        cells = "".join(f"{times[lv][i]:>12s}" for lv in LEVERS)
+        print(f"{item.replace(':', ' '):22s} {note:18s} {fresh[item]:>12s}" + cells)
     return 0
 
 

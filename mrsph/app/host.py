@@ -282,9 +282,11 @@ class Zygote:
         return struct.unpack("q", msg)[0], Connection(fds[0])
 
     def close(self) -> None:
-        self.sock.close()  # it exits when its socket closes
+        """Hang up: the zygote ends once its workers have (it is not waited for: one
+        still writing its cache must not hold the window open)."""
+        self.sock.close()
         try:
-            os.waitpid(self.pid, 0)
+            os.waitpid(self.pid, os.WNOHANG)
         except ChildProcessError:
             pass
 
