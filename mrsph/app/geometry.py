@@ -184,13 +184,16 @@ SURFACE_FACING_UP = 0.3
 DROP_SCALE = 1.15
 
 
-def water_colours(depth, scale: float, cell: float, base=None) -> np.ndarray:
+def water_colours(depth, scale: float, cell: float, base=None, across=None) -> np.ndarray:
     """Colours of the body's nodes from their depth under the free surface: the shallow
     water's colour to the deep's (or the tint ``base`` to TINT_DEEP of it), and lighter
-    just under the surface."""
+    just under the surface. ``across``: each node's distance to the air beside it; the
+    darkening follows the nearer of the two, so that a wave's face or a sheet climbing a
+    wall stays light."""
     from . import palette
 
-    t = (1.0 - np.exp(-np.asarray(depth) * (np.log(2.0) / max(scale, 1e-9))))[..., None]
+    dark = np.asarray(depth) if across is None else np.minimum(depth, across)
+    t = (1.0 - np.exp(-dark * (np.log(2.0) / max(scale, 1e-9))))[..., None]
     if base is None:
         col = (1.0 - t) * np.asarray(palette.WATER_SHALLOW) + t * np.asarray(palette.WATER_DEEP)
     else:
@@ -215,7 +218,8 @@ def water_2d(snapshot, rgb=None, dim_factor: float = 1.0) -> Water2D | None:
     depth = sf.depth_below_surface(grid, solid)
     height = float(np.asarray(snapshot.domain_max)[1] - np.asarray(snapshot.domain_min)[1])
     base = grid.rgb if grid.rgb is not None else grid.colour
-    grid.rgb = water_colours(depth, DEPTH_FRACTION * height, grid.cell, base) * dim_factor
+    across = sf.distance_to_air_across(grid, solid)
+    grid.rgb = water_colours(depth, DEPTH_FRACTION * height, grid.cell, base, across) * dim_factor
     grid.colour = None
     tri, tri_rgb, seg = sf.marching_squares(grid)
     # the lit line: the contour inside the domain where it faces up (the free surface)

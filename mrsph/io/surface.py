@@ -227,6 +227,21 @@ def depth_below_surface(grid: Grid, solid=None, iso: float = ISO) -> np.ndarray:
     return np.maximum(depth, 0.0) * grid.cell * (above > j)
 
 
+def distance_to_air_across(grid: Grid, solid=None, iso: float = ISO) -> np.ndarray:
+    """Per node of a 2D grid: how far it is, along x (axis 0) either way, from the
+    nearest node outside the fluid (φ < iso and not ``solid``), in whole cells: the
+    water by a steep face or in a thin sheet is near the air whatever its depth."""
+    outside = grid.phi < iso
+    if solid is not None:
+        outside &= ~solid
+    nx = outside.shape[0]
+    i = np.arange(nx).reshape((nx,) + (1,) * (outside.ndim - 1))
+    far = 4 * nx
+    right = np.minimum.accumulate(np.where(outside, i, far)[::-1], axis=0)[::-1] - i
+    left = i - np.maximum.accumulate(np.where(outside, i, -far), axis=0)
+    return np.minimum(left, right).astype(np.float64) * grid.cell
+
+
 def phi_at(grid: Grid, p) -> np.ndarray:
     """φ at points p (N, d), bilinear (trilinear) between the nodes; 0 off the grid."""
     u = (np.asarray(p, np.float64) - grid.origin) / grid.cell
