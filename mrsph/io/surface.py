@@ -48,6 +48,8 @@ TRUNCATE_SIGMAS = 2.5
 CELL_SPACINGS = {2: 1.0, 3: 1.5}
 #: Largest grid, in nodes; a larger one is coarsened (cost grows with the node count).
 MAX_NODES = {2: 400_000, 3: 400_000}
+#: Colour step, out of 255, within which the cells of a row are drawn as one strip.
+MERGE_STEP = 4
 #: Kind codes of real particles (docs/CONTRACTS.md: virtual = kind >= 4).
 _VIRTUAL_KIND = 4
 
@@ -385,12 +387,14 @@ def marching_squares(grid: Grid, iso: float = ISO):
 
 def _inside_quads(grid: Grid, inside) -> list[np.ndarray]:
     """Triangles (2 a quad) covering the cells wholly inside: consecutive cells of a row
-    whose colours do not change along it (to the 8 bits a screen shows) as one strip,
-    the others one quad each. Most of a pool is one colour, so this draws a few
-    thousand triangles where a quad per cell drew tens of thousands (and the
-    colours, sampled at the strips' ends, are the same)."""
+    whose colours stay within one step of MERGE_STEP / 255 as one strip, the others one
+    quad each. Most of a pool is one colour, or one colour a depth, so this draws a few
+    thousand triangles where a quad per cell drew tens of thousands (the colours, sampled
+    at the strips' ends and blended between, are off by MERGE_STEP / 255 at most: the
+    water view's depth shading at 1/255 merged nothing, 22 600 triangles and 15 ms for
+    demo_2d's body)."""
     if grid.rgb is not None:
-        q = np.rint(np.clip(grid.rgb, 0.0, 1.0) * 255.0).astype(np.int16)
+        q = np.floor(np.clip(grid.rgb, 0.0, 1.0) * (255.0 / MERGE_STEP)).astype(np.int16)
         along = np.all(q[:-1] == q[1:], axis=-1)  # node i, i+1 of a row alike
         flat = along[:, :-1] & along[:, 1:]  # both rows of the cell
     else:
