@@ -1,6 +1,6 @@
 """How long the window takes to show a scene: at its start, and after each switch.
 
-    python3 tools/switch_times.py                      # demo_2d: s, s, Tab, shift+Tab, Tab
+    python3 tools/switch_times.py                      # demo_2d: s, s, s, Tab, shift+Tab, Tab
     python3 tools/switch_times.py --keys s,tab,tab     # other keys
     python3 tools/switch_times.py --scene pool_2d --size 1920x1080
 
@@ -46,8 +46,8 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-DEFAULT_KEYS = "s,s,tab,shift+tab,tab"
-DEFAULT_SEQUENCE = "demo_2d,demo_2d:wcsph,demo_2d,demo_3d,demo_2d:wcsph"
+DEFAULT_KEYS = "s,s,s,tab,shift+tab,tab"
+DEFAULT_SEQUENCE = "demo_2d,demo_2d:pbf,demo_2d,demo_3d,demo_2d:pbf"
 LEVERS = ("one program", "reset", "processes")
 MARK = "switch_times: "  # the children's lines (Taichi prints its own beside them)
 #: Seconds a switch may take before the tool gives up on it.

@@ -127,7 +127,8 @@ def solver_lines(st: dict, solver: str | None, tolerance: float | None = None, s
     ``divergence_iterations``: shown once one has been above 0, which ``seen`` remembers
     across rows), ``density_error`` (an iterating solver's last solve's, else the mean
     compression), ``unconverged`` and ``clamped`` (shown when above 0); ``tolerance``:
-    ``dfsph.density_tolerance``, shown beside the error. Any key may be missing. No
+    ``dfsph.density_tolerance``, shown beside the error; ``clamped`` counts the particles
+    a velocity clamp slowed (pbf). Any key may be missing. No
     lines for a simulation without a pressure solver (the app's stand-in)."""
     name = st.get("solver") or solver
     if not name:
@@ -154,7 +155,7 @@ def solver_lines(st: dict, solver: str | None, tolerance: float | None = None, s
     if unconverged:
         lines.append(f"{int(unconverged)} solves stopped at max. iterations")
     if clamped:
-        lines.append(f"clamped: {int(clamped)} (see docs/output.md)")
+        lines.append(f"{int(clamped)} particles slowed by the velocity clamp")
     return lines
 
 
