@@ -100,11 +100,39 @@ def _portable(e: BaseException) -> BaseException:
         return RuntimeError(f"{type(e).__name__}: {e}")
 
 
+def _scene_out(scene):
+    """The scene as it crosses to the window: itself where it pickles, else what makes
+    it again (a Scene's typed parameters are classes made on the fly, which do not)."""
+    try:
+        pickle.dumps(scene)
+        return scene
+    except Exception:
+        return (
+            "scene",
+            type(scene).__module__,
+            type(scene).__qualname__,
+            scene.name,
+            scene.path,
+            scene.data,
+            scene._raw,
+        )
+
+
+def _scene_in(scene):
+    """The scene as ``_scene_out`` sent it, made again (its parameters typed anew)."""
+    if isinstance(scene, tuple) and scene and scene[0] == "scene":
+        import importlib
+
+        _, module, qualname, name, path, data, raw = scene
+        return getattr(importlib.import_module(module), qualname)(name, path, data, raw)
+    return scene
+
+
 def _describe(sim) -> dict:
     """What the window reads of a simulation once, with its first snapshot."""
     live = getattr(sim, "LIVE_KEYS", None)
     return {
-        "scene": sim.scene,
+        "scene": _scene_out(sim.scene),
         "dim": int(sim.dim),
         "levels": int(sim.levels),
         "rest_density": getattr(sim, "rest_density", None),
@@ -190,7 +218,7 @@ def _serve(conn: Connection, make_sim, takes_overrides: bool) -> None:
                 reply = _frame(sim, *args)
             elif op == "set_param":
                 sim.set_param(*args)
-                reply = ("ok", getattr(sim, "scene", None))
+                reply = ("ok", _scene_out(getattr(sim, "scene", None)))
             else:
                 reply = ("error", ValueError(f"unknown request {op!r}"))
         except Exception as e:
@@ -239,6 +267,7 @@ def _zygote(sock: socket.socket, make_sim, takes_overrides: bool) -> None:
                 _die_with_parent()
                 serve(Connection(mine.detach()), make_sim, takes_overrides)
             except BaseException:
+                traceback.print_exc()
                 code = 1
             finally:
                 sys.stdout.flush()
@@ -366,7 +395,7 @@ class RemoteSim:
         self.error = RuntimeError("the simulation's process stopped")
 
     def _adopt(self, info: dict) -> None:
-        self.scene, self.dim, self.levels = info["scene"], info["dim"], info["levels"]
+        self.scene, self.dim, self.levels = _scene_in(info["scene"]), info["dim"], info["levels"]
         self.rest_density, self.live_keys = info["rest_density"], info["live_keys"]
         self._snap, self.time = info["snapshot"], info["time"]
 
@@ -409,7 +438,7 @@ class RemoteSim:
     def set_param(self, key: str, value) -> None:
         scene = self._ask("set_param", key, value)[1]
         if scene is not None:
-            self.scene = scene
+            self.scene = _scene_in(scene)
 
 
 class LocalSim:
