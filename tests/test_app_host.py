@@ -121,3 +121,18 @@ def test_in_process_when_asked(monkeypatch):
         assert handle.time > 0 and handle.dim == 2
     finally:
         pool.close()
+
+
+def test_a_scene_crosses_to_the_window_whole():
+    """A Scene goes to the window as what makes it again (it does not pickle as it is):
+    what the window reads of it, and its overrides, are the same there."""
+    import pickle
+
+    from mrsph.scene.config import load_scene
+
+    scene = load_scene("demo_2d", ['fluid.solver="wcsph"'])
+    there = host._scene_in(pickle.loads(pickle.dumps(host._scene_out(scene))))
+    assert type(there) is type(scene) and there.name == scene.name and there.path == scene.path
+    assert there.data == scene.data and there.get("fluid.solver") == "wcsph"
+    assert there.with_overrides({"fluid.solver": "dfsph"}).get("fluid.solver") == "dfsph"
+    assert host._scene_in(host._scene_out({"name": "fake_2d"})) == {"name": "fake_2d"}
