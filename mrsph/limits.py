@@ -17,7 +17,7 @@ MAX_NEIGHBOURS = {2: 40, 3: 80}
 MAX_SKIN = 1.0
 # particles.skin = -1 takes the solver's: what paid in ``bench`` (docs/performance.md,
 # "Neighbour lists that outlive a step"); a solver not named here gets none.
-AUTO_SKIN = {"wcsph": 0.0, "dfsph": 0.0, "pbf": 0.0}
+AUTO_SKIN = {"wcsph": 0.1, "dfsph": 0.0, "pbf": 0.0}
 
 
 def skin_list_length(dim: int, skin: float, listed: int | None = None) -> int:

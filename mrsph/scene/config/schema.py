@@ -114,7 +114,7 @@ SCHEMA = Table(
                     ">= 0",
                     doc=f"particle slots, at most "
                     f"{MAX_CAPACITY[2] // 10**6} million (2D) or {MAX_CAPACITY[3] // 10**6} "
-                    "million (3D); 0 = automatic: "
+                    "million (3D) without a skin, fewer with one (particles.skin); 0 = automatic: "
                     "int(1.5 * lattice count + emitted) + 1024; the pool rounds it up to "
                     "an odd multiple of 16 (so that its arrays do not alias in the cache)",
                 ),
