@@ -2,6 +2,8 @@
 fields and of the neighbour lists, and the ranges they bound. Taichi-free, imported by
 both layers (``scene.config`` checks a scene against them, the fields are sized by them)."""
 
+import math
+
 # Counted in cells of h0 (the level-0 grid splits those 2x in 2D, 4x in 3D along its rows,
 # grid.CELLS_PER_SUPPORT); past ~50e6 such cells its per-cell arrays alone take hundreds
 # of MB, so such a domain is almost surely a unit slip.
@@ -10,11 +12,32 @@ MAX_GRID_CELLS = 50e6
 # rest lattice (12 in 2D, 26 in 3D within h = 2 s), so that only a strongly compressed
 # particle overflows (it then loops over the grid instead; results are the same).
 MAX_NEIGHBOURS = {2: 40, 3: 80}
-# Particle slots, per dimension: the neighbour lists hold MAX_NEIGHBOURS + 1 entries a
-# slot and Taichi indexes a field with 32 bits, so slots x 41 (2D) or x 81 (3D) must stay
-# below 2^31: 52 M and 26 M slots, tens of GB at 0.3-0.6 kB a slot. Refused before
-# Taichi tries to allocate (9e7 slots in 2D ended in an int32 overflow, then the OOM killer).
-MAX_CAPACITY = {d: (2**31 - 1) // (MAX_NEIGHBOURS[d] + 1) // 10**6 * 10**6 for d in (2, 3)}
+# The largest skin (particles.skin, a share of h): lists of everything within (1 + skin) h
+# grow as (1 + skin)^dim, 8x at a skin of 1 in 3D.
+MAX_SKIN = 1.0
+# particles.skin = -1 takes the solver's: what paid in ``bench`` (docs/performance.md,
+# "Neighbour lists that outlive a step"); a solver not named here gets none.
+AUTO_SKIN = {"wcsph": 0.1, "dfsph": 0.0, "pbf": 0.0}
+
+
+def skin_list_length(dim: int, skin: float, listed: int | None = None) -> int:
+    """Entries of a skin list (everything within (1 + skin) h, ``sph/neighbours.py``): the
+    list's length scaled by the ball's volume, (1 + skin)^dim; 0 without a skin."""
+    listed = MAX_NEIGHBOURS[dim] if listed is None else listed
+    return 0 if skin <= 0.0 else math.ceil(listed * (1.0 + skin) ** dim)
+
+
+def max_capacity(dim: int, skin: float = 0.0) -> int:
+    """Particle slots: the neighbour lists hold MAX_NEIGHBOURS + 1 entries a slot (and the
+    skin lists ``skin_list_length`` + 1) and Taichi indexes a field with 32 bits, so
+    slots x 41 (2D) or x 81 (3D) must stay below 2^31: 52 M and 26 M slots without a
+    skin, tens of GB at 0.3-0.6 kB a slot. Refused before Taichi tries to allocate (9e7
+    slots in 2D ended in an int32 overflow, then the OOM killer)."""
+    widest = max(MAX_NEIGHBOURS[dim], skin_list_length(dim, skin)) + 1
+    return (2**31 - 1) // widest // 10**6 * 10**6
+
+
+MAX_CAPACITY = {d: max_capacity(d) for d in (2, 3)}  # without a skin
 # Frames per second (run.fps, --fps): a GIF holds a frame at most 655 s, and a
 # frame interval of a millisecond is already far below any time step that matters.
 FPS_RANGE = (0.1, 1000.0)

@@ -91,9 +91,10 @@ class Simulation:
         self.lev = Levels(d, L, part.spacing, part.support, fl.rest_density, symmetric)
         self.s0, self.h0, self.m0 = self.lev.s0, self.lev.h0, self.lev.m0
         self.grids = LevelGrids(
-            d, L, dom.min, dom.max, self.h0, self.capacity, CELLS_PER_SUPPORT[d], parallel=runtime.on_gpu()
+            d, L, dom.min, dom.max, self.h0, self.capacity, CELLS_PER_SUPPORT[d], runtime.on_gpu(), part.skin
         )
-        self.sorting = PoolSort(self.grids, self.pool)  # the pool in cell order, each step
+        # the pool in cell order, each step the lists are built (every step without a skin)
+        self.sorting = PoolSort(self.grids, self.pool)
         self.boundary = Boundary(d, dom, prm.obstacles)
         self.neighbours = Neighbours(d, self.pool, self.grids, self.boundary)
         core = Core(d, L, self.adaptive, self.pool, self.lev, self.grids, self.neighbours, self.boundary)
@@ -200,6 +201,8 @@ class Simulation:
         self.integrator.set_chosen_dt(self.dt)
         self._events = dict.fromkeys(COUNTERS, 0)
         self._refused_reported = 0  # pool.refused at the last stats row
+        self._steps_reported = 0  # steps at the last stats row
+        self.grids.take_rebuilds()
         self._events_due = False
         self._refusal_warned = False
         self.warnings: list[str] = []
@@ -417,6 +420,10 @@ class Simulation:
         row["density_error"] = solve["density_error"]
         row["unconverged"] = solve["unconverged"]
         row["clamped"] = solve["clamped"]  # particles a velocity clamp slowed (pbf)
+        # steps that built the neighbour lists (all of them without a skin)
+        rebuilds = self.grids.take_rebuilds()
+        row["rebuilds"] = self.steps - self._steps_reported if rebuilds is None else rebuilds
+        self._steps_reported = self.steps
         self._collect_events()
         row["splits"] = self._events["splits"]
         row["merges"] = self._events["merges"]
@@ -483,9 +490,12 @@ class Simulation:
         self.pool.refused[None] = state["refused"]
         self._refused_reported = state["refused"]
         self.time, self.frame, self.steps, self.dt, chosen_dt = state["clock"]
+        self._steps_reported = self.steps
+        self.grids.take_rebuilds()
         self.state.set_dt(self.dt)
         self.integrator.set_chosen_dt(chosen_dt)
         self.emitters.progress = list(state["emitters"])
+        self.grids.invalidate()  # the pool's slots are not those the lists were built for
         self.coupling.reset()
         self._stirrers(self.time)
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from mrsph.sph.particles import DEAD, REGULAR, TRANSIENT_CHILD, VIRTUAL_PARENT
+from mrsph.sph.particles import DEAD, REGULAR, TRANSIENT_CHILD, VIRTUAL_CHILD, VIRTUAL_PARENT
 
 pytestmark = pytest.mark.usefixtures("taichi_f32")
 
@@ -41,11 +41,12 @@ def _program():
     return ti.lang.impl.get_runtime().prog
 
 
-def build(dim, xs, levels, kinds=None, extra_capacity=8, cells_per_support=1, parallel=False, reuse=False):
+def build(dim, xs, levels, kinds=None, extra_capacity=8, cells_per_support=1, parallel=False, reuse=False, skin=0.0):
     """A ParticlePool and LevelGrids holding the given particles (ids stored in ``slot``);
     ``parallel``: the sort's GPU form (atomic ranks, three-tier prefix sum), run here on
     the CPU. ``reuse``: refill the pool and grids that an earlier test of this module
-    built with the same dim, cells and sort form (``_BUILT``), their next sort a full one."""
+    built with the same dim, cells, sort form and skin (``_BUILT``), their next sort a
+    full one. ``skin``: cells of (1 + skin) h_l / k."""
     from mrsph.sph.grid import LevelGrids
     from mrsph.sph.particles import ParticlePool
 
@@ -54,7 +55,15 @@ def build(dim, xs, levels, kinds=None, extra_capacity=8, cells_per_support=1, pa
         return (
             pool,
             LevelGrids(
-                dim, LEVELS, [DOMAIN_MIN] * dim, [DOMAIN_MAX] * dim, H0, pool.capacity, cells_per_support, parallel
+                dim,
+                LEVELS,
+                [DOMAIN_MIN] * dim,
+                [DOMAIN_MAX] * dim,
+                H0,
+                pool.capacity,
+                cells_per_support,
+                parallel,
+                skin,
             ),
             _program(),
         )
@@ -63,7 +72,7 @@ def build(dim, xs, levels, kinds=None, extra_capacity=8, cells_per_support=1, pa
     if not reuse:
         pool, grids, _ = new(n + extra_capacity)
     else:
-        key = (dim, cells_per_support, parallel)
+        key = (dim, cells_per_support, parallel, skin)
         if key not in _BUILT or _BUILT[key][2] is not _program() or _BUILT[key][0].capacity < n + extra_capacity:
             _BUILT[key] = new(max(n + extra_capacity, REUSED_CAPACITY[dim]))
         pool, grids, _ = _BUILT[key]
@@ -239,6 +248,31 @@ def test_a_sort_after_the_particles_moved_finds_their_new_neighbours(dim, cells,
     n = grids.sort(pool)
     expected, borderline = brute_force(moved, levels)
     compare(grid_neighbours(pool, grids, n), expected, borderline, f"{dim}D, second sort, {cells} cell(s) per h")
+
+
+@SORTS
+def test_a_grid_with_a_skin_finds_every_neighbour_until_a_particle_moves_half_the_skin(dim, parallel):
+    """With a skin the step does not sort until some particle has moved more than
+    skin h_l / 2 since the last sort: a grid of cells (1 + skin) h_l / k must still hold,
+    in the block around any particle's new position, every particle within h_l of it.
+    Every particle moves 0.49 skin h_l in a random direction after the sort, and the
+    search over the unsorted grid must find the brute-force sets at the new positions."""
+    skin = 0.3
+    rng = np.random.default_rng(71 + dim)
+    xs = random_positions(rng, dim, 1200 if dim == 2 else 2000)
+    levels = (rng.uniform(size=len(xs)) < 0.35).astype(np.int32)
+    cells = per_axis("solver", dim)
+    pool, grids = build(dim, xs, levels, cells_per_support=cells, parallel=parallel, reuse=True, skin=skin)
+    n = grids.sort(pool)
+    ids = pool.p.slot.to_numpy()[:n]
+    step = rng.normal(size=(len(xs), dim))
+    step *= (0.49 * skin * H0 * 2.0 ** levels[:, None]) / np.linalg.norm(step, axis=1, keepdims=True)
+    moved = xs + step
+    x = pool.p.x.to_numpy()
+    x[:n] = moved[ids].astype(np.float32)
+    pool.p.x.from_numpy(x)
+    expected, borderline = brute_force(moved, levels)
+    compare(grid_neighbours(pool, grids, n), expected, borderline, f"{dim}D, unsorted after a move of 0.49 skin h")
 
 
 @CELLS
@@ -479,17 +513,94 @@ def test_density_pass_equals_brute_force_sums_and_lists(dim, adaptive):
     of cells summed in one scan of the grid, the others one by one) against a k-d tree,
     on a moving fluid. Every particle it sums that is more than a support from the walls
     (no wall image) must get ρ_i = Σ_j m_j W_poly6(x_i − x_j, h_l) over the particles of
-    its level, and its neighbour list must be the brute-force set."""
-
+    its level, and its neighbour list must be the brute-force set. Without a skin: a
+    grid scan every step."""
     from mrsph.scene.config import load_scene
     from mrsph.simulation import Simulation
+
+    name, sets, warm = DENSITY_RUNS[(dim, adaptive)]
+    sim = Simulation(load_scene(name, sets + ["particles.skin=0"]), threads=2)
+    sim.advance(warm)
+    n = sim.run_phases("grid", "density")
+    check_density_and_lists(sim, n, adaptive, f"{dim}D {name}")
+
+
+# the quick run: 2D uniform, 3D adaptive (the other halves of the test above)
+@pytest.mark.slow_params("2d-adaptive", "3d-uniform")
+@pytest.mark.parametrize("adaptive", [False, True], ids=["uniform", "adaptive"])
+def test_density_pass_with_a_skin_equals_brute_force_after_reused_steps(dim, adaptive):
+    """With a skin (``particles.skin``) the density pass sums over each particle's skin
+    list, built steps ago, and writes the step's lists from it. Step by step, a step
+    builds the lists again exactly when some particle is more than skin h_l / 2 from where
+    they were built (or an adaptivity pass ran, or a list overflowed); once they have
+    outlived two steps and a particle has moved most of that margin, the density and the
+    lists must still be the brute-force ones (an adaptive run: once they are as old as its
+    adaptivity passes let them be), and each skin list must hold the particles that were
+    within (1 + skin) h of it at its build (``grids.x_built``), itself excluded."""
+    from mrsph.scene.config import load_scene
+    from mrsph.simulation import Simulation
+
+    skin = 0.3
+    name, sets, warm = DENSITY_RUNS[(dim, adaptive)]
+    sim = Simulation(load_scene(name, sets + [f"particles.skin={skin}"]), threads=2)
+    sim.advance(warm)
+    every = sim.scene.params.adaptivity.interval
+    reused, moved, log = 0, 0.0, []
+    for _ in range(300):  # until the lists have outlived two steps and most of their margin
+        n = sim.pool.count()
+        level = sim.pool.p.level.to_numpy()[:n]
+        off = sim.pool.p.x.to_numpy()[:n] - sim.grids.x_built.to_numpy()[:n]
+        moved = float(np.max(np.linalg.norm(off, axis=1) / (0.5 * skin * sim.h0 * 2.0**level)))
+        due = bool(sim.grids.overflowed[None]) or (sim.adaptive and sim.steps % every == 0)
+        sim.step()
+        rebuilt = bool(sim.grids.rebuild[None])
+        log.append((round(moved, 3), rebuilt))
+        if not due and abs(moved - 1.0) > 1e-4:
+            assert rebuilt == (moved > 1.0), (
+                f"{dim}D {name}: a step {'rebuilt' if rebuilt else 'kept'} the lists with the farthest particle "
+                f"{moved:.3f} half-skins from their build (steps: (half-skins moved, rebuilt) {log[-8:]})"
+            )
+        reused = 0 if rebuilt else reused + 1
+        # an adaptive run builds them at every adaptivity pass: as old as those let them be
+        old = moved > 0.6 or (sim.adaptive and reused == every - 1)
+        if reused >= 2 and old:
+            break
+    n = sim.run_phases("grid", "density")
+    assert reused >= 2 and old and sim.grids.rebuild[None] == 0, (
+        f"{dim}D {name}: no step reused lists built two steps before and 0.6 half-skins ago; the test proves "
+        f"nothing (steps: (half-skins moved, rebuilt) {log[-12:]})"
+    )
+    check_density_and_lists(sim, n, adaptive, f"{dim}D {name}, skin {skin}, lists {reused + 1} steps old")
+    nb, p = sim.neighbours, sim.pool.p
+    built = sim.grids.x_built.to_numpy()[:n].astype(np.float64)
+    level = p.level.to_numpy()[:n]
+    kind = p.kind.to_numpy()[:n]
+    near, count = nb.near.to_numpy()[:n], nb.near_count.to_numpy()[:n]
+    assert (count <= nb.max_near).all(), f"{dim}D {name}: {(count > nb.max_near).sum()} skin lists overflowed"
+    bad = []
+    summed = kind < VIRTUAL_CHILD if sim.coupling.variational else np.ones(n, bool)  # the particles listed
+    for l in np.unique(level):
+        reach = (1.0 + skin) * sim.h0 * 2.0**l
+        same = np.flatnonzero(level == l)
+        tree = cKDTree(built[same])
+        for i in np.flatnonzero((level == l) & summed):
+            want = set(same[tree.query_ball_point(built[i], reach * (1 - 1e-5))].tolist()) - {i}
+            edge = set(same[tree.query_ball_point(built[i], reach * (1 + 1e-5))].tolist()) - {i}
+            got = set(near[i, : count[i]].tolist())
+            if not want <= got <= edge:
+                bad.append((i, sorted(want - got), sorted(got - edge)))
+    assert not bad, (
+        f"{dim}D {name}: {len(bad)} skin lists off their build's sets; first (slot, missed, extra): {bad[0]}"
+    )
+
+
+def check_density_and_lists(sim, n, adaptive, label):
+    """Every particle summed that is more than a support from the walls has the
+    brute-force density over its level and the brute-force neighbour list (k-d tree)."""
     from mrsph.sph.kernels import constants
     from mrsph.sph.particles import VIRTUAL_CHILD
 
-    name, sets, warm = DENSITY_RUNS[(dim, adaptive)]
-    sim = Simulation(load_scene(name, sets), threads=2)
-    sim.advance(warm)
-    n = sim.run_phases("grid", "density")
+    dim = sim.dim
     p = sim.pool.p
     x = p.x.to_numpy()[:n].astype(np.float64)
     m = p.m.to_numpy()[:n].astype(np.float64)
@@ -525,10 +636,10 @@ def test_density_pass_equals_brute_force_sums_and_lists(dim, adaptive):
                     bad_lists.append(i)
     assert checked > 0.3 * summed.sum(), f"only {checked} of {summed.sum()} particles away from the walls"
     assert worst < 2e-5, (
-        f"{dim}D {name}: density pass off a brute-force sum by {worst:.2e} "
+        f"{label}: density pass off a brute-force sum by {worst:.2e} "
         f"(relative, worst of {checked} particles; expected single-precision rounding)"
     )
     assert not bad_lists, (
-        f"{dim}D {name}: {len(bad_lists)} of {checked} neighbour lists differ from "
+        f"{label}: {len(bad_lists)} of {checked} neighbour lists differ from "
         f"the brute-force sets, first at slot {bad_lists[0]}"
     )

@@ -7,6 +7,12 @@ scan of the grid a step makes for the whole pool. Particles go ``DENSITY_CLUSTER
 time through one walk of their block's rows where they share a column of cells
 (``_scan_cluster``), else one by one. When the density is known the pressure solver takes
 it (``density_done``) and the pair factors are set (``forces.Forces.factors``).
+
+With a skin (``particles.skin``) the scan builds each particle's skin list instead
+(everything within (1 + skin) h), and only on the steps the sort says so
+(``LevelGrids.building``); every step sums the density over the skin list, writing the
+step's list (within h) as it goes, so that every later pass reads the same lists as
+without a skin.
 """
 
 import taichi as ti
@@ -38,6 +44,7 @@ class Density:
         self.pool, self.grids, self.lev, self.nb = core.pool, core.grids, core.lev, core.nb
         self.coupling, self.fade, self.pressure, self.forces = coupling, fade, pressure, forces
         self.limit_virtual = coupling.limit_virtual
+        self.skin = core.grids.skin  # > 0: lists kept across steps (neighbours.py)
 
     @ti.func
     def support(self, i):
@@ -126,19 +133,43 @@ class Density:
         (``multires.limiter``) reads the lists first: the grid scan and recording of
         ``grid_sum``, its sum not kept (the virtual masses it summed are last step's),
         taken ``DENSITY_CLUSTER`` particles at a time where they share a column of cells,
-        as the density pass does. ``run`` then sums over these lists."""
+        as the density pass does. ``run`` then sums over these lists. With a skin: the
+        skin lists on a build step, and each step's lists from them."""
+        if ti.static(self.skin > 0.0):
+            self._list_fine_skin(n)
+        else:
+            self._list_fine(n)
+
+    @ti.func
+    def _list_fine(self, n):
         p = ti.static(self.pool.p)
         K = ti.static(DENSITY_CLUSTER[self.dim])
         for t in range((n + K - 1) // K):
             i0 = K * t
             scanned = 0
             if i0 + K <= n:
-                scanned = self._scan_cluster(i0, True)
+                scanned = self._scan_cluster(i0, True, False)
             for q in range(K):  # not unrolled
                 i = i0 + q
                 if i < n and self.fine_real(i) and not (scanned >> q) & 1:
                     l, h, h2, c6 = self.support(i)
                     self.grid_sum(p[i].x, l, h2, c6, i, True)
+
+    @ti.func
+    def _list_fine_skin(self, n):
+        K = ti.static(DENSITY_CLUSTER[self.dim])
+        build = self.grids.building()
+        for t in range((n + K - 1) // K):
+            i0 = K * t
+            scanned = 0
+            if build and i0 + K <= n:
+                scanned = self._scan_cluster(i0, True, True)
+            for q in range(K):  # not unrolled
+                i = i0 + q
+                if i < n and self.fine_real(i):
+                    if build and not (scanned >> q) & 1:
+                        self._list_near(i)
+                    self._near_density(i)
 
     @ti.kernel
     def run(self, n: ti.i32):
@@ -154,13 +185,20 @@ class Density:
         has already listed the neighbours of every real particle below the coarsest level
         this step; those sum over their list instead of scanning the grid again (one
         scan, not two, for those particles: docs/performance.md)."""
+        if ti.static(self.skin > 0.0):
+            self._run_skin(n)
+        else:
+            self._run(n)
+
+    @ti.func
+    def _run(self, n):
         p = ti.static(self.pool.p)
         K = ti.static(DENSITY_CLUSTER[self.dim])
         for t in range((n + K - 1) // K):
             i0 = K * t
             scanned = 0
             if i0 + K <= n:
-                scanned = self._scan_cluster(i0, False)
+                scanned = self._scan_cluster(i0, False, False)
             for q in range(K):  # not unrolled: one copy of the code below
                 i = i0 + q
                 if i < n and not self.coupling.density_skip(i):
@@ -173,6 +211,83 @@ class Density:
                     else:
                         rho = self.grid_sum(p[i].x, l, h2, c6, i, True)
                     self._finish(i, rho)
+
+    @ti.func
+    def _run_skin(self, n):
+        """``run`` with a skin: on a build step the skin lists are scanned (clusters as
+        without a skin) and each slot's x kept; every step sums over the skin lists."""
+        p = ti.static(self.pool.p)
+        K = ti.static(DENSITY_CLUSTER[self.dim])
+        build = self.grids.building()
+        for t in range((n + K - 1) // K):
+            i0 = K * t
+            scanned = 0
+            if build and i0 + K <= n:
+                scanned = self._scan_cluster(i0, False, True)
+            for q in range(K):  # not unrolled: one copy of the code below
+                i = i0 + q
+                if i < n:
+                    if build:
+                        self.grids.built(i, p[i].x)
+                    if not self.coupling.density_skip(i):
+                        l, h, h2, c6 = self.support(i)
+                        rho = 0.0
+                        if self._listed_already(i):
+                            rho = self._listed_density(i, p[i].x, h2, c6)
+                        else:
+                            if build and not (scanned >> q) & 1:
+                                self._list_near(i)
+                            rho = self._near_density(i)
+                        self._finish(i, rho)
+        self.grids.lists_built()
+
+    @ti.func
+    def _list_near(self, i):
+        """Particle i's skin list from the grid block around it: the particles of its level
+        within (1 + skin) h, self excluded (written every time, kept only when counted)."""
+        p = ti.static(self.pool.p)
+        l = p[i].level
+        xi = p[i].x
+        reach = ti.static(1.0 + self.skin) * self.lev.h[l]
+        reach2 = reach * reach
+        last = ti.static(self.nb.max_near)  # the spare slot past the list
+        count = 0
+        base = self.grids.around(xi, l)
+        for o in ti.grouped(ti.ndrange(*self.grids.row_axes)):
+            lo, hi = self.grids.row(base, o, l)
+            for j in range(lo, hi):
+                r2 = (xi - p[j].x).norm_sqr()
+                self.nb.near[i, ti.min(count, last)] = j
+                count += ti.cast(r2 < reach2 and j != i, ti.i32)
+        self.nb.near_count[i] = count
+
+    @ti.func
+    def _near_density(self, i):
+        """Σ_j m_j W_poly6 over i itself and its skin list (the own-level sum of
+        ``grid_sum``), and i's list of this step: the skin list's particles within h, in
+        its order. A skin list that overflowed at its build is not read: the grid then
+        (built this step), and the next step builds the lists again."""
+        p = ti.static(self.pool.p)
+        l, h, h2, c6 = self.support(i)
+        xi = p[i].x
+        rho = 0.0
+        if self.nb.is_near_listed(i):
+            last = ti.static(self.nb.max_neighbours)  # the spare slot past the list
+            rho = self.coupling.sum_mass(i) * (h2 * h2 * h2)  # i itself, at r = 0
+            count = 0
+            for q in range(self.nb.near_count[i]):
+                j = self.nb.near[i, q]
+                r2 = (xi - p[j].x).norm_sqr()
+                d = ti.max(h2 - r2, 0.0)
+                rho += self.coupling.sum_mass(j) * (d * d * d)
+                self.nb.lists[i, ti.min(count, last)] = j
+                count += ti.cast(r2 < h2, ti.i32)
+            self.nb.count[i] = count
+            rho *= c6 * self.coupling.sum_scale()
+        else:
+            rho = self.grid_sum(xi, l, h2, c6, i, True)
+            self.grids.overflow()
+        return rho
 
     @ti.func
     def _listed_density(self, i, xq, h2, c6):
@@ -197,7 +312,7 @@ class Density:
         return is_real(self.pool.p[i].kind) and self.pool.p[i].level < ti.static(self.levels - 1)
 
     @ti.func
-    def _scan_cluster(self, i0, list_only: ti.template()):
+    def _scan_cluster(self, i0, list_only: ti.template(), skin: ti.template()):
         """One scan of the grid for the K particles i0 … i0+K−1 (``DENSITY_CLUSTER``): the
         density pass's sums and neighbour lists for those that need a scan (not skipped,
         not listed already), or, with ``list_only``, the lists of the fine real particles
@@ -211,7 +326,8 @@ class Density:
         support adds exactly zero to its sum and is not listed, so the result is the
         one-by-one sum up to rounding (the same candidates in the same order, zeros
         between). The other members ride along: their sums are dropped and their list
-        writes go to the spare slot."""
+        writes go to the spare slot. With ``skin``: the members' skin lists (within
+        (1 + skin) h) instead, and no sums."""
         p = ti.static(self.pool.p)
         K = ti.static(DENSITY_CLUSTER[self.dim])
         D = ti.static(self.dim - 1)  # the axis along the rows
@@ -244,6 +360,8 @@ class Density:
             h = self.lev.h[l]
             h2, c6 = h * h, self.lev.poly6[l]
             last = ti.static(self.nb.max_neighbours)  # the spare slot past the list
+            near_last = ti.static(self.nb.max_near)
+            reach2 = h2 * ti.static((1.0 + self.skin) ** 2)
             base[D] = lo_c
             span = hi_c - lo_c + ti.static(2 * self.grids.reach + 1)
             xs = ti.Matrix.rows([p[i0 + q].x for q in ti.static(range(K))])
@@ -258,18 +376,26 @@ class Density:
                         r2 = 0.0
                         for a in ti.static(range(self.dim)):
                             r2 += (xs[q, a] - xj[a]) ** 2
-                        if ti.static(not list_only):
-                            d = ti.max(h2 - r2, 0.0)
-                            rho[q] += m * (d * d * d)
-                        # written every time, kept only when counted (see ``grid_sum``)
-                        self.nb.lists[i0 + q, ti.select(scans[q] != 0, ti.min(count[q], last), last)] = j
-                        count[q] += ti.cast(r2 < h2 and j != i0 + q, ti.i32)
+                        if ti.static(skin):
+                            # the skin list alone: the density and the list follow from it
+                            self.nb.near[i0 + q, ti.select(scans[q] != 0, ti.min(count[q], near_last), near_last)] = j
+                            count[q] += ti.cast(r2 < reach2 and j != i0 + q, ti.i32)
+                        else:
+                            if ti.static(not list_only):
+                                d = ti.max(h2 - r2, 0.0)
+                                rho[q] += m * (d * d * d)
+                            # written every time, kept only when counted (see ``grid_sum``)
+                            self.nb.lists[i0 + q, ti.select(scans[q] != 0, ti.min(count[q], last), last)] = j
+                            count[q] += ti.cast(r2 < h2 and j != i0 + q, ti.i32)
             scale = c6 * self.coupling.sum_scale()
             for q in ti.static(range(K)):
                 if scans[q] != 0:
-                    self.nb.count[i0 + q] = count[q]
-                    if ti.static(not list_only):
-                        p[i0 + q].rho = rho[q] * scale
+                    if ti.static(skin):
+                        self.nb.near_count[i0 + q] = count[q]
+                    else:
+                        self.nb.count[i0 + q] = count[q]
+                        if ti.static(not list_only):
+                            p[i0 + q].rho = rho[q] * scale
                     scanned |= 1 << q
         return scanned
 

@@ -9,6 +9,15 @@ array: a particle's key is ``offset[l] + linear cell index``, and a single count
 sort is linear in the number of particles and cells, keeps particles that are close in
 space close in memory, and compacts the holes left by merges (DEAD sorts last).
 
+With a skin (``particles.skin``, a share of h) the cells are (1 + skin) h_l / k_a, the
+neighbour lists (``neighbours.py``) hold everything within (1 + skin) h_l, and the step's
+sort runs only when they must be built again (``sort_func``): when some particle has
+moved more than skin h_l / 2 since the last build (its x then is kept per slot,
+``x_built``), when the pool changed (n, or a sort outside the step: the adaptivity pass,
+a reset) or when a list overflowed. Until then the pool stays in the last build's order
+and a block of cells still holds every particle within h of any point: a particle is at
+most skin h_l / 2 from where it was binned, and the block reaches (1 + skin) h_l.
+
 The rank of a particle inside its cell is taken by a serial pass, so the order (and
 hence every floating-point sum over neighbours) is the same from run to run. (What is not:
 the reactions an adaptive run hands on to the owners of virtual particles are atomic adds,
@@ -54,8 +63,11 @@ class LevelGrids:
         capacity: int,
         cells_per_support: int | tuple = 1,
         parallel: bool = False,
+        skin: float = 0.0,
     ):
         self.dim = dim
+        # the lists' margin, a share of h: the cells and the lists reach (1 + skin) h
+        self.skin = float(skin)
         # the sort's ranks and prefix sum: serial (the same order every run; the fastest
         # on a CPU) or parallel (a GPU runs a serial loop on one of its threads)
         self.parallel = bool(parallel)
@@ -69,7 +81,7 @@ class LevelGrids:
         lo = np.asarray(domain_min, dtype=np.float64)
         hi = np.asarray(domain_max, dtype=np.float64)
         self.h = [h0 * 2**l for l in range(levels)]
-        self.cell_size = [np.array([h / k for k in ks]) for h in self.h]
+        self.cell_size = [np.array([(1.0 + self.skin) * h / k for k in ks]) for h in self.h]
         res, offsets, total = [], [], 0
         for l in range(levels):
             r = [int(math.ceil((hi[a] - lo[a]) / self.cell_size[l][a])) + 2 * PAD_SUPPORTS * ks[a] for a in range(dim)]
@@ -109,6 +121,22 @@ class LevelGrids:
         self.moved = ti.field(ti.i32, shape=())
         self.rank = ti.field(ti.i32, shape=capacity)
         self.new_index = ti.field(ti.i32, shape=capacity)
+        if self.skin > 0.0:
+            # each slot's x when the lists were last built; (skin h_l / 2)² per level: a
+            # particle that moved farther has neighbours its list may miss
+            self.x_built = ti.Vector.field(dim, float, shape=capacity)
+            self.half_skin2 = ti.field(float, shape=levels)
+            for l in range(levels):
+                self.half_skin2[l] = (0.5 * self.skin * self.h[l]) ** 2
+            # does this step build the lists (set by the step's sort); are the lists not
+            # built since the pool last changed (a build sort, until the density pass has
+            # built them; a sort outside the step; a restored state); did one overflow
+            # at its build; builds since the last read (``take_rebuilds``)
+            self.rebuild = ti.field(ti.i32, shape=())
+            self.pending = ti.field(ti.i32, shape=())
+            self.pending[None] = 1
+            self.overflowed = ti.field(ti.i32, shape=())
+            self.rebuilds = ti.field(ti.i32, shape=())
 
     # --- geometry --------------------------------------------------------------------
     @ti.func
@@ -238,15 +266,62 @@ class LevelGrids:
             self._cell_starts(b, self.block_start[b])
 
     def sort(self, pool: ParticlePool) -> int:
-        """Reorder the pool in cell order, drop DEAD slots, remap links; returns n."""
+        """Reorder the pool in cell order, drop DEAD slots, remap links; returns n. A sort
+        outside the step (the adaptivity pass, a reset) may have changed the pool: the
+        next step builds the lists again."""
         return self._sort(pool)
 
     @ti.kernel
     def _sort(self, pool: ti.template()) -> ti.i32:
-        return self.sort_func(pool)
+        n = self.sort_func(pool, False)
+        if ti.static(self.skin > 0.0):
+            self.pending[None] = 1
+        return n
+
+    def invalidate(self) -> None:
+        """The pool was written from the host (a restored state): the next step builds
+        the lists again."""
+        if self.skin > 0.0:
+            self.pending[None] = 1
+
+    def take_rebuilds(self) -> int | None:
+        """Steps that built the lists since the last call; None without a skin (every
+        step does)."""
+        if self.skin <= 0.0:
+            return None
+        k = int(self.rebuilds[None])
+        self.rebuilds[None] = 0
+        return k
 
     @ti.func
-    def sort_func(self, pool: ti.template()):
+    def built(self, i, x):
+        """Slot i's lists are built at x this step (the density pass, on a build)."""
+        if ti.static(self.skin > 0.0):
+            self.x_built[i] = x
+
+    @ti.func
+    def overflow(self):
+        """A skin list overflowed at its build: the next step builds them again."""
+        if ti.static(self.skin > 0.0):
+            self.overflowed[None] = 1
+
+    @ti.func
+    def lists_built(self):
+        """The density pass has built the lists (or kept them): they hold until a
+        particle moves too far or the pool changes."""
+        if ti.static(self.skin > 0.0):
+            self.pending[None] = 0
+
+    @ti.func
+    def building(self):
+        """Does this step build the lists (always without a skin)?"""
+        out = 1
+        if ti.static(self.skin > 0.0):
+            out = self.rebuild[None]
+        return out
+
+    @ti.func
+    def sort_func(self, pool: ti.template(), step: ti.template() = False):
         """The sort as a device function, for a launch that runs it with other phases;
         returns n. One kernel, five passes (one launch: at a few thousand particles the launches,
         not the passes, were the cost): keys, ranks (serial, so that the order and every
@@ -261,10 +336,25 @@ class LevelGrids:
         the passes after the keys do nothing. That is the case for the sorts between and
         after the level pairs of an adaptivity pass (``Multires.adapt``) when a pair
         changed nothing; a step that moves particles almost always moves one out of its
-        cell, and sorts in full."""
+        cell, and sorts in full.
+
+        With a skin, the step's sort (``step``) first finds whether the lists must be built again
+        (``rebuild``: a particle more than skin h_l / 2 from where they were built, n
+        changed, a list overflowed, or they are ``pending``); if not, nothing is
+        sorted: the later loops' bounds, the keys' included, are 0."""
         n = pool.n[None]
         self.moved[None] = ti.cast(n != self.sorted_n[None], ti.i32)
-        for i in range(n):
+        keyed = n
+        if ti.static(step and self.skin > 0.0):
+            self.rebuild[None] = self.pending[None] | self.overflowed[None] | self.moved[None]
+            self.overflowed[None] = 0
+            for i in range(n):
+                if pool.p.kind[i] != DEAD:
+                    if (pool.p.x[i] - self.x_built[i]).norm_sqr() > self.half_skin2[pool.p.level[i]]:
+                        self.rebuild[None] = 1
+            keyed = n * self.rebuild[None]
+            self.pending[None] = self.rebuild[None]  # until the density pass builds them
+        for i in range(keyed):
             k = self.total_cells
             if pool.p.kind[i] != DEAD:
                 l = pool.p.level[i]
@@ -272,6 +362,9 @@ class LevelGrids:
             self.key[i] = k
             if k != self.sorted_key[i]:
                 self.moved[None] = 1
+        if ti.static(step and self.skin > 0.0):
+            if not self.rebuild[None]:
+                self.moved[None] = 0  # the lists stay: so does the pool's order
         if not self.moved[None]:
             n = 0  # the loops below do nothing
         if ti.static(self.parallel):
@@ -316,11 +409,14 @@ class PoolSort:
 
     @ti.kernel
     def run(self) -> ti.i32:
-        return self.grids.sort_func(self.pool)
+        return self.run_func()
 
     @ti.func
     def run_func(self):
-        return self.grids.sort_func(self.pool)
+        n = self.grids.sort_func(self.pool, True)
+        if ti.static(self.grids.skin > 0.0):
+            self.grids.rebuilds[None] += self.grids.rebuild[None]
+        return n
 
     @ti.func
     def count_func(self):

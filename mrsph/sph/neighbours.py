@@ -22,11 +22,17 @@ images, into one sum.
 The lists are written by the density pass (``density.py``), which is the only place that
 scans the grid for the whole pool; a particle with more neighbours than a list holds (a
 fluid compressed ~3×) falls back to the grid everywhere (``is_listed``).
+
+With a skin (``particles.skin``) each particle also has a skin list (``near``: every
+particle of its level within (1 + skin) h when it was built, ``grid.py`` says when), and
+the density pass writes each step's lists from it instead of scanning the grid: a
+particle that is within h now was within (1 + skin) h then, both having moved at most
+skin h / 2. So every reader sees the same lists, within h, whatever the skin.
 """
 
 import taichi as ti
 
-from mrsph.limits import MAX_NEIGHBOURS  # the lists' length, which bounds the pool
+from mrsph.limits import MAX_NEIGHBOURS, skin_list_length  # the lists' lengths, which bound the pool
 
 
 @ti.data_oriented
@@ -41,6 +47,18 @@ class Neighbours:
         # slot: the density pass writes every candidate and keeps the neighbours.
         self.lists = ti.field(ti.i32, shape=(pool.capacity, self.max_neighbours + 1))
         self.count = ti.field(ti.i32, shape=pool.capacity)
+        # the skin lists (same level, r < (1 + skin) h at their build, self excluded), as
+        # long as the lists scaled by the ball's volume; one spare slot, as above
+        self.skin = grids.skin
+        self.max_near = skin_list_length(dim, self.skin, self.max_neighbours)
+        if self.skin > 0.0:
+            self.near = ti.field(ti.i32, shape=(pool.capacity, self.max_near + 1))
+            self.near_count = ti.field(ti.i32, shape=pool.capacity)
+
+    @ti.func
+    def is_near_listed(self, i):
+        """Does i's skin list hold every particle within (1 + skin) h of its build?"""
+        return self.near_count[i] <= ti.static(self.max_near)
 
     @ti.func
     def is_listed(self, i):

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 
-from mrsph.limits import LATTICE_EPS, MAX_CAPACITY, MAX_GRID_CELLS, MAX_OBSTACLES
+from mrsph.limits import AUTO_SKIN, LATTICE_EPS, MAX_GRID_CELLS, MAX_OBSTACLES, max_capacity
 from mrsph.pressure import SOLVERS, spec
 
 from .checks import OPTION_FLAG, Checker, fmt_value
@@ -316,6 +316,17 @@ def _check_levels(c: Checker, d: dict) -> None:
         ad["merge_min_children"] = ad["merge_min_children"] or 2 ** (dim - 1)
 
 
+def _check_skin(c: Checker, d: dict) -> None:
+    """The lists' skin is a share of h >= 0, or -1: the solver's choice (``AUTO_SKIN``)."""
+    part, fl = d["particles"], d["fluid"]
+    if not part or part["skin"] is None:
+        return
+    if -1.0 < part["skin"] < 0.0:
+        c.add("particles.skin", "out of range", fmt_value(part["skin"]), "a share of h >= 0, or -1 for the solver's")
+    elif part["skin"] == -1.0 and fl and fl["solver"] in SOLVERS:
+        part["skin"] = AUTO_SKIN.get(fl["solver"], 0.0)
+
+
 def _check_sizes(c: Checker, d: dict) -> None:
     """The neighbour grid and the particle pool are big enough; resolve capacity 0."""
     dom, part, fluid, emitters = d["domain"], d["particles"], d["fluid"], d["emitters"]
@@ -331,13 +342,14 @@ def _check_sizes(c: Checker, d: dict) -> None:
                 f"{cells:.3g} cells of size h0 = {h0:g} m",
                 f"<= {MAX_GRID_CELLS:.0e} cells; raise particles.spacing or shrink the domain",
             )
-    limit = MAX_CAPACITY[d["dim"]]
+    skin = part["skin"] if part["skin"] is not None and part["skin"] >= 0.0 else 0.0
+    limit = max_capacity(d["dim"], skin)
     if part["capacity"] is not None and part["capacity"] > limit:
         c.add(
             "particles.capacity",
             "too many slots for the neighbour lists",
             str(part["capacity"]),
-            f"<= {limit} in {d['dim']}D",
+            f"<= {limit} in {d['dim']}D" + (f" with particles.skin = {fmt_value(skin)}" if skin > 0.0 else ""),
         )
         return
     if not (fluid and all(block_given(b) for b in fluid["blocks"])) or part["capacity"] is None:
@@ -391,7 +403,7 @@ def validate(raw, label: str, overridden: list[str], flag: str = OPTION_FLAG) ->
     dim = dim if dim in (2, 3) and isinstance(dim, int) and not isinstance(dim, bool) else None
     d = c.table(SCHEMA, raw, "", dim)
     if d is not None and dim is not None:
-        for check in (_check_places, _check_values, _check_levels, _check_emitters, _check_sizes):
+        for check in (_check_places, _check_values, _check_levels, _check_emitters, _check_skin, _check_sizes):
             check(c, d)
         if not c.problems:  # a forgotten switch, worth a line once the rest is right
             _check_enabled(c, raw)

@@ -8,7 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from mrsph.limits import FPS_RANGE, MAX_CAPACITY, MAX_CRITERIA, MAX_OBSTACLES, MAX_STIRRERS
+from mrsph.limits import AUTO_SKIN, FPS_RANGE, MAX_CAPACITY, MAX_CRITERIA, MAX_OBSTACLES, MAX_SKIN, MAX_STIRRERS
 from mrsph.pressure import SOLVERS, spec
 
 REQUIRED = object()  # default of a key that the scene must give
@@ -98,13 +98,23 @@ SCHEMA = Table(
                     doc="initial spacing s0 of the finest level 0; level n has spacing 2^n s0",
                 ),
                 "support": Key("float", 2.0, "[1.5, 4]", doc="support radius over spacing: h0 = support * spacing"),
+                "skin": Key(
+                    "float",
+                    -1.0,
+                    f"[-1, {MAX_SKIN:g}]",
+                    doc="margin of the neighbour lists, a share of h: lists of everything within (1 + skin) h, "
+                    "kept across steps until a particle has moved skin h / 2 or the particles changed; "
+                    "0 = a new list every step; -1 = the solver's choice ("
+                    + ", ".join(f"{k} {v:g}" for k, v in AUTO_SKIN.items())
+                    + ")",
+                ),
                 "capacity": Key(
                     "int",
                     0,
                     ">= 0",
                     doc=f"particle slots, at most "
                     f"{MAX_CAPACITY[2] // 10**6} million (2D) or {MAX_CAPACITY[3] // 10**6} "
-                    "million (3D); 0 = automatic: "
+                    "million (3D) without a skin, fewer with one (particles.skin); 0 = automatic: "
                     "int(1.5 * lattice count + emitted) + 1024; the pool rounds it up to "
                     "an odd multiple of 16 (so that its arrays do not alias in the cache)",
                 ),
