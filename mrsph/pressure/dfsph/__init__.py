@@ -58,6 +58,16 @@ TABLE = (
             "particles hides in the average (docs/performance.md, the stirred "
             "soak); larger is faster",
         ),
+        "correction_time": key(
+            "float",
+            0.002,
+            ">= 0",
+            unit="s",
+            doc="a compression a particle already has is removed over this time: a share "
+            "dt / correction_time of it a step, all of it in a step this long or longer (0: within "
+            "every step, the paper's). Removed within a step that the CFL bound shortened, it cost "
+            "a speed proportional to the flow's own and fed it (docs/METHOD.md §16)",
+        ),
         "divergence_tolerance": key(
             "float",
             0.01,

@@ -10,10 +10,14 @@ MAX_KEYS = ("max_iterations", "divergence_max_iterations")
 class SolveCounts:
     """What the solves did since the last ``take``, for the stats row: the iterations of
     each solve per step, the last density error, and the solves that stopped at their
-    maximum iterations, the first of which is warned about (once a run)."""
+    maximum iterations, the first of which is warned about (once a run), in a line that
+    says when, which criterion the solve was short of, and which keys to change."""
 
-    def __init__(self, tolerance, max_iterations, warn):
+    def __init__(self, tolerance, max_iterations, warn, max_error=None):
+        """tolerance, max_iterations: (density, divergence); max_error: the density solve's
+        largest error allowed (``dfsph.max_density_error``, a share of rho0)."""
         self.tolerance, self.max_iterations, self.warn = tolerance, max_iterations, warn
+        self.max_error = max_error
         self.reset()
 
     def reset(self) -> None:
@@ -26,9 +30,10 @@ class SolveCounts:
         self.steps = 0
         self.unconverged = 0
 
-    def add(self, which: int, iterations: int, error: float, hit_max: bool) -> None:
+    def add(self, which: int, iterations: int, error: float, hit_max: bool, peak=None, t=None) -> None:
         """One solve's outcome: its iterations, its final average error (kept for the
-        density solve, the row's ``density_error``), whether it stopped at its maximum."""
+        density solve, the row's ``density_error``), whether it stopped at its maximum, and
+        for the warning its largest error (a share of rho0) and the time of its step."""
         self.iterations[which] += iterations
         if which == DENSITY:
             self.steps += 1
@@ -37,11 +42,27 @@ class SolveCounts:
             self.unconverged += 1
             if not self._warned:
                 self._warned = True
-                self.warn(
-                    f"dfsph: the {SOLVE_NAMES[which]} solve stopped at dfsph.{MAX_KEYS[which]} = "
-                    f"{self.max_iterations[which]} before reaching its tolerance "
-                    f"{self.tolerance[which]:g} (counted in stats as unconverged; warned once)"
-                )
+                self.warn(self.message(which, error, peak, t))
+
+    def message(self, which: int, error: float, peak=None, t=None) -> str:
+        """The warning of a solve that stopped at its maximum: when, how far from which of
+        its criteria, and what to change."""
+        name, key = SOLVE_NAMES[which], f"dfsph.{MAX_KEYS[which]}"
+        when = f" at t = {t:.4g} s" if t is not None else ""
+        tol_key = "dfsph.density_tolerance" if which == DENSITY else "dfsph.divergence_tolerance"
+        short = []
+        if error > self.tolerance[which]:
+            tol = 100.0 * self.tolerance[which]
+            short.append(f"average error {100.0 * error:.3g} % against {tol_key} = {tol:.3g} %")
+        if which == DENSITY and peak is not None and self.max_error is not None and peak > self.max_error:
+            short.append(
+                f"largest error {100.0 * peak:.3g} % against dfsph.max_density_error = {100.0 * self.max_error:.3g} %"
+            )
+        why = "; ".join(short) or f"short of its tolerance {self.tolerance[which]:g}"
+        return (
+            f"dfsph: the {name} solve stopped at {key} = {self.max_iterations[which]}{when} ({why}): "
+            f"raise {key}, or loosen the tolerance named; counted in the stats row (unconverged), warned once"
+        )
 
     def take(self) -> dict:
         steps = max(self.steps, 1)
