@@ -1,9 +1,10 @@
 """The soak (tools/soak.py): demo_2d stirred at the strongest settings the window offers.
 
-- ``test_soak_full`` (marker ``soak``, skipped unless ``--soak``): 10^5 steps, tens of
-  minutes on 2 cores. Run it with ``python3 -m pytest -q --soak -m soak``.
-  It runs with each pressure solver (docs/validation.md, "Stirred soak").
-- ``test_soak_short``: a SHORT soak of 1000 steps in -m slow, with
+- ``test_soak_full`` (marker ``soak``, skipped unless ``--soak``): 10^5 steps, about an
+  hour each on 2 cores. Run it with ``python3 -m pytest -q --soak -m soak``.
+  It runs wcsph, and dfsph in one thread and in two (docs/validation.md, "Stirred soak");
+  no dfsph solve may stop at its maximum iterations.
+- ``test_soak_short``: a SHORT soak of 1000 steps in -m slow, with each pressure solver and
   gestures of 0.025 s so that it pushes, pulls and lets go within its ~0.09 s, its
   kernels compiled without the advanced optimisation passes, as the quick run compiles.
 - The checker itself is tested on hand-made particles, so that a passing soak means the
@@ -29,10 +30,14 @@ soak_tool = _soak_tool()
 
 
 def test_strength_is_the_window_slider_maximum():
+    """The soak stirs at the HUD slider's top, one constant (mrsph/app/mouse.py) both read."""
+    from mrsph.app import mouse
+
     source = (REPO / "mrsph" / "app" / "hud.py").read_text()
-    m = re.search(r'slider_float\("strength",[^,]+,\s*([0-9.]+),\s*([0-9.]+)\)', source)
-    assert m, "the HUD's strength slider was not found in mrsph/app/hud.py"
-    assert float(m.group(2)) == soak_tool.STRENGTH_MAX
+    assert re.search(r'"slider", "strength", m\.strength, 0\.0, STRENGTH_MAX,', source), (
+        "the HUD's strength slider does not end at mouse.STRENGTH_MAX"
+    )
+    assert soak_tool.STRENGTH_MAX == mouse.STRENGTH_MAX == 100.0
 
 
 def test_the_soak_caps_its_cursor_harder_than_the_window_unless_asked():
@@ -127,9 +132,11 @@ def test_cursor_pushes_pulls_and_lets_go_inside_the_fluid():
 
 
 @pytest.mark.slow  # a long run, in -m slow (conftest.py, "two tiers")
-def test_soak_short(fresh_program, monkeypatch):
-    """SHORT soak (1000 steps, not the 10^5 of test_soak_full): every check passes, the
-    stirring refines the fluid, and the summary line says so. Each level's median mass
+@pytest.mark.parametrize("solver", ["wcsph", "dfsph", "pbf"])
+def test_soak_short(fresh_program, monkeypatch, solver):
+    """SHORT soak (1000 steps, not the 10^5 of test_soak_full) with each pressure solver:
+    every check passes, the stirring refines the fluid, the summary line says so, and no
+    dfsph solve stops at its maximum iterations (``strict``). Each level's median mass
     stays within what absorption allows, [absorb_below, ABSORB_CAP] = [0.5, 2] of
     nominal: the mass cascade of partial merges read medians of 0.21-0.50
     (docs/validation.md, "Masses near their level's nominal mass"). Not at most 1: with
@@ -139,7 +146,14 @@ def test_soak_short(fresh_program, monkeypatch):
     # that the optimised kernels' fast math hid (an overflowed list's own image at r = 0,
     # METHOD.md §10)
     monkeypatch.setenv("TI_ADVANCED_OPTIMIZATION", "0")
-    res = soak_tool.soak(steps=1000, check_every=125, gesture_s=0.025)
+    res = soak_tool.soak(
+        steps=1000,
+        check_every=125,
+        gesture_s=0.025,
+        overrides=(f'fluid.solver="{solver}"',),
+        strict=solver == "dfsph",
+    )
+    print(res.summary())
     assert res.ok, res.failures
     assert res.steps == 1000 and res.checks == 8
     assert res.splits > 0 and res.n_real_max > res.n_real_min
@@ -153,6 +167,24 @@ def test_soak_short(fresh_program, monkeypatch):
     assert all(0.5 - 1e-6 <= r <= ABSORB_CAP + 1e-6 for r in res.mass_ratio if not math.isnan(r)), (
         f"median mass / nominal by level {res.mass_ratio}; expected within [0.5, {ABSORB_CAP}]"
     )
+
+
+@pytest.mark.slow  # a demo build, in -m slow with the short soaks that share its kernels
+def test_strict_soak_fails_on_a_solve_stopped_at_its_maximum(fresh_program, monkeypatch):
+    """The check behind the short soak's ``strict``: with dfsph.max_iterations = 1 every
+    density solve of the stirred demo stops at its maximum, which the summary counts and
+    ``strict`` turns into a failure at the first check."""
+    monkeypatch.setenv("TI_ADVANCED_OPTIMIZATION", "0")
+    res = soak_tool.soak(
+        steps=20,
+        check_every=10,
+        gesture_s=0.025,
+        overrides=('fluid.solver="dfsph"', "dfsph.max_iterations=1", "dfsph.density_tolerance=1e-9"),
+        strict=True,
+    )
+    assert res.unconverged >= 10 and not res.ok, (res.unconverged, res.failures)
+    assert "stopped at their maximum iterations" in res.failures[0], res.failures
+    assert f"solves at their maximum {res.unconverged}" in res.summary(), res.summary()
 
 
 def test_mass_ratios_are_per_level_medians_of_the_real_particles():
@@ -170,12 +202,21 @@ def test_mass_ratios_are_per_level_medians_of_the_real_particles():
 
 
 @pytest.mark.soak
-@pytest.mark.parametrize("solver", ["wcsph", "dfsph"])
-def test_soak_full(fresh_program, solver):
-    """The soak proper: 10^5 steps at the strongest stirring (tens of minutes), with each
-    pressure solver (``fluid.solver``). One thread, as measured (docs/validation.md,
-    "Stirred soak"): on two, the coupling's atomic adds make each run its own."""
-    res = soak_tool.soak(steps=100_000, check_every=500, overrides=(f'fluid.solver="{solver}"',), threads=1)
+@pytest.mark.parametrize(
+    ("solver", "threads"), [("wcsph", 1), ("dfsph", 1), ("dfsph", 2)], ids=["wcsph", "dfsph", "dfsph-2"]
+)
+def test_soak_full(fresh_program, solver, threads):
+    """The soak proper: 10^5 steps at the strongest stirring (about an hour each), with
+    wcsph and dfsph (``fluid.solver``), dfsph also in two threads, where the coupling's
+    atomic adds make each run its own (docs/validation.md, "Stirred soak"). No dfsph solve
+    may stop at its maximum iterations (``strict``)."""
+    res = soak_tool.soak(
+        steps=100_000,
+        check_every=500,
+        overrides=(f'fluid.solver="{solver}"',),
+        threads=threads,
+        strict=solver == "dfsph",
+    )
     print(res.summary())
     assert res.ok, res.failures
     assert res.steps == 100_000 and res.splits > 0 and res.merges > 0

@@ -30,7 +30,10 @@ Every ``--check-every`` steps, and after the last one, it checks:
   finest-level particle of the demo is 1e-4 of its mass, 100 times that tolerance;
 - capacity refusals (the pool's ``refused`` counter and ``sim.warnings``): reported, not
   failures, since a full pool is a documented state (the simulation goes on coarser);
-  but refusals counted without a warning in ``sim.warnings`` fail.
+  but refusals counted without a warning in ``sim.warnings`` fail;
+- the pressure solves that stopped at their maximum iterations short of their tolerance
+  (the stats rows' ``unconverged``): reported; ``--strict`` makes any a failure, as
+  ``tests/test_soak.py`` holds the soak to none.
 
 It stops at the first failed check, prints one summary line (steps, simulated time,
 wall time, smallest dt, largest speed, splits, merges, refusals, and per level the median
@@ -54,7 +57,8 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 #: The upper end of the window's "strength" slider (mrsph/app/hud.py), 1/s.
-STRENGTH_MAX = 100.0
+from mrsph.app.mouse import STRENGTH_MAX  # noqa: E402
+
 #: The cursor's gestures in turn; None lets go.
 GESTURES = ("push", "pull", None)
 #: How long each gesture lasts (simulated s): long enough for the fluid under the cursor
@@ -80,6 +84,7 @@ class SoakResult:
     splits: int = 0
     merges: int = 0
     refused: int = 0
+    unconverged: int = 0  # solves stopped at their maximum iterations (stats rows)
     checks: int = 0
     n_real_min: int = 0
     n_real_max: int = 0
@@ -100,7 +105,8 @@ class SoakResult:
             f"{self.wall_s:.4g} s wall ({self.steps / max(self.wall_s, 1e-9):.0f} steps/s); "
             f"min dt {self.min_dt:.3g} s; max speed {self.max_speed:.3g} m/s; "
             f"splits {self.splits}, merges {self.merges}; refused {self.refused}"
-            f"{' (warned)' if self.refused and self.warnings else ''}; real particles "
+            f"{' (warned)' if self.refused and self.warnings else ''}; solves at their maximum "
+            f"{self.unconverged}; real particles "
             f"{self.n_real_min}..{self.n_real_max} (at the end {self.n_real_end}); "
             f"{self._mass_text()}{self.checks} checks: {verdict}"
         )
@@ -249,8 +255,10 @@ def soak(
     gesture_s: float = GESTURE_S,
     progress=None,
     window_cap: bool = False,
+    strict: bool = False,
 ) -> SoakResult:
-    """Run the soak (see the module docstring); ``progress(result)`` after every check."""
+    """Run the soak (see the module docstring); ``progress(result)`` after every check;
+    ``strict``: a solve stopped at its maximum iterations is a failure."""
     from mrsph.scene.config import load_scene
     from mrsph.simulation import Simulation, SimulationError
     from mrsph.sph.particles import VIRTUAL_CHILD
@@ -292,6 +300,7 @@ def soak(
                 res.splits += st["splits"]
                 res.merges += st["merges"]
                 res.refused += st["refused"]
+                res.unconverged += int(st["unconverged"])
                 res.n_real_min = min(res.n_real_min, st["n_real"])
                 res.n_real_max = max(res.n_real_max, st["n_real"])
                 res.n_real_end = st["n_real"]
@@ -302,6 +311,11 @@ def soak(
                 res.mass_ratio = mass_ratios(parts, nominal)
                 for line in check_state(parts, data, res.mass0, tolerance):
                     res.failures.append(f"step {sim.steps} (t = {sim.time:.5g} s): {line}")
+                if strict and st["unconverged"]:
+                    res.failures.append(
+                        f"step {sim.steps} (t = {sim.time:.5g} s): {int(st['unconverged'])} pressure solve(s) "
+                        f"stopped at their maximum iterations since the last check"
+                    )
                 res.wall_s, res.sim_time = time.perf_counter() - t0, sim.time
                 if progress:
                     progress(res)
@@ -341,6 +355,9 @@ def main(argv=None) -> int:
         action="store_true",
         help="cap the cursor's speed as the window does (0.1 sqrt(fluid.stiffness)), not at 8 domain sizes a second",
     )
+    ap.add_argument(
+        "--strict", action="store_true", help="a pressure solve stopped at its maximum iterations is a failure"
+    )
     ap.add_argument("--quiet", action="store_true", help="only the summary line")
     args = ap.parse_args(argv)
     if args.steps < 1 or args.check_every < 1:
@@ -354,7 +371,7 @@ def main(argv=None) -> int:
             print(
                 f"  step {r.steps}: t = {r.sim_time:.4g} s, {r.wall_s:.0f} s wall, "
                 f"real {r.n_real_end} ({r.n_real_min}..{r.n_real_max}), splits {r.splits}, merges {r.merges}, "
-                f"refused {r.refused}, max speed {r.max_speed:.3g} m/s",
+                f"refused {r.refused}, max speed {r.max_speed:.3g} m/s, solves at their maximum {r.unconverged}",
                 file=sys.stderr,
                 flush=True,
             )
@@ -371,6 +388,7 @@ def main(argv=None) -> int:
             gesture_s=args.gesture_s,
             progress=progress,
             window_cap=args.window_cap,
+            strict=args.strict,
         )
     except SceneError as e:
         for line in e.problems:

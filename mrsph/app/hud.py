@@ -18,6 +18,7 @@ import time
 
 from . import keys
 from .loading import CHAR_PX, LINE_PX, PAD_PX, TITLE_PX
+from .mouse import STRENGTH_MAX
 from .switch import next_solver
 
 #: HUD panel on the right: width in pixels (a line of HUD_TEXT_CHARS characters of ImGui's
@@ -244,7 +245,7 @@ def hud_rows(self, snap) -> list:
     rows.append(_text(f"mouse (q / e: radius), cap {self.mouse.max_speed:.2g} m/s", DIM_COLOUR))
     m = self.mouse
     rows.append(("slider", "radius", m.radius, m.radius_min, m.radius_max, lambda v: setattr(m, "radius", v)))
-    rows.append(("slider", "strength", m.strength, 0.0, 100.0, lambda v: setattr(m, "strength", v)))
+    rows.append(("slider", "strength", m.strength, 0.0, STRENGTH_MAX, lambda v: setattr(m, "strength", v)))
     rows.append(("checkbox", "refinement", self.refinement, lambda new: self.later(lambda: self.set_refinement(new))))
     rows.append(("checkbox", "show virtual (v)", self.show_virtual, lambda new: setattr(self, "show_virtual", new)))
     rows.append(("checkbox", "water view (w)", self.surface, lambda new: setattr(self, "surface", new)))

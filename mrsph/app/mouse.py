@@ -53,6 +53,7 @@ MAX_SPEED_DOMAINS_PER_S = 8.0
 #: compressible limit, density within ~1 % (module docstring).
 SAFE_MACH = 0.1
 DEFAULT_STRENGTH = 20.0  # 1/s; relaxes the fluid to the drag velocity in ~50 ms
+STRENGTH_MAX = 100.0  # 1/s; the HUD slider's top, the soak's strongest setting
 
 
 def safe_speed(stiffness: float | None, domain_min, domain_max) -> float:
