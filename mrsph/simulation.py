@@ -302,11 +302,12 @@ class Simulation:
         self._collect_events()
         return steps
 
-    def advance_frame(self, wall_budget: float | None = None) -> int:
-        """Advance by one frame (1/fps simulated seconds), or less within ``wall_budget``
+    def advance_frame(self, wall_budget: float | None = None, seconds: float | None = None) -> int:
+        """Advance by one frame (1/fps simulated seconds, or ``seconds``: a window in real
+        time passes the wall time its last frame took), or less within ``wall_budget``
         (see :meth:`advance`; ``None``, the whole frame, is what recordings need). The
         frame counter counts calls: a frame cut short by the budget counts as one."""
-        steps = self.advance(1.0 / self.scene.params.run.fps, wall_budget)
+        steps = self.advance(1.0 / self.scene.params.run.fps if seconds is None else seconds, wall_budget)
         self.frame += 1
         return steps
 

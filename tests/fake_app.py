@@ -145,7 +145,7 @@ class FakeSimulation:
             self.v = np.where(hit & (self.v * sign < 0), -0.3 * self.v, self.v)
         self.time += dt
 
-    def advance_frame(self, wall_budget: float | None = None) -> None:
+    def advance_frame(self, wall_budget: float | None = None, seconds: float | None = None) -> None:
         deadline = time.perf_counter() + wall_budget if wall_budget is not None else None
         for _ in range(self.steps_per_frame):
             self.step()

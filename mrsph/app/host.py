@@ -159,12 +159,12 @@ def build(make_sim, takes_overrides: bool, name: str, overrides: dict | None, st
     return sim
 
 
-def _frame(sim, disturbance, budget, advance: bool):
+def _frame(sim, disturbance, budget, advance: bool, seconds=None):
     sim.set_disturbance(disturbance)
     error = None
     if advance:
         try:
-            sim.advance_frame(budget)
+            sim.advance_frame(budget) if seconds is None else sim.advance_frame(budget, seconds)
         except Exception as e:  # the window stops and says why; the state is still shown
             error = _portable(e)
     try:
@@ -421,8 +421,8 @@ class RemoteSim:
     def set_disturbance(self, d) -> None:
         self._disturbance = d  # goes with the next frame's request
 
-    def advance_frame(self, wall_budget: float | None = None) -> None:
-        _, snap, t, error = self._ask("frame", self._disturbance, wall_budget, True)
+    def advance_frame(self, wall_budget: float | None = None, seconds: float | None = None) -> None:
+        _, snap, t, error = self._ask("frame", self._disturbance, wall_budget, True, seconds)
         self._snap, self.time = snap if snap is not None else self._snap, t
         if error is not None:
             raise error

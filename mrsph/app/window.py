@@ -1,8 +1,10 @@
 """The interactive window: watch the fluid, stir it with the mouse, tune it live.
 
-One window frame = one ``sim.advance_frame(frame_budget)`` (unless paused): a frame of
-simulated time, or as much of it as fits in the wall-clock budget (slow motion on a
-machine too slow for the scene, with the window still responsive), then one snapshot,
+One window frame = one ``sim.advance_frame(frame_budget, seconds)`` (unless paused): the
+wall time the last frame took (at most ``REAL_TIME_CAP_S``), so that the water keeps the
+wall clock's pace when drawing is slow and the simulation fast, or as much of it as fits
+in the wall-clock budget (slow motion on a machine too slow for the scene, with the
+window still responsive), then one snapshot,
 drawn by the shared :class:`~mrsph.app.render.Renderer`, plus a HUD of GGUI widgets.
 The physics never sees the window: the window only calls the Simulation API
 (``advance_frame``, ``snapshot``, ``set_param``, ``set_disturbance``, ``reset``), on a
@@ -62,6 +64,9 @@ DIM_WHILE_OPENING = 0.45
 #: it spun through hundreds a second and took a core from the simulation it waited for).
 IDLE_FRAME_S = 1.0 / 30.0
 MIN_FRAME_S = 1.0 / 120.0
+#: The most simulated time one frame advances: a frame after a stall (a scene opening, a
+#: slow snapshot) does not jump the water by the stall's length.
+REAL_TIME_CAP_S = 0.1
 
 
 def _accepts_overrides(make_sim) -> bool:
@@ -123,6 +128,7 @@ class _App(Switching):
         self.fps = 0.0
         self.frame_budget = frame_budget
         self.start = self.last = time.perf_counter()
+        self.frame_wall = 0.0  # wall seconds between the last two frames
         self.stats_file = None
         path = os.environ.get(STATS_ENV)
         if path:
@@ -239,6 +245,7 @@ class _App(Switching):
         now = time.perf_counter()
         dt_wall = max(now - self.last, 1e-4)
         self.last = now
+        self.frame_wall = dt_wall
         self.fps = 1.0 / dt_wall if self.fps == 0 else 0.9 * self.fps + 0.1 / dt_wall
         if not self._keys():
             return False
@@ -317,9 +324,13 @@ class _App(Switching):
             return
         t0 = float(self.sim.time)
         try:
+            # the wall time since the last frame, so that the water keeps the clock's pace;
             # a frame cut to the budget keeps the window responsive where the machine is
             # too slow for the scene (slow motion); a single step (n) is a whole frame
-            self.sim.advance_frame(None if self.step_once else self.frame_budget)
+            if self.step_once:
+                self.sim.advance_frame(None)
+            else:
+                self.sim.advance_frame(self.frame_budget, min(self.frame_wall, REAL_TIME_CAP_S))
         except Exception as e:  # blow-up: stop and say so, keep the window
             self.paused = True
             line = first_line(e, 10_000)

@@ -6,12 +6,9 @@ from __future__ import annotations
 import statistics
 import time
 
+from ...app.window import REAL_TIME_CAP_S  # the window's pace, which a rendered demo times
 from .cases import DEMO_REFERENCE_PARTICLES
 from .runs import _fresh_sim, _row, _start_profile, fluid_volume, solve_iterations
-
-# A rendered frame advances by the wall time the last one took, at most this much (a
-# window that fell behind by more does not try to catch up: it runs slow).
-REAL_TIME_CAP_S = 0.1
 
 
 def _real_time(sim, source, seconds: float, budget: float, fps: float) -> tuple[int, float, float]:
