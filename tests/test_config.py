@@ -1134,3 +1134,16 @@ def test_pbf_refuses_an_odd_iteration_count_at_full_relaxation():
     load_scene("dam_break_2d", ['fluid.solver="pbf"', "pbf.iterations=4", "pbf.over_relaxation=1.0"])
     with pytest.raises(SceneError, match="pbf.min_iterations: above pbf.iterations"):
         load_scene("dam_break_2d", ['fluid.solver="pbf"', "pbf.min_iterations=5"])
+
+
+def test_the_app_reads_its_defaults_from_the_schema():
+    """A key a plain-dict scene leaves out reads as the schema's default in the app (one
+    place for every default); a given value wins, and a key without a default is None."""
+    from mrsph.app.view import scene_setting
+    from mrsph.scene.config.schema import default_of
+
+    assert scene_setting({"dim": 2}, "render.width") == default_of("render.width") == 960
+    assert scene_setting({"dim": 3}, "fluid.stiffness") == 1000.0
+    assert scene_setting({"dim": 2, "pbf": {"substeps": 7}}, "pbf.substeps") == 7
+    assert default_of("pbf.substeps") == 20 and default_of("domain.min") is None
+    assert scene_setting(None, "run.fps") == 30.0 and scene_setting({}, "stirrers") is None

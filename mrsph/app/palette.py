@@ -145,7 +145,7 @@ class Style:
         bg = scene_setting(scene, "render.background", None)
         return cls(
             tuple(float(c) for c in bg) if bg is not None else BACKGROUND,
-            float(scene_setting(scene, "render.point_scale", 1.0)),
+            float(scene_setting(scene, "render.point_scale")),
         )
 
 

@@ -21,8 +21,6 @@ from .probe import run_probe
 from .view import camera_for_scene, scene_setting
 
 BACKENDS = ("auto", "ggui", "raster")
-DEFAULT_SIZE = (960, 540)
-DEFAULT_FPS = 30.0
 #: The probe imports Taichi and opens a 64x64 offscreen window: ~3 s when it works; a
 #: hung driver must not hang a recording, hence the limit.
 PROBE_TIMEOUT_S = 90.0
@@ -252,11 +250,11 @@ def record(
     frames = int(frames)
     kind = _sink_kind(out)
     scene = getattr(sim, "scene", None)
-    width = int(width or scene_setting(scene, "render.width", DEFAULT_SIZE[0]))
-    height = int(height or scene_setting(scene, "render.height", DEFAULT_SIZE[1]))
-    fps = float(fps or scene_setting(scene, "run.fps", DEFAULT_FPS))
+    width = int(width or scene_setting(scene, "render.width"))
+    height = int(height or scene_setting(scene, "render.height"))
+    fps = float(fps or scene_setting(scene, "run.fps"))
     if surface is None:
-        surface = bool(scene_setting(scene, "render.surface", False))
+        surface = bool(scene_setting(scene, "render.surface"))
     if kind == "mp4" and (width % 2 or height % 2):
         even = (width + width % 2, height + height % 2)
         print(

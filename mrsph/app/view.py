@@ -16,6 +16,8 @@ import math
 
 import numpy as np
 
+from ..scene.config.schema import default_of
+
 #: Empty border around the domain in 2D, as a fraction of the smaller window side,
 #: so the domain outline is not clipped by the window edge.
 MARGIN_FRACTION = 0.04
@@ -274,11 +276,18 @@ def circle_loop(center, radius: float, segments: int = 64, axes=(0, 1)) -> np.nd
     return np.stack([pts[:-1], pts[1:]], axis=1).reshape(-1, len(c))
 
 
-def scene_setting(scene, dotted: str, default):
+_SCHEMA = object()  # scene_setting's default: the schema's
+
+
+def scene_setting(scene, dotted: str, default=_SCHEMA):
     """``scene.get(dotted)`` for an ``mrsph.scene.config.Scene``, a nested dict lookup for a
-    plain dict, ``default`` when the key or the scene is missing. The app reads only
+    plain dict, ``default`` when the key or the scene is missing: by default the schema's
+    (``schema.default_of``), so that the app writes none of its own. The app reads only
     optional presentation keys (render.*, run.fps) this way, so a missing key is never
     an error here."""
+    if default is _SCHEMA:
+        dim = scene_setting(scene, "dim", 2) if scene is not None and dotted != "dim" else 2
+        default = default_of(dotted, int(dim))
     if scene is None:
         return default
     getter = getattr(scene, "get", None)

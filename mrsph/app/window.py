@@ -153,12 +153,12 @@ class _App(Switching):
         scene = self.sim.scene
         snap = self.sim.snapshot()
         self.snap, self.dirty = snap, False
-        stiffness = float(scene_setting(scene, "fluid.stiffness", 1000.0))
+        stiffness = float(scene_setting(scene, "fluid.stiffness"))
         self.mouse = MouseDisturbance.for_domain(snap.domain_min, snap.domain_max, stiffness)
         g = scene_setting(scene, "physics.gravity", None)
         self.params = {
             "fluid.viscosity": float(scene_setting(scene, "fluid.viscosity", 0.05)),
-            "fluid.stiffness": float(scene_setting(scene, "fluid.stiffness", 1000.0)),
+            "fluid.stiffness": float(scene_setting(scene, "fluid.stiffness")),
             "gravity_y": float(g[1]) if g is not None else -9.81,
         }
         self.gravity = list(map(float, g)) if g is not None else [0.0, -9.81, 0.0][: snap.dim]

@@ -35,7 +35,7 @@ def run_demo(name, scene_name, overrides, warm, interval, repeats, arch, threads
     demo is timed from t = 0, its opening stir included), each repeat from a reset: the
     simulation alone, frame after frame; then rendered in real time (``_real_time``)."""
     from mrsph.app.palette import Style
-    from mrsph.app.record import DEFAULT_SIZE, _open_frames
+    from mrsph.app.record import _open_frames
     from mrsph.app.view import scene_setting
     from mrsph.scene.config import load_scene
 
@@ -47,8 +47,8 @@ def run_demo(name, scene_name, overrides, warm, interval, repeats, arch, threads
     n_frames = max(1, round(interval * fps))
     seconds = n_frames / fps
     budget = frame_budget_arg(WINDOW_FRAME_BUDGET_MS)
-    width = int(scene_setting(scene, "render.width", DEFAULT_SIZE[0]))
-    height = int(scene_setting(scene, "render.height", DEFAULT_SIZE[1]))
+    width = int(scene_setting(scene, "render.width"))
+    height = int(scene_setting(scene, "render.height"))
     t0 = time.perf_counter()
     source = _open_frames("auto", width, height, Style.from_scene(scene), scene)
     try:

@@ -515,3 +515,19 @@ SCHEMA = Table(
         ),
     },
 )
+
+
+def default_of(dotted: str, dim: int = 2):
+    """The schema's default of a scalar key (``"render.width"``), None where it has none
+    (required, optional, or not a key of a table): what a reader of a plain-dict scene
+    (the app's stand-in) falls back on, so that no default is written twice."""
+    node = SCHEMA
+    *tables, last = dotted.split(".")
+    for name in tables:
+        node = node.keys.get(name) if isinstance(node, Table) else None
+        if node is None and name in SOLVER_TABLES:
+            node = SOLVER_TABLES[name]
+    key = node.keys.get(last) if isinstance(node, Table) else None
+    if not isinstance(key, Key) or key.default is REQUIRED:
+        return None
+    return key.default(dim) if callable(key.default) else key.default
