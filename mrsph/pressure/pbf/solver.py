@@ -254,7 +254,7 @@ class PBF(PressureSolver):
             d = ti.max(ctx[0] * ctx[0] - (p[i].x - p[j].x).norm_sqr(), 0.0)
             w = (d * d * d) / self.ap_w[l]
             corr = (
-                self.knobs[AP] * self.rest_density / self.den_rest[l] * ti.pow(w, self.cfg.artificial_pressure_exponent)
+                self.knobs[AP] * self.rest_density / self.den_rest[0] * ti.pow(w, self.cfg.artificial_pressure_exponent)
             )
         return p[j].m * (self.dq[i] + shown + corr) * g
 
