@@ -253,9 +253,11 @@ class PBF(PressureSolver):
         if self.knobs[AP] > 0.0:
             d = ti.max(ctx[0] * ctx[0] - (p[i].x - p[j].x).norm_sqr(), 0.0)
             w = (d * d * d) / self.ap_w[l]
-            corr = (
-                self.knobs[AP] * self.rest_density / self.den_rest[0] * ti.pow(w, self.cfg.artificial_pressure_exponent)
-            )
+            # one unit on every level (the coarsest's), so that the term is one pressure across
+            # the levels: in each level's own unit it grows as the spacing squared, and the
+            # coarse side pushed into the fine one at every interface
+            unit = self.den_rest[self.levels - 1]  # the same operations as per level, for uniform runs
+            corr = self.knobs[AP] * self.rest_density / unit * ti.pow(w, self.cfg.artificial_pressure_exponent)
         return p[j].m * (self.dq[i] + shown + corr) * g
 
     @ti.func
