@@ -76,8 +76,8 @@ TABLE = (
             0.001,
             ">= 0",
             doc="k of the tensile correction s_corr = k (W(r) / W(dq))^n added to each pair's "
-            "multipliers (Macklin & Müller's artificial pressure, in units of a rest lattice's "
-            "multiplier): it keeps the particles from clumping and from losing the lattice's order, whose "
+            "multipliers (Macklin & Müller's artificial pressure, in units of the coarsest level's rest "
+            "lattice multiplier, so that it is one pressure on every level): it keeps the particles from clumping and from losing the lattice's order, whose "
             "loss biases the pressure gradient (a resting tank's pressure read 23 % high without it, 8 % with "
             "0.001); 0 = off",
         ),
