@@ -15,9 +15,11 @@ MAX_NEIGHBOURS = {2: 40, 3: 80}
 # The largest skin (particles.skin, a share of h): lists of everything within (1 + skin) h
 # grow as (1 + skin)^dim, 8x at a skin of 1 in 3D.
 MAX_SKIN = 1.0
-# particles.skin = -1 takes the solver's: what paid in ``bench`` (docs/performance.md,
-# "Neighbour lists that outlive a step"); a solver not named here gets none.
-AUTO_SKIN = {"wcsph": 0.1, "dfsph": 0.0, "pbf": 0.0}
+# particles.skin = -1 takes the solver's (docs/performance.md, "Neighbour lists that
+# outlive a step"): none yet. dfsph's and pbf's steps move a particle past any small skin;
+# wcsph gains 8-14 % at 0.1, but demo_2d's still cursor then threw one particle to 2.0 m/s
+# (0.55 without), which is not understood, so a skin is a scene's choice.
+AUTO_SKIN = {"wcsph": 0.0, "dfsph": 0.0, "pbf": 0.0}
 
 
 def skin_list_length(dim: int, skin: float, listed: int | None = None) -> int:

@@ -89,7 +89,7 @@ def test_switch_refuses_a_scene_that_cannot_take_dfsph_in_one_line():
     ok = load_scene("demo_2d", ['fluid.solver="wcsph"'])
     assert running_solver(ok) == "wcsph"
     assert why_not(ok, "dfsph") is None
-    assert running_solver(load_scene("demo_2d")) == "dfsph" and why_not(load_scene("demo_2d"), "wcsph") is None
+    assert running_solver(load_scene("demo_2d")) == "pbf" and why_not(load_scene("demo_2d"), "wcsph") is None
     symmetric = load_scene("demo_2d", ['fluid.solver="wcsph"', "adaptivity.coupling=symmetric"])
     why = why_not(symmetric, "dfsph")
     assert why is not None and why.startswith("cannot switch to dfsph: "), why

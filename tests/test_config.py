@@ -276,7 +276,7 @@ def test_float_is_not_an_integer():
         ("fluid.gamma", 11, "a number in [1, 10]"),
         ("fluid.clamp_negative_pressure", 1, "true or false"),
         ("fluid.blocks.0.velocity", "fast", "a list of 2 numbers"),
-        ("particles.capacity", 2_000_000_000, "<= 42000000 in 2D with particles.skin = 0.1"),
+        ("particles.capacity", 2_000_000_000, "<= 52000000 in 2D"),
         ("physics.cfl", 0, "a number in (0, 1]"),
         ("physics.cfl", 1.5, "a number in (0, 1]"),
         ("physics.force_factor", 0.0, "a number in (0, 1]"),

@@ -11,8 +11,8 @@ from toolload import load_tool
 
 pytestmark = [pytest.mark.slow, pytest.mark.usefixtures("fresh_program")]
 
-#: demo_2d's own solver (scenes/demo_2d.toml), then the other one
-SOLVERS = {"dfsph": [], "wcsph": ['fluid.solver="wcsph"']}
+#: demo_2d's own solver (scenes/demo_2d.toml), then the others
+SOLVERS = {"pbf": [], "dfsph": ['fluid.solver="dfsph"'], "wcsph": ['fluid.solver="wcsph"']}
 
 
 @pytest.mark.parametrize("solver", SOLVERS)
