@@ -19,8 +19,9 @@ The cases (docs/validation.md says what each measures and why):
 A run is one case, dimension, solver (``fluid.solver``) and mode (``uniform``, or ``adaptive``:
 ``adaptivity.enabled = true``, the same finest spacing, coarse where the scene's criteria do not ask
 for it). Each runs in its own process on one thread, ``--jobs`` at a time, and writes what it measured
-to docs/validation/runs/KEY.json (``--quick``: out/validation/runs), which the figures and the table
-(tools/validate_report.py) read, so that they are remade without running anything again. The data
+to docs/validation/runs/KEY.json (the key names the spacing, so quick and full runs sit side by side),
+which the figures and the table (tools/validate_report.py, into docs/validation/) read, each run at
+the finest spacing cached for it, so that they are remade without running anything again. The data
 (validation/*.csv) name their source in their header.
 """
 
@@ -40,8 +41,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 DATA = ROOT / "validation"
-CACHE = ROOT / "docs" / "validation" / "runs"
-QUICK_CACHE = ROOT / "out" / "validation" / "runs"
+FIGURES = ROOT / "docs" / "validation"
+CACHE = FIGURES / "runs"
 G, RHO0 = 9.81, 1000.0
 SOLVERS = ("wcsph", "dfsph", "pbf")
 MODES = ("uniform", "adaptive")
@@ -412,9 +413,21 @@ def execute(jobs: list[dict], cache: Path, workers: int, force: bool) -> list[st
             print(f"error: {errors[-1]}", file=sys.stderr, flush=True)
             continue
         result = json.loads(stdout.strip().splitlines()[-1])
-        (cache / f"{key}.json").write_text(json.dumps(result))
+        (cache / f"{key}.json").write_text(json.dumps(rounded(result)))
         print(f"done {key}: {result['wall_s']:.0f} s", flush=True)
     return errors
+
+
+def rounded(value, digits: int = 5):
+    """A run's record with its floats to ``digits`` significant digits: the cache is committed, and
+    the measures are not read past that."""
+    if isinstance(value, float):
+        return float(f"{value:.{digits}g}")
+    if isinstance(value, list):
+        return [rounded(v, digits) for v in value]
+    if isinstance(value, dict):
+        return {k: rounded(v, digits) for k, v in value.items()}
+    return value
 
 
 def _key_args(job: dict) -> dict:
@@ -440,7 +453,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--dim", type=_list(int, (2, 3)), default=[2, 3])
     ap.add_argument("--solver", type=_list(str, SOLVERS), default=list(SOLVERS))
     ap.add_argument("--mode", type=_list(str, MODES), default=list(MODES))
-    ap.add_argument("--quick", action="store_true", help="the coarse runs (spacing x2), cached in out/validation")
+    ap.add_argument("--quick", action="store_true", help="the coarse runs (spacing x2, the box 14 layers deep)")
     ap.add_argument("--spacing", type=float, help="this finest spacing instead of the scene's (a resolution study)")
     ap.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE", help="a scene override")
     ap.add_argument("--force", action="store_true", help="run again what is cached")
@@ -461,12 +474,11 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
     sys.path.insert(0, str(ROOT))
-    cache = QUICK_CACHE if args.quick else CACHE
-    errors = [] if args.report else execute(plan(args), cache, args.jobs, args.force)
+    errors = [] if args.report else execute(plan(args), CACHE, args.jobs, args.force)
     sys.path.insert(0, str(ROOT / "tools"))
     import validate_report
 
-    validate_report.report(load_runs(cache), out=cache.parent)
+    validate_report.report(load_runs(CACHE), out=FIGURES)
     return 1 if errors else 0
 
 

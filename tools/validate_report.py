@@ -10,6 +10,7 @@ docs/validation/table.md as well as printed.
 
 from __future__ import annotations
 
+import functools
 import math
 from pathlib import Path
 
@@ -43,22 +44,49 @@ def _plt():
 
 
 def _runs(runs: dict, case: str, dim: int):
-    """The case's runs in this dimension at its finest cached spacing, by (solver, mode)."""
-    mine = [r for r in runs.values() if r["case"] == case and r["dim"] == dim and not r["sets"]]
-    if not mine:
-        return {}
-    fine = min(r["spacing"] for r in mine)
-    return {(r["solver"], r["mode"]): r for r in mine if math.isclose(r["spacing"], fine, rel_tol=1e-6)}
+    """The case's runs in this dimension, by (solver, mode), each at the finest spacing cached for
+    it (a full run where one was made, else the quick one); runs with overrides are studies, left out."""
+    out: dict = {}
+    for r in runs.values():
+        if r["case"] == case and r["dim"] == dim and not r["sets"]:
+            best = out.get((r["solver"], r["mode"]))
+            if best is None or r["spacing"] < best["spacing"]:
+                out[(r["solver"], r["mode"])] = r
+    return out
+
+
+def twin(runs: dict, r: dict) -> dict | None:
+    """An adaptive run's uniform twin: the same case, solver and spacing, uniform."""
+    for u in runs.values():
+        same = all(u[k] == r[k] for k in ("case", "dim", "solver")) and not u["sets"]
+        if same and u["mode"] == "uniform" and math.isclose(u["spacing"], r["spacing"], rel_tol=1e-6):
+            return u
+    return None
+
+
+@functools.cache
+def full_spacing(case: str, dim: int) -> float:
+    """The scene's own spacing: a run at it is a full run, one coarser a quick run."""
+    from validate import scene_spacing
+
+    return scene_spacing(case, dim)
+
+
+def _resolution(r: dict) -> str:
+    return "full" if r["spacing"] <= 1.0001 * full_spacing(r["case"], r["dim"]) else "quick"
 
 
 def _label(r: dict) -> str:
-    return f"{r['solver']} {r['mode']}"
+    return f"{r['solver']} {r['mode']}" + (" (full)" if _resolution(r) == "full" else "")
 
 
 def _stamp(fig, runs: dict) -> None:
-    dates = sorted({r["date"] for r in runs.values()})
-    commits = sorted({r["commit"] for r in runs.values()})
-    text = f"{', '.join(dates)}, {', '.join(commits)}: python3 tools/validate.py"
+    plain = [r for r in runs.values() if not r["sets"]]
+    dates = sorted({r["date"] for r in plain})
+    commits = sorted({r["commit"] for r in plain})
+    kinds = sorted({_resolution(r) for r in plain})
+    command = " and ".join("python3 tools/validate.py" + (" --quick" if k == "quick" else "") for k in kinds)
+    text = f"{', '.join(dates)}, {', '.join(commits)}: {command}"
     fig.text(0.99, 0.005, text, ha="right", va="bottom", fontsize=7, color="0.4")
 
 
@@ -223,7 +251,7 @@ def _cell(runs: dict, case: str, dim: int, solver: str, mode: str, what: str) ->
     r = sel.get((solver, mode))
     if r is None:
         return "—"
-    uni = sel.get((solver, "uniform"))
+    uni = twin(runs, r) if mode == "adaptive" else None
     if what == "speed":
         return f"{r['speed_ratio']:.4f}{_mark(r['speed_ratio'] <= TARGETS['speed'])}"
     if what == "pressure_rms":
@@ -346,9 +374,13 @@ def table(runs: dict) -> str:
             fill = {"exp": f"{s['mean']:.2f}", "peak": f"{s['peak']:.2f} at T = {s['arrival']:.2f}"}
         if case == "box":
             fill = {f"H{k + 1}": f"{p['arrival_exp']:.2f} s" for k, p in enumerate(any_run["probes"])}
-        spacing = any_run["spacing"]
-        label = text.format(**fill) + f", s = {spacing:.4g} m"
+        kinds = sorted({(_resolution(r), r["spacing"]) for r in sel.values()}, key=lambda k: k[1])
+        label = text.format(**fill) + ", " + ", ".join(f"{kind} s = {sp:.4g} m" for kind, sp in kinds)
         cells = [_cell(runs, case, dim, s, m, what) for s in SOLVERS for m in MODES]
+        if len(kinds) > 1:  # mixed: say which cells are the full runs
+            for k, (s, m) in enumerate((s, m) for s in SOLVERS for m in MODES):
+                if (s, m) in sel and _resolution(sel[(s, m)]) == "full":
+                    cells[k] += " (full)"
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
