@@ -143,6 +143,13 @@ def plot_front(runs: dict, out: Path) -> Path | None:
     return path
 
 
+def running_mean(T: np.ndarray, P: np.ndarray, width: float) -> np.ndarray:
+    """P averaged over a window ``width`` wide in T, centred (the acoustic ringing of a weakly
+    compressible or an iterated solve averaged out, as a sensor of finite bandwidth would)."""
+    n = max(1, int(round(width / float(np.median(np.diff(T))))))
+    return np.convolve(P, np.ones(n) / n, mode="same")
+
+
 def plot_pressure(runs: dict, out: Path, dim: int) -> Path | None:
     plt = _plt()
     sel = _runs(runs, "pressure", dim)
@@ -153,10 +160,15 @@ def plot_pressure(runs: dict, out: Path, dim: int) -> Path | None:
     for k, ax in enumerate(axes):
         ax.plot(exp["T"], exp[f"P{k + 1}"], color="k", lw=1.2, label="Lobovsky et al. 2014 (one event)")
         for (solver, mode), r in sorted(sel.items()):
-            ax.plot(r["T"], r["P"][k], color=COLOURS[solver], ls=STYLES[mode], lw=0.7, label=_label(r))
+            T, P = np.asarray(r["T"]), np.asarray(r["P"][k])
+            ax.plot(T, P, color=COLOURS[solver], ls=STYLES[mode], lw=0.4, alpha=0.3)
+            ax.plot(T, running_mean(T, P, 0.1), color=COLOURS[solver], ls=STYLES[mode], lw=1.3, label=_label(r))
         height = (3, 15, 30, 80)[k]
         ax.set(ylabel="p / (rho0 g H)", xlim=(2, 7), ylim=(-0.1, 3.3))
-        ax.set_title(f"{dim}D, sensor {k + 1}, {height} mm above the floor", fontsize=9)
+        ax.set_title(
+            f"{dim}D, sensor {k + 1}, {height} mm above the floor (faint: every 1 ms; bold: mean over dT = 0.1)",
+            fontsize=9,
+        )
     axes[0].legend(fontsize=7, ncol=2)
     axes[-1].set_xlabel("T = t sqrt(g/H)")
     _stamp(fig, runs)
