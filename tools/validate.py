@@ -357,6 +357,8 @@ def run_one(case: str, dim: int, solver: str, mode: str, spacing: float, sets: l
         sets=sets,
         scene=name,
         n_real=stats["n_real"],
+        # the pressure solve over the whole run: mean iterations a step, solves stopped at their maximum
+        solve={k: stats[k] for k in ("density_iterations", "divergence_iterations", "unconverged", "clamped")},
         steps=sim.steps,
         wall_s=time.perf_counter() - start,
         date=datetime.date.today().isoformat(),
