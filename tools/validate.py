@@ -162,13 +162,15 @@ def impact(T: np.ndarray, P: np.ndarray, arrive: float = 0.1, length: float = 3.
 
 
 def shifted_rms(T: np.ndarray, Z: np.ndarray, T_exp: np.ndarray, Z_exp: np.ndarray) -> tuple[float, float, float]:
-    """The relative RMS of Z against the data, unshifted, and after the one time shift (a gate's
-    opening, |dT| <= 0.5) that makes it least: (rms, rms shifted, shift)."""
+    """The relative RMS of Z against the data, unshifted, and after the one time shift that makes it
+    least: (rms, rms shifted, shift). The shift stands for the experiment's gate opening, which can
+    only make the experiment late, so the run may be shifted later (dT <= 0, at most 0.5), never
+    earlier: a front that lags is not shifted onto the data."""
 
     def rms(dT: float) -> float:
         return float(np.sqrt(np.mean(((np.interp(T_exp + dT, T, Z) - Z_exp) / Z_exp) ** 2)))
 
-    shifts = np.linspace(-0.5, 0.5, 201)
+    shifts = np.linspace(-0.5, 0.0, 101)
     errs = [rms(d) for d in shifts]
     k = int(np.argmin(errs))
     return rms(0.0), errs[k], float(shifts[k])
