@@ -25,11 +25,6 @@ KNOWN = {
         "floor): the density solve's warm start (dfsph.warm_start = 0: 0.0089 and 4.3 %, 1.02 at the floor), not "
         "its convergence (10x tighter tolerances, 74 iterations a step, none at its maximum: 0.029 and 25 %)"
     ),
-    ("tank", 2, "pbf", "uniform"): (
-        "the column moves at 0.011 sqrt(gH), its pressure by depth 66 % RMS off hydrostatic (2.26 rho0 g H at the "
-        "floor): the warm start (pbf.warm_start = 0: 0.0042), and the pressure pbf reports is not the one that "
-        "holds the column (3.4 at the floor without the warm start, 2.2 at 10 iterations, the column at rest)"
-    ),
 }
 
 _RUNS: dict = {}
