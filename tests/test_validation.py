@@ -1,0 +1,109 @@
+"""tools/validate.py's quick runs against the validation targets (docs/validation.md), a
+representative few in ``-m slow``: every solver at rest in the 2D deep tank and on Martin & Moyce's
+2D front, one adaptive run against its uniform twin, and wcsph and dfsph on Lobovsky's 2D wall
+pressure. The rest (3D, the other adaptive runs, MARIN's box) is the command's:
+``python3 tools/validate.py --quick`` runs every one and marks each target held or missed in its
+table, and docs/validation.md holds what it gave.
+
+The quick runs are the scenes at twice their spacing, about five minutes together on one core, so
+that the slow tier stays short. A target the quick run misses for a measured cause that
+docs/validation.md states as a known limitation is in ``KNOWN`` with the number measured: it runs
+and reports its numbers as xfail (not strict), and passing shows as XPASS.
+"""
+
+import pytest
+from toolload import load_tool
+
+V = load_tool("validate")
+R = load_tool("validate_report")
+
+#: (case, dim, solver, mode) -> why its quick run misses a target, with what was measured
+#: (docs/validation.md, "Known limitations", 2026-12-02)
+KNOWN = {
+    ("tank", 2, "dfsph", "uniform"): (
+        "the column moves at 0.020 sqrt(gH), its pressure by depth 18 % RMS off hydrostatic (1.36 rho0 g H at the "
+        "floor): the density solve's warm start (dfsph.warm_start = 0: 0.0089 and 4.3 %, 1.02 at the floor), not "
+        "its convergence (10x tighter tolerances, 74 iterations a step, none at its maximum: 0.029 and 25 %)"
+    ),
+}
+
+_RUNS: dict = {}
+
+
+def quick(case: str, dim: int, solver: str, mode: str) -> dict:
+    """The quick run, made once per process (its own fresh Taichi program)."""
+    from mrsph import runtime
+
+    key = (case, dim, solver, mode)
+    if key not in _RUNS:
+        runtime.reset()
+        spacing = V.scene_spacing(case, dim) * V.QUICK[case]
+        _RUNS[key] = V.run_one(case, dim, solver, mode, spacing, [])
+        runtime.reset()
+    return _RUNS[key]
+
+
+#: the quick runs the slow tier holds, (case, dim, solver, mode): the rest is the command's
+SLOW = [
+    *[("tank", 2, s, "uniform") for s in V.SOLVERS],
+    *[("front", 2, s, "uniform") for s in V.SOLVERS],
+    ("front", 2, "wcsph", "adaptive"),
+    ("pressure", 2, "wcsph", "uniform"),
+    ("pressure", 2, "dfsph", "uniform"),
+]
+
+
+def params(keys):
+    return [
+        pytest.param(
+            c,
+            d,
+            s,
+            m,
+            id=f"{c}-{d}d-{s}-{m}",
+            marks=[pytest.mark.slow, pytest.mark.xdist_group(f"validation-{c}-{d}d")],
+        )
+        for c, d, s, m in keys
+    ]
+
+
+def _hold(request, run: dict, uni: dict | None = None) -> None:
+    key = (run["case"], run["dim"], run["solver"], run["mode"])
+    checks = R.checks(run, uni)
+    text = "; ".join(
+        f"{what} {value if value is None else round(value, 4)}{'' if ok else ' (MISSED)'}" for what, value, ok in checks
+    )
+    print(f"\n{run['key']}: {text}")
+    assert checks, f"{run['key']}: no target applies"
+    if key in KNOWN:
+        request.applymarker(pytest.mark.xfail(strict=False, reason=f"{KNOWN[key]} (this run: {text})"))
+    missed = [c for c in checks if not c[2]]
+    assert not missed, f"{run['key']} at s = {run['spacing']:.4g} m misses its targets: {text}"
+
+
+@pytest.mark.parametrize(("case", "dim", "solver", "mode"), params(SLOW))
+def test_quick_run_holds_its_targets(request, case, dim, solver, mode):
+    run = quick(case, dim, solver, mode)
+    _hold(request, run, quick(case, dim, solver, "uniform") if mode == "adaptive" else None)
+
+
+def test_measures_read_what_they_should():
+    """The measures on made-up fields: the water level of a block of particles, the wall value of a
+    linear field, a first crossing, the best gate shift of a shifted curve."""
+    import numpy as np
+
+    s = 0.01
+    g = np.arange(0.5, 20) * s
+    x = np.array([(a, b) for a in g for b in g if b < 0.1])  # 0.2 m wide, 0.1 m deep
+    vol = np.full(len(x), s * s)
+    h = np.full(len(x), 2 * s)
+    assert abs(V.water_level(x, vol, h, (0.1,), 0.3) - 0.1) < 0.05 * s
+    assert abs(V.water_level(x, vol, h, (0.5 * s,), 0.3, wall=True) - 0.1) < 0.05 * s
+    p = 1000.0 * 9.81 * (0.1 - x[:, 1])
+    wall = V.shepard(np.array([[0.2, 0.05]]), x, vol, h, p)[0]
+    assert abs(wall / (1000 * 9.81 * 0.05) - 1) < 0.02, wall
+    t = np.linspace(0, 1, 11)
+    assert V.first_crossing(t, t**2, 0.2) == pytest.approx(0.2**0.5, abs=0.005)
+    T = np.linspace(0, 4, 401)
+    _, rms, shift = V.shifted_rms(T, 1 + (T + 0.2) ** 2, np.array([1.0, 2.0, 3.0]), 1 + np.array([1.0, 2.0, 3.0]) ** 2)
+    assert rms < 1e-3 and shift == pytest.approx(-0.2, abs=0.006)
