@@ -8,6 +8,7 @@ rest stop before Taichi is imported.
 
 import csv
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -462,3 +463,12 @@ def test_command_line_helpers_form_no_import_circle():
     )
     proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S)
     assert proc.returncode == 0 and proc.stdout.strip() == "[]", proc.stdout + proc.stderr
+
+
+def test_readme_is_short_and_its_links_lead_somewhere():
+    """The README stays at most 12 KB, and every file it links to exists."""
+    text = (REPO / "README.md").read_text(encoding="utf-8")
+    assert len(text.encode()) <= 12 * 1024, f"README.md is {len(text.encode())} bytes (expected <= 12 KB)"
+    links = re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", text)
+    missing = [t for t in links if not t.startswith("http") and not (REPO / t).exists()]
+    assert links and not missing, f"README.md links to missing files: {missing}"
