@@ -172,7 +172,7 @@ def test_soak_short(fresh_program, monkeypatch, solver):
 
 @pytest.mark.slow  # a demo build, in -m slow with the short soaks that share its kernels
 def test_strict_soak_fails_on_a_solve_stopped_at_its_maximum(fresh_program, monkeypatch):
-    """The check behind the short soak's ``strict``: with dfsph.max_iterations = 1 every
+    """The check behind the full soak's ``strict``: with dfsph.max_iterations = 1 every
     density solve of the stirred demo stops at its maximum, which the summary counts and
     ``strict`` turns into a failure at the first check."""
     monkeypatch.setenv("TI_ADVANCED_OPTIMIZATION", "0")
