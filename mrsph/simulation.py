@@ -14,7 +14,6 @@ grids, the neighbour visitor, density, forces, integration, walls, the step's ru
 ``scene/`` the scene's parameters, seeding, emitters, criteria and stirrers.
 """
 
-import math
 import time as _time
 import warnings
 
@@ -24,7 +23,8 @@ import taichi as ti
 from . import pressure as pressure_solvers
 from . import runtime
 from .io.snapshot import Snapshot
-from .multires import COUNTERS, Multires, SplitFade, make_coupling
+from .multires import Multires, SplitFade, make_coupling
+from .report import StatsReport
 from .scene.criteria import Criteria
 from .scene.emitters import Emitters
 from .scene.interaction import MOUSE_SLOT, Disturbance, Disturbances, Paths, StirrerPaths, path_sample
@@ -37,7 +37,7 @@ from .sph.grid import CELLS_PER_SUPPORT, LevelGrids, PoolSort
 from .sph.integrator import Integrator, SimulationError
 from .sph.levels import Levels
 from .sph.neighbours import Neighbours
-from .sph.particles import ATTRIBUTES, DEAD, REGULAR, VIRTUAL_CHILD, ParticlePool
+from .sph.particles import ATTRIBUTES, DEAD, VIRTUAL_CHILD, ParticlePool
 from .sph.step import Pass, Stepper, StepState
 
 __all__ = ["Simulation", "SimulationError"]
@@ -199,12 +199,8 @@ class Simulation:
         self.dt = self.pressure.bound().dt_max  # the first step's "last dt"
         self.state.set_dt(self.dt)
         self.integrator.set_chosen_dt(self.dt)
-        self._events = dict.fromkeys(COUNTERS, 0)
-        self._refused_reported = 0  # pool.refused at the last stats row
-        self._steps_reported = 0  # steps at the last stats row
+        self.report = StatsReport(self, self._warn)
         self.grids.take_rebuilds()
-        self._events_due = False
-        self._refusal_warned = False
         self.warnings: list[str] = []
         for b in prm.fluid.blocks:
             for level, xs in self.seeder.block_lattices(b.min, b.max):
@@ -299,7 +295,7 @@ class Simulation:
                 break
         if self.time >= end - 1e-12:
             self.time = end
-        self._collect_events()
+        self.report.collect()
         return steps
 
     def advance_frame(self, wall_budget: float | None = None, seconds: float | None = None) -> int:
@@ -314,36 +310,14 @@ class Simulation:
     # ------------------------------------------------------------------ the host's passes
     def _emit(self):
         if self.emitters.emit(self.time, self.dt):
-            self._warn_refused()
+            self.report.warn_refused()
 
     def _adapt(self):
         self.multires.adapt(self.time)
-        self._events_due = True
+        self.report.adapted()
 
     def _nozzles(self):
         self.emitters.hold(len(self.emitters.on))
-
-    def _collect_events(self):
-        """Add the adaptivity passes' events since the last call to the frame's counts
-        and warn (once) if a split was refused. Called by ``advance`` and ``stats``, not
-        after every pass: a read of the counters costs ~50 µs, a twentieth of a step at
-        a few thousand particles."""
-        if not self._events_due:
-            return
-        self._events_due = False
-        ev = self.multires.take_counters()
-        for k, v in ev.items():
-            self._events[k] += v
-        if self.pool.refused[None] > 0:  # any claim of the passes (or emitters) refused
-            self._warn_refused()
-
-    def _warn_refused(self):
-        if not self._refusal_warned:
-            self._refusal_warned = True
-            self._warn(
-                f"particle pool full (particles.capacity = {self.capacity}): splits/emission "
-                f"refused and counted in stats (refused); the simulation goes on coarser"
-            )
 
     def _warn(self, msg: str) -> None:
         """A warning the app shows (``warnings``) and Python's warnings machinery reports."""
@@ -378,63 +352,9 @@ class Simulation:
         return out
 
     def stats(self, parts: dict | None = None) -> dict:
-        """The stats row (the columns of stats.csv). ``splits``, ``merges`` and ``refused``
-        count since the last call; ``refused`` counts claims the pool could not hold: a
-        split refused, or a particle an emitter could not place."""
-        parts = parts if parts is not None else self.particles()
-        real = parts["kind"] < VIRTUAL_CHILD
-        m = parts["m"][real].astype(np.float64)
-        v = parts["v"][real].astype(np.float64)
-        mom = (m[:, None] * v).sum(axis=0) if len(m) else np.zeros(self.dim)
-        # before the first step there is no step to report: dt 0, not dt_max
-        row = {
-            "frame": self.frame,
-            "time": self.time,
-            "dt": self.integrator.chosen_dt() if self.steps else 0.0,
-            "n_real": int(real.sum()),
-            "n_virtual": int((~real).sum()),
-            "total_mass": math.fsum(m.tolist()),
-        }
-        for k, ax in enumerate("xyz"[: self.dim]):
-            row[f"momentum_{ax}"] = float(mom[k])
-        row["kinetic_energy"] = float(0.5 * (m * (v * v).sum(axis=1)).sum())
-        # the density the pressure reads: less the split fade's offset drho (a sampling error)
-        rho = parts["rho"][real] - np.maximum(parts["drho"][real], 0.0) if "drho" in parts else parts["rho"][real]
-        row["max_density_ratio"] = float(rho.max() / self.rest_density) if len(rho) else 0.0
-        lv = parts["level"]
-        for l in range(self.levels):
-            row[f"n_level_{l}"] = int(((lv == l) & real).sum())
-        for l in range(self.levels):
-            row[f"n_virtual_level_{l}"] = int(((lv == l) & ~real).sum())
-        row["n_transient"] = int((real & (parts["kind"] > REGULAR)).sum())
-        # the pressure solver: mean iterations a step of each solve since the last row, the
-        # average density error (DFSPH: the density solve's last, of the predicted density;
-        # WCSPH: the real particles' mean compression), solves stopped at their maximum
-        solve = self.pressure.take_stats()
-        if solve["density_error"] is None:
-            solve["density_error"] = (
-                float(np.maximum(rho - self.rest_density, 0.0).mean() / self.rest_density) if len(rho) else 0.0
-            )
-        row["solver"] = self.pressure.name
-        row["density_iterations"] = solve["density_iterations"]
-        row["divergence_iterations"] = solve["divergence_iterations"]
-        row["density_error"] = solve["density_error"]
-        row["unconverged"] = solve["unconverged"]
-        row["clamped"] = solve["clamped"]  # particles a velocity clamp slowed (pbf)
-        # steps that built the neighbour lists (all of them without a skin)
-        rebuilds = self.grids.take_rebuilds()
-        row["rebuilds"] = self.steps - self._steps_reported if rebuilds is None else rebuilds
-        self._steps_reported = self.steps
-        self._collect_events()
-        row["splits"] = self._events["splits"]
-        row["merges"] = self._events["merges"]
-        row["absorbed"] = self._events["absorbed"]  # of the merges: groups given to a neighbour
-        refused = int(self.pool.refused[None])  # a running total in the pool
-        row["refused"] = refused - self._refused_reported
-        self._refused_reported = refused
-        for k in self._events:
-            self._events[k] = 0
-        return row
+        """The stats row (the columns of stats.csv; ``report.py``). ``splits``, ``merges``
+        and ``refused`` count since the last call."""
+        return self.report.row(parts if parts is not None else self.particles())
 
     def snapshot(self, stats: bool = True) -> Snapshot:
         parts = self.particles()
@@ -489,9 +409,8 @@ class Simulation:
         self.pool.children.from_numpy(state["children"])
         self.pool.n[None] = state["n"]
         self.pool.refused[None] = state["refused"]
-        self._refused_reported = state["refused"]
         self.time, self.frame, self.steps, self.dt, chosen_dt = state["clock"]
-        self._steps_reported = self.steps
+        self.report.reset(state["refused"], self.steps)
         self.grids.take_rebuilds()
         self.state.set_dt(self.dt)
         self.integrator.set_chosen_dt(chosen_dt)

@@ -19,7 +19,7 @@ LAYERS = [
     ("multires",),
     ("scene",),
     ("io",),
-    ("simulation",),
+    ("simulation", "report"),
     ("app",),
     ("cli",),
 ]
