@@ -231,6 +231,37 @@ def _serve(conn: Connection, make_sim, takes_overrides: bool) -> None:
             return
 
 
+def _fork(child) -> tuple[int, socket.socket]:
+    """Fork a process that runs ``child(its end of a new socket pair)`` and exits, with 1
+    and its traceback printed if it raised; returns (its pid, this process's end)."""
+    ours, its = socket.socketpair()
+    sys.stdout.flush()  # what is still buffered would be written twice
+    sys.stderr.flush()
+    pid = os.fork()
+    if pid == 0:
+        code = 0
+        try:
+            ours.close()
+            child(its)
+        except BaseException:
+            traceback.print_exc()
+            code = 1
+        finally:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(code)
+    its.close()
+    return pid, ours
+
+
+def _worker(sock: socket.socket, zygote_sock: socket.socket, make_sim, takes_overrides: bool) -> None:
+    """A worker, just forked from the zygote: it serves one scene on ``sock``."""
+    zygote_sock.close()
+    signal.signal(signal.SIGCHLD, signal.SIG_DFL)
+    _die_with_parent()
+    serve(Connection(sock.detach()), make_sim, takes_overrides)
+
+
 def _zygote(sock: socket.socket, make_sim, takes_overrides: bool) -> None:
     """The zygote's loop: a worker for every byte the window sends; its socket's other
     end goes back to the window. It outlives the window until its workers have ended
@@ -254,26 +285,7 @@ def _zygote(sock: socket.socket, make_sim, takes_overrides: bool) -> None:
                     return
                 except InterruptedError:
                     continue
-        mine, theirs = socket.socketpair()
-        sys.stdout.flush()
-        sys.stderr.flush()
-        pid = os.fork()
-        if pid == 0:
-            code = 0
-            try:
-                sock.close()
-                theirs.close()
-                signal.signal(signal.SIGCHLD, signal.SIG_DFL)
-                _die_with_parent()
-                serve(Connection(mine.detach()), make_sim, takes_overrides)
-            except BaseException:
-                traceback.print_exc()
-                code = 1
-            finally:
-                sys.stdout.flush()
-                sys.stderr.flush()
-                os._exit(code)
-        mine.close()
+        pid, theirs = _fork(lambda mine: _worker(mine, sock, make_sim, takes_overrides))
         try:
             socket.send_fds(sock, [struct.pack("q", pid)], [theirs.fileno()])
         except OSError:
@@ -286,21 +298,7 @@ class Zygote:
     """The forked copy of this process that forks the workers (see the module's text)."""
 
     def __init__(self, make_sim, takes_overrides: bool):
-        ours, its = socket.socketpair()
-        sys.stdout.flush()
-        sys.stderr.flush()
-        pid = os.fork()
-        if pid == 0:
-            code = 0
-            try:
-                ours.close()
-                _zygote(its, make_sim, takes_overrides)
-            except BaseException:
-                code = 1
-            finally:
-                os._exit(code)
-        its.close()
-        self.pid, self.sock = pid, ours
+        self.pid, self.sock = _fork(lambda its: _zygote(its, make_sim, takes_overrides))
 
     def spawn(self) -> tuple[int, Connection]:
         """A new worker: (its pid, the window's end of its socket)."""
