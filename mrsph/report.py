@@ -21,13 +21,17 @@ class StatsReport:
         self.sim, self.warn = sim, warn
         self.reset()
 
-    def reset(self, refused: int = 0, steps: int = 0) -> None:
-        """Nothing counted yet; ``refused`` and ``steps`` the totals a restored state had."""
+    def reset(self) -> None:
+        """Nothing counted yet."""
         self.events = dict.fromkeys(COUNTERS, 0)
-        self.refused_reported = refused  # pool.refused at the last row
-        self.steps_reported = steps  # steps at the last row
+        self.refused_reported = 0  # pool.refused at the last row
+        self.steps_reported = 0  # steps at the last row
         self.events_due = False  # an adaptivity pass ran since its counters were read
         self.refusal_warned = False
+
+    def restored(self, refused: int, steps: int) -> None:
+        """A saved state was put back: the next row counts from its totals."""
+        self.refused_reported, self.steps_reported = refused, steps
 
     def adapted(self) -> None:
         """An adaptivity pass ran: its counters are read at the next ``collect``."""

@@ -410,7 +410,7 @@ class Simulation:
         self.pool.n[None] = state["n"]
         self.pool.refused[None] = state["refused"]
         self.time, self.frame, self.steps, self.dt, chosen_dt = state["clock"]
-        self.report.reset(state["refused"], self.steps)
+        self.report.restored(state["refused"], self.steps)
         self.grids.take_rebuilds()
         self.state.set_dt(self.dt)
         self.integrator.set_chosen_dt(chosen_dt)
