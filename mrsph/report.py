@@ -19,10 +19,6 @@ class StatsReport:
         """sim: the Simulation whose parts it reads (pool, multires, grids, pressure,
         integrator); warn: how a warning reaches the user (``Simulation._warn``)."""
         self.sim, self.warn = sim, warn
-        self.reset()
-
-    def reset(self) -> None:
-        """Nothing counted yet."""
         self.events = dict.fromkeys(COUNTERS, 0)
         self.refused_reported = 0  # pool.refused at the last row
         self.steps_reported = 0  # steps at the last row
