@@ -104,7 +104,8 @@ class StatsReport:
         """The pressure solver's columns: mean iterations a step of each solve since the
         last row, the average density error (DFSPH: the density solve's last, of the
         predicted density; WCSPH: the real particles' mean compression), solves stopped
-        at their maximum, particles a velocity clamp slowed (pbf)."""
+        at their maximum, steps halved so that a solve converged (dfsph), particles a
+        velocity clamp slowed (pbf)."""
         pressure, rho0 = self.sim.pressure, self.sim.rest_density
         solve = pressure.take_stats()
         if solve["density_error"] is None:
@@ -112,4 +113,5 @@ class StatsReport:
         out = {"solver": pressure.name}
         for k in ("density_iterations", "divergence_iterations", "density_error", "unconverged", "clamped"):
             out[k] = solve[k]
+        out["shortened"] = solve.get("shortened", 0)
         return out

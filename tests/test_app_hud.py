@@ -43,6 +43,11 @@ def test_dfsph_row_counts_solves_stopped_at_their_maximum():
     assert lines[2] == "density error 0.085 %", "no tolerance given, none shown"
 
 
+def test_dfsph_row_counts_steps_halved_for_the_solve():
+    assert "2 steps halved for the solve" in solver_lines({**DFSPH_ROW, "shortened": 2}, "dfsph")
+    assert not any("halved" in line for line in solver_lines({**DFSPH_ROW, "shortened": 0}, "dfsph"))
+
+
 def test_wcsph_row_shows_the_mean_compression_and_no_iterations():
     row = {
         "solver": "wcsph",

@@ -728,14 +728,15 @@ def test_dfsph_solve_stopped_at_its_maximum_is_counted_warned_once_and_written(d
     RuntimeWarning naming the key and its value is given once for the run, and stats.csv
     carries the solver's columns. Here max_iterations = 1 against a tolerance of 1e-9 in
     a tank just let go (the lattice compresses under gravity), so every density solve stops
-    at its maximum; the divergence solve is left to converge."""
+    at its maximum; the divergence solve is left to converge, and no step is halved
+    (``dfsph.shorten_steps = 0``; halving: the next test)."""
     import csv
     import warnings
 
     from mrsph.io.output import StatsWriter
 
     scene = with_solver(tank_scene(dim), "dfsph")
-    scene["dfsph"] = {"max_iterations": 1, "density_tolerance": 1e-9}
+    scene["dfsph"] = {"max_iterations": 1, "density_tolerance": 1e-9, "shorten_steps": 0}
     sim = make_sim(scene)
     steps = 6
     with warnings.catch_warnings(record=True) as caught:
@@ -777,6 +778,35 @@ def test_dfsph_solve_stopped_at_its_maximum_is_counted_warned_once_and_written(d
     assert all(r["density_iterations"] == 1.0 for r in rows), (
         f"{dim}D: density iterations a step {[r['density_iterations'] for r in rows]}; expected 1 (the maximum)"
     )
+
+
+def test_dfsph_solve_stopped_at_its_maximum_halves_its_step_first(dim):
+    """``dfsph.shorten_steps``: a density solve that stops at its maximum short of its
+    tolerance runs again on a step half as long, up to that many times, before it is
+    counted. With max_iterations = 1 against 1e-9 no halving helps: each step is halved
+    twice (the step the host advances by is a quarter of the one its bounds chose, the
+    stats row counts 2 halvings a step and 3 solves' iterations), the solve is counted
+    once a step, and the one warning says so."""
+    import warnings
+
+    scene = with_solver(tank_scene(dim), "dfsph")
+    scene["dfsph"] = {"max_iterations": 1, "density_tolerance": 1e-9, "shorten_steps": 2}
+    sim = make_sim(scene)
+    steps, taken = 4, []
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        for _ in range(steps):
+            t0 = sim.time
+            sim.step()
+            taken.append((sim.time - t0, sim.integrator.chosen_dt()))
+        row = sim.stats()
+    hits = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning) and "dfsph" in str(w.message)]
+    assert all(dt == pytest.approx(chosen / 4.0, rel=1e-6) for dt, chosen in taken), (
+        f"{dim}D: (step taken, step chosen) {taken}; expected each a quarter of the chosen"
+    )
+    assert row["shortened"] == 2 * steps and row["unconverged"] == steps, row
+    assert row["density_iterations"] == 3.0, row
+    assert len(hits) == 1 and "halved 2 time(s)" in hits[0], hits
 
 
 def test_dfsph_converged_solves_are_not_counted(dim):

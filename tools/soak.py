@@ -85,6 +85,7 @@ class SoakResult:
     merges: int = 0
     refused: int = 0
     unconverged: int = 0  # solves stopped at their maximum iterations (stats rows)
+    shortened: int = 0  # steps halved so that a solve converged (dfsph.shorten_steps)
     checks: int = 0
     n_real_min: int = 0
     n_real_max: int = 0
@@ -106,7 +107,7 @@ class SoakResult:
             f"min dt {self.min_dt:.3g} s; max speed {self.max_speed:.3g} m/s; "
             f"splits {self.splits}, merges {self.merges}; refused {self.refused}"
             f"{' (warned)' if self.refused and self.warnings else ''}; solves at their maximum "
-            f"{self.unconverged}; real particles "
+            f"{self.unconverged}, steps halved {self.shortened}; real particles "
             f"{self.n_real_min}..{self.n_real_max} (at the end {self.n_real_end}); "
             f"{self._mass_text()}{self.checks} checks: {verdict}"
         )
@@ -301,6 +302,7 @@ def soak(
                 res.merges += st["merges"]
                 res.refused += st["refused"]
                 res.unconverged += int(st["unconverged"])
+                res.shortened += int(st.get("shortened", 0))
                 res.n_real_min = min(res.n_real_min, st["n_real"])
                 res.n_real_max = max(res.n_real_max, st["n_real"])
                 res.n_real_end = st["n_real"]
@@ -371,7 +373,8 @@ def main(argv=None) -> int:
             print(
                 f"  step {r.steps}: t = {r.sim_time:.4g} s, {r.wall_s:.0f} s wall, "
                 f"real {r.n_real_end} ({r.n_real_min}..{r.n_real_max}), splits {r.splits}, merges {r.merges}, "
-                f"refused {r.refused}, max speed {r.max_speed:.3g} m/s, solves at their maximum {r.unconverged}",
+                f"refused {r.refused}, max speed {r.max_speed:.3g} m/s, solves at their maximum {r.unconverged}, "
+                f"steps halved {r.shortened}",
                 file=sys.stderr,
                 flush=True,
             )

@@ -25,7 +25,7 @@ from pathlib import Path
 
 STATS_ENV = "MRSPH_WINDOW_STATS"
 #: The solver's figures of the simulation's stats row that each line repeats.
-SOLVER_KEYS = ("density_iterations", "divergence_iterations", "density_error", "unconverged", "clamped")
+SOLVER_KEYS = ("density_iterations", "divergence_iterations", "density_error", "unconverged", "shortened", "clamped")
 SCREENSHOT_ENV = "MRSPH_WINDOW_SCREENSHOT"
 #: Frame at which the automatic screenshot of MRSPH_WINDOW_SCREENSHOT is taken: late
 #: enough that ImGui has laid out its windows (they appear from the second frame).

@@ -127,7 +127,8 @@ def solver_lines(st: dict, solver: str | None, tolerance: float | None = None, s
     iterations a step since the last row of its solves (``density_iterations``,
     ``divergence_iterations``: shown once one has been above 0, which ``seen`` remembers
     across rows), ``density_error`` (an iterating solver's last solve's, else the mean
-    compression), ``unconverged`` and ``clamped`` (shown when above 0); ``tolerance``:
+    compression), ``unconverged``, ``shortened`` (steps halved so that a solve converged) and ``clamped``
+    (shown when above 0); ``tolerance``:
     ``dfsph.density_tolerance``, shown beside the error; ``clamped`` counts the particles
     a velocity clamp slowed (pbf). Any key may be missing. No
     lines for a simulation without a pressure solver (the app's stand-in)."""
@@ -155,6 +156,9 @@ def solver_lines(st: dict, solver: str | None, tolerance: float | None = None, s
     unconverged, clamped = _number(st, "unconverged"), _number(st, "clamped")
     if unconverged:
         lines.append(f"{int(unconverged)} solves stopped at max. iterations")
+    shortened = _number(st, "shortened")
+    if shortened:
+        lines.append(f"{int(shortened)} steps halved for the solve")
     if clamped:
         lines.append(f"{int(clamped)} particles slowed by the velocity clamp")
     return lines

@@ -210,6 +210,7 @@ _EXTRA_ORDER = (
     "divergence_iterations",
     "density_error",
     "unconverged",
+    "shortened",
     "splits",
     "merges",
     "absorbed",

@@ -106,6 +106,7 @@ class PressureSolver:
             "divergence_iterations": 0.0,
             "density_error": None,
             "unconverged": 0,
+            "shortened": 0,
             "clamped": 0,
         }
 

@@ -39,7 +39,8 @@ class Pass(NamedTuple):
     ``timer``: the profile's bucket (``bench``'s phase shares). ``kernel(n)``: the pass
     launched alone (``n`` the particle count; a counting pass, the sort, takes none and
     returns n; the time-step pass returns the step's dt, or -1 when the step does not
-    go). ``func(n)``: the same work as a device function, for the fused launch; None
+    go; a later pass that ``decides`` may shorten the step: it returns the new dt, or
+    None for the step's own). ``func(n)``: the same work as a device function, for the fused launch; None
     for work the host drives (an iterative solve's stopping, particles appended).
     ``when``: for a host pass, whether it runs this step (evaluated each step).
     ``repeat``: launches a step (a solver's iterations); ``alone``: a launch of its own
@@ -254,7 +255,7 @@ class Stepper:
                 out = self._launch(p, n)
             if p.counts:
                 n = out
-            elif p.decides:
+            elif p.decides and out is not None:
                 dt = out
                 if dt < 0.0:
                     return dt  # nothing moved: the host reports why

@@ -83,6 +83,14 @@ TABLE = (
             doc="velocity updates of the density solve at most; "
             "a solve that stops here is counted in stats (unconverged) and warned once",
         ),
+        "shorten_steps": key(
+            "int",
+            3,
+            ">= 0",
+            doc="a density solve that stops at max_iterations short of its tolerance is run again on "
+            "a step half as long (the kick redone, the drift not yet made), up to this many times; only "
+            "one still short at the last is counted unconverged (0: never; docs/METHOD.md §16)",
+        ),
         "divergence_min_iterations": key(
             "int", 0, ">= 0", doc="velocity updates of the divergence solve at least"
         ),

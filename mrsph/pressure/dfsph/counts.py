@@ -29,12 +29,15 @@ class SolveCounts:
         self.iterations = [0, 0]  # DENSITY, DIVERGENCE
         self.steps = 0
         self.unconverged = 0
+        self.shortened = 0  # halvings of a step whose density solve stopped at its maximum
 
-    def add(self, which: int, iterations: int, error: float, hit_max: bool, peak=None, t=None) -> None:
+    def add(self, which: int, iterations: int, error: float, hit_max: bool, peak=None, t=None, shortened=0) -> None:
         """One solve's outcome: its iterations, its final average error (kept for the
-        density solve, the row's ``density_error``), whether it stopped at its maximum, and
-        for the warning its largest error (a share of rho0) and the time of its step."""
+        density solve, the row's ``density_error``), whether it stopped at its maximum, for
+        the warning its largest error (a share of rho0) and the time of its step, and the
+        times its step was halved first (``dfsph.shorten_steps``)."""
         self.iterations[which] += iterations
+        self.shortened += shortened
         if which == DENSITY:
             self.steps += 1
             self.last_error = error
@@ -42,9 +45,9 @@ class SolveCounts:
             self.unconverged += 1
             if not self._warned:
                 self._warned = True
-                self.warn(self.message(which, error, peak, t))
+                self.warn(self.message(which, error, peak, t, shortened))
 
-    def message(self, which: int, error: float, peak=None, t=None) -> str:
+    def message(self, which: int, error: float, peak=None, t=None, shortened=0) -> str:
         """The warning of a solve that stopped at its maximum: when, how far from which of
         its criteria, and what to change."""
         name, key = SOLVE_NAMES[which], f"dfsph.{MAX_KEYS[which]}"
@@ -59,8 +62,9 @@ class SolveCounts:
                 f"largest error {100.0 * peak:.3g} % against dfsph.max_density_error = {100.0 * self.max_error:.3g} %"
             )
         why = "; ".join(short) or f"short of its tolerance {self.tolerance[which]:g}"
+        halved = f", its step halved {shortened} time(s) first (dfsph.shorten_steps)" if shortened else ""
         return (
-            f"dfsph: the {name} solve stopped at {key} = {self.max_iterations[which]}{when} ({why}): "
+            f"dfsph: the {name} solve stopped at {key} = {self.max_iterations[which]}{when} ({why}{halved}): "
             f"raise {key}, or loosen the tolerance named; counted in the stats row (unconverged), warned once"
         )
 
@@ -71,6 +75,7 @@ class SolveCounts:
             "divergence_iterations": self.iterations[DIVERGENCE] / steps,
             "density_error": self.last_error,
             "unconverged": self.unconverged,
+            "shortened": self.shortened,
             "clamped": 0,
         }
         self._clear()

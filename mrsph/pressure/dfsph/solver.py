@@ -105,6 +105,10 @@ class DFSPH(PressureSolver):
         self._rate_images = ImageNeighbours(self.nb, self._rate_pair)
         self._push_images = ImageNeighbours(self.nb, self._push_image)
         self.counts = SolveCounts(self.stop.tolerance, self.stop.max_iterations, warn, params.max_density_error)
+        # a step shortened when its density solve stops at its maximum (``_density_solve``):
+        # the kicked velocities it starts again from
+        self.shorten_steps = params.shorten_steps
+        self.kicked = ti.Vector.field(self.dim, float, shape=cap if params.shorten_steps else 1)
 
     # ------------------------------------------------------------------ interface
     def bound(self) -> TimeStepBound:
@@ -153,7 +157,8 @@ class DFSPH(PressureSolver):
         return passes
 
     def after_kick(self) -> list:
-        return [Pass("density_solve", "pressure", self._density_solve)]
+        # decides: a shortened step's dt is the one the host advances by
+        return [Pass("density_solve", "pressure", self._density_solve, decides=True)]
 
     def solve_loops(self, stats: dict) -> float:
         """Two loops a Jacobi sweep (the rate, the push), the warm start's one sweep."""
@@ -164,17 +169,31 @@ class DFSPH(PressureSolver):
         it, err, hit = self._solve(n, DIVERGENCE)
         self.counts.add(DIVERGENCE, it, err, hit, t=float(self.state.t[None]) if hit else None)
 
-    def _density_solve(self, n: int) -> None:
-        """The constant-density solve on the kicked velocities, then p = ρ Σ κ."""
-        if self.warm_start > 0.0:
-            self._sweep(n, WARM, 0.0, 0, 0)
-        else:
-            self._cold(n)
-        it, err, hit = self._solve(n, DENSITY)
+    def _density_solve(self, n: int):
+        """The constant-density solve on the kicked velocities, then p = ρ Σ κ. A solve
+        that stops at its maximum short of its tolerance is run again on a step half as
+        long, from the kicked velocities of that step (u + dt' a), up to
+        ``dfsph.shorten_steps`` times and not below the step's dt_min: the predicted
+        compression dt' Σ m (u_i − u_j)·∇W shrinks with the step, and with it the error
+        the iterations must remove. Returns the shortened dt (None: the step's own)."""
+        if self.shorten_steps:
+            self._keep_kicked(n)
+        shortened = 0
+        while True:
+            if self.warm_start > 0.0:
+                self._sweep(n, WARM, 0.0, 0, 0)
+            else:
+                self._cold(n)
+            it, err, hit = self._solve(n, DENSITY)
+            if not (hit and shortened < self.shorten_steps and self._shorten(n)):
+                break
+            shortened += 1
+            self.counts.iterations[DENSITY] += it  # the work of the solve dropped
         # read back only for the warning: a read per step costs a device sync
         peak = float(self.stop.peak[None]) / self.rest_density if hit else None
-        self.counts.add(DENSITY, it, err, hit, peak, float(self.state.t[None]) if hit else None)
+        self.counts.add(DENSITY, it, err, hit, peak, float(self.state.t[None]) if hit else None, shortened)
         self._pressures(n)
+        return float(self.state.dt[None]) if shortened else None
 
     def _solve(self, n: int, which: int):
         """Jacobi iterations, ``ITERATIONS_PER_LAUNCH`` a launch, each launch returning
@@ -384,6 +403,40 @@ class DFSPH(PressureSolver):
         before."""
         c = self.pool.p[i].rho - ti.static(self.rest_density) - self.fade.excess(i)
         return ti.select(c > 0.0, share * c, c)
+
+    @ti.kernel
+    def _keep_kicked(self, n: ti.i32):
+        for i in range(n):
+            if is_real(self.pool.p[i].kind):
+                self.kicked[i] = self.pool.p[i].v
+
+    def _shorten(self, n: int) -> bool:
+        """The step halved (``_halve``), unless that is below its dt_min; whether it was.
+        Read on the host: this runs only after a solve stopped at its maximum."""
+        if 0.5 * float(self.state.dt[None]) < float(self.state.dt_min[None]):
+            return False
+        self._halve(n)
+        return True
+
+    @ti.kernel
+    def _halve(self, n: ti.i32):
+        """The kick u + dt a taken back to u + dt a / 2 for every real particle, the
+        virtual ones following their owners, and the spacings the fastest particle moves
+        (the slow-flow tolerance's) halved. The split fade's decay already ran for the whole
+        step, a share dt/τ ≪ 1 of δρ."""
+        p = ti.static(self.pool.p)
+        dt = self.state.dt[None]
+        self.state.dt[None] = 0.5 * dt
+        self.stop.rest.share[None] *= 0.5
+        back = ti.cast(0.5 * dt, float)
+        for i in range(n):
+            if is_real(p[i].kind):
+                p[i].v = self.kicked[i] - back * p[i].a
+                self.kicked[i] = p[i].v
+        if ti.static(self.adaptive):
+            for j in range(n):
+                if is_virtual(p[j].kind):
+                    self.coupling.follow_owners(j)
 
     @ti.kernel
     def _cold(self, n: ti.i32):
