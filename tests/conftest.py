@@ -101,6 +101,14 @@ GROUPED = {
 }
 
 
+def group_name(stem: str, case: str | None = None) -> str:
+    """The xdist group of a module's tests, or of one fixture case's: ``stem-case``, never
+    ``stem[case]``, since xdist reads a node id that ends in ``]`` after its ``@`` as a
+    parametrised test of its own and sends each such test apart, so that every worker built
+    every module fixture again (tests/test_tiers.py)."""
+    return stem if case is None else f"{stem}-{case}"
+
+
 @pytest.hookimpl(tryfirst=True)  # before -m deselects: the slow marks must be on by then
 def pytest_collection_modifyitems(config, items):
     for item in items:
@@ -118,7 +126,7 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(pytest.mark.open_issue)
         if item.path.name in GROUPED:
             by_case = GROUPED[item.path.name] == "case" and callspec is not None
-            item.add_marker(pytest.mark.xdist_group(f"{item.path.stem}[{callspec.id}]" if by_case else item.path.stem))
+            item.add_marker(pytest.mark.xdist_group(group_name(item.path.stem, callspec.id if by_case else None)))
     if "open_issue" not in (config.getoption("-m") or ""):
         kept = [item for item in items if "open_issue" not in item.keywords]
         if len(kept) < len(items):
