@@ -4,6 +4,7 @@
     python3 tools/dam_front.py --dim 3 --viscosity 0.97,1,1.03 --cfl 0.18,0.2,0.22
     python3 tools/dam_front.py --dim 2 --set adaptivity.release_factor=0.8 --uniform
     python3 tools/dam_front.py --dim 3 --solver dfsph --cfl 0.36,0.4,0.44 --uniform
+    python3 tools/dam_front.py --dim 2 --solver pbf --cfl 16,18,20,22,24 --uniform
 
 The scene is the one ``tests/test_adaptive_flow.py`` checks (``refined_dam``: a dam break
 in a long tank, two levels, 1 and 2 cm, refined within 3 cm of a low block; the earlier
@@ -34,10 +35,18 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 # Uniform fronts at 1 s at the test's settings (viscosity x1, the solver's default CFL
-# number: physics.cfl 0.2, dfsph.cfl 0.4), in m.
-UNIFORM_FRONT = {("wcsph", 2): 1.556, ("wcsph", 3): 1.578, ("dfsph", 2): 1.581, ("dfsph", 3): 1.589}
-# The key the CFL numbers set, and its default, per solver.
-CFL_KEY = {"wcsph": ("physics.cfl", 0.2), "dfsph": ("dfsph.cfl", 0.4)}
+# number: physics.cfl 0.2, dfsph.cfl 0.4, pbf.substeps 20), in m.
+UNIFORM_FRONT = {
+    ("wcsph", 2): 1.556,
+    ("wcsph", 3): 1.578,
+    ("dfsph", 2): 1.581,
+    ("dfsph", 3): 1.589,
+    ("pbf", 2): 1.735,
+}
+# The key --cfl sets, and its default, per solver: pbf's step is tied to the frame, so its
+# "CFL number" is its steps a frame (an int); its viscosity is XSPH's, so --viscosity,
+# which scales fluid.viscosity, does not reach it.
+CFL_KEY = {"wcsph": ("physics.cfl", 0.2), "dfsph": ("dfsph.cfl", 0.4), "pbf": ("pbf.substeps", 20)}
 
 
 def _floats(text: str) -> list[float]:
@@ -61,7 +70,8 @@ def run_one(dim: int, solver: str, viscosity: float, cfl: float, sets: list[str]
     raw["fluid"]["solver"] = solver
     if uniform:
         raw = flow.uniform(raw)
-    scene = load_scene(raw, [f"{CFL_KEY[solver][0]}={cfl}", *sets])
+    value = int(cfl) if solver == "pbf" else cfl
+    scene = load_scene(raw, [f"{CFL_KEY[solver][0]}={value}", *sets])
     sim = Simulation(scene, arch="cpu", threads=1)
     out = {"dim": dim, "solver": solver, "viscosity": viscosity, "cfl": cfl, "uniform": uniform}
     counts = []
@@ -90,7 +100,7 @@ def main(argv: list[str] | None = None) -> int:
         "--cfl",
         type=_floats,
         help="CFL numbers, comma-separated: physics.cfl with wcsph, dfsph.cfl with "
-        "dfsph (default the solver's own, 0.2 or 0.4, as the test runs)",
+        "dfsph, pbf.substeps with pbf (default the solver's own, 0.2, 0.4 or 20, as the test runs)",
     )
     ap.add_argument(
         "--set",
