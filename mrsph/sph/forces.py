@@ -58,6 +58,7 @@ class Forces:
         self.fused_accelerations = accelerate is not None
         # alpha c of the artificial viscosity (c the solver's damping speed, which follows k)
         self.av_alpha = fluid.artificial_viscosity
+        self.av_cap = float(fluid.artificial_viscosity_cap)  # κ of α c ≤ κ h / dt, 0: none (``av_strength``)
         self.av_coef = ti.field(float, shape=())
         self.update_signal_speed()
         # 1/ρ per particle, set with the density: it takes a division out of every pair
@@ -65,6 +66,22 @@ class Forces:
 
     def update_signal_speed(self):
         self.av_coef[None] = self.av_alpha * self.pressure.damping_speed()
+
+    @ti.func
+    def av_strength(self, h):
+        """α c of the artificial viscosity at support h, capped at κ h / dt where
+        ``fluid.artificial_viscosity_cap`` κ > 0: explicit Euler damps the term's fastest
+        mode, a particle against its neighbours, at about 5.7 α c / h (2D; 5.3 in 3D), so
+        past dt = 0.35 h / (α c) it overshoots. A weakly compressible step, tied to c,
+        stays below (κ h / dt ≥ 0.75 c at κ = 0.15); dfsph's, tied to the flow speed, does
+        not at rest (docs/validation.md, the deep tank). dt is the last step's, since this
+        one's is chosen after the forces; on the first step the step's cap."""
+        coef = self.av_coef[None]
+        if ti.static(self.av_cap > 0.0):
+            dt = ti.cast(self.state.dt[None], float)
+            dt = ti.select(dt > 0.0, dt, ti.cast(self.state.cap[None], float))
+            coef = ti.min(coef, self.av_cap * h / dt)
+        return coef
 
     @ti.func
     def factors(self, i):
@@ -101,7 +118,7 @@ class Forces:
         d = h - rn
         grad = -3.0 * cs * d * d * (rho_bar * soft * inv)  # ∇W_spiky = grad · r
         approach = ti.min((vi - vj).dot(r), 0.0)
-        along = self.pressure.pair_term(i, j, grad) + self.av_coef[None] * h * approach * (-3.0 * cs * d * d * inv)
+        along = self.pressure.pair_term(i, j, grad) + self.av_strength(h) * h * approach * (-3.0 * cs * d * d * inv)
         visc = mu * cv * d * self.inv_rho[i] * self.inv_rho[j]
         return mm * (along * r + visc * (vj - vi))
 

@@ -162,6 +162,16 @@ SCHEMA = Table(
                     "leaves ringing (a resting pool's lattice rearranging under its "
                     "own weight); 0 = off",
                 ),
+                "artificial_viscosity_cap": Key(
+                    "float",
+                    0.0,
+                    "[0, 0.35]",
+                    doc="kappa of a cap on the artificial viscosity, alpha c <= kappa h / dt (h the "
+                    "level's support, dt the last step's); 0 = no cap. Explicit, the term "
+                    "overshoots past dt = 0.35 h / (alpha c), which dfsph's step, tied to the flow "
+                    "speed, exceeds at rest (docs/validation.md, the deep tank); a weakly compressible "
+                    "step (dt <= cfl h / c) never reaches a cap of 0.15",
+                ),
                 "hydrostatic_start": Key(
                     "bool",
                     True,
