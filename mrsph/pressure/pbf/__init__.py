@@ -97,9 +97,9 @@ TABLE = (
             "choice",
             "xsph",
             choices=("xsph", "scene"),
-            doc="xsph = XSPH velocity smoothing (pbf.xsph) and no force-pass viscosity, so that "
-            "nothing bounds the time step; scene = fluid.viscosity and fluid.artificial_viscosity as "
-            "the other solvers take them (their time-step bounds then apply)",
+            doc="xsph = XSPH velocity smoothing (pbf.xsph) alone, so that nothing bounds the time "
+            "step; scene = fluid.viscosity's Eq. 19 too, within the projection, its viscous bound then "
+            "capping the step (no artificial viscosity either way: pbf has no force pass)",
         ),
         "xsph": key(
             "float",
