@@ -138,6 +138,6 @@ def test_a_capped_artificial_viscosity_keeps_dfsphs_deep_tank_still():
     """``fluid.artificial_viscosity_cap`` (forces.Forces.av_strength): at dfsph's step, 1.6 times
     the explicit term's limit here, the uncapped artificial viscosity overshoots and the column
     rings at 0.017-0.025 sqrt(gH) from 0.3 to 0.5 s; capped at 0.15 it settles, 0.005-0.009
-    (2026-12-03; the whole run: 0.020 against 0.0025 after 2 s, docs/validation.md)."""
+    (2026-12-03; the whole run: 0.020 against 0.0031 after 2 s, docs/validation.md)."""
     late = _tank_speeds(0.15)[5:]
     assert max(late) <= 0.012, f"capped: mean speed {[round(s, 4) for s in late]} sqrt(gH) from 0.3 to 0.5 s"

@@ -128,7 +128,7 @@ class DFSPH(PressureSolver):
         compressible run of the scene (not a CFL bound here), so that switching solvers keeps
         the scene's dissipation. At dfsph's step it overshoots unless capped
         (``fluid.artificial_viscosity_cap``): the quick deep tank moves at 0.020 sqrt(gH) with
-        it, 0.0057 without, 0.0025 capped (docs/validation.md)."""
+        it, 0.0057 without, 0.0031 capped (docs/validation.md)."""
         return self._damping_c
 
     @ti.func
