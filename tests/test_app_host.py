@@ -136,3 +136,49 @@ def test_a_scene_crosses_to_the_window_whole():
     assert there.data == scene.data and there.get("fluid.solver") == "wcsph"
     assert there.with_overrides({"fluid.solver": "dfsph"}).get("fluid.solver") == "dfsph"
     assert host._scene_in(host._scene_out({"name": "fake_2d"})) == {"name": "fake_2d"}
+
+
+def test_a_simulation_built_ahead_opens_ready_and_one_no_longer_wanted_is_kept(sims):
+    """Built ahead (mrsph.app.ahead), one at a time in the order wanted: opening one takes
+    it ready, without a build or a reset; one no longer wanted, once ready, is kept."""
+    sims.ahead.want([("fake_2d", {"steps": 2}), ("fake_3d", {})])
+    end = time.time() + 60
+    while sims.ahead.ready() < 2:
+        sims.ahead.tick()
+        assert sum(h.state == "busy" for h in sims.ahead.handles.values()) <= 1, "more than one built at once"
+        assert time.time() < end, {k: h.state for k, h in sims.ahead.handles.items()}
+        time.sleep(0.01)
+    from mrsph.app.ahead import NICE
+
+    ours = os.getpriority(os.PRIO_PROCESS, 0)
+    pid = sims.ahead.handles[host.key_of("fake_2d", {"steps": 2})].pid
+    assert os.getpriority(os.PRIO_PROCESS, pid) == min(ours + NICE, 19), "not built at a lower priority"
+    handle = sims.open("fake_2d", {"steps": 2})
+    assert handle.state == "ready" and handle.poll() == "ready", handle.state
+    assert handle.time == 0.0 and handle.snapshot().frame == 0, "built ahead, not at its start"
+    if os.geteuid() == 0:  # only a privileged process may raise a priority again
+        assert os.getpriority(os.PRIO_PROCESS, pid) == ours, "its priority was not restored"
+    _build_advance_reset(handle)
+    sims.ahead.want([])
+    assert not sims.ahead.handles, "one no longer wanted is still built ahead"
+    assert host.key_of("fake_3d", {}) in sims.kept, "a ready one no longer wanted was dropped"
+
+
+def test_a_failed_build_ahead_is_not_tried_again(sims):
+    sims.ahead.want([("broken", {})])
+    end = time.time() + 60
+    while host.key_of("broken", {}) not in sims.ahead.failed:
+        sims.ahead.tick()
+        assert time.time() < end
+        time.sleep(0.01)
+    sims.ahead.tick()
+    assert not sims.ahead.handles and sims.ahead.ready() == 0
+
+
+def test_the_count_built_ahead_is_checked():
+    from mrsph.app import ahead
+
+    assert ahead.count({}) == ahead.DEFAULT_COUNT and ahead.count({"MRSPH_AHEAD": "0"}) == 0
+    for bad in ("x", "-1", "4"):
+        with pytest.raises(ValueError, match="MRSPH_AHEAD"):
+            ahead.count({"MRSPH_AHEAD": bad})

@@ -103,12 +103,15 @@ def xdisplay():
 class App:
     """The app in a subprocess, plus the xdotool moves that drive it."""
 
-    def __init__(self, args, display, tmp: Path):
+    def __init__(self, args, display, tmp: Path, ahead: int = 0):
+        """``ahead``: simulations the window builds ahead of a switch (mrsph.app.ahead);
+        none unless a test asks, so that a switch opens what it names while it is timed."""
         self.display, self.tmp = display, tmp
         self.stats_path = tmp / "stats.jsonl"
         self.shot_path = tmp / "shot.png"
         env = dict(
             os.environ,
+            MRSPH_AHEAD=str(ahead),
             DISPLAY=display,
             MRSPH_WINDOW_STATS=str(self.stats_path),
             MRSPH_WINDOW_SCREENSHOT=str(self.shot_path),
@@ -548,6 +551,44 @@ def test_window_s_switches_the_solver_and_frames_keep_coming(xdisplay, tmp_path)
         times = [r["time"] for r in running]
         assert times[-1] > times[0] > 0.0, f"{want} frames did not advance: {times}"
         assert running[-1]["density_iterations"] > 0, running[-1]
+        assert app.quit() == 0, app.output()
+    finally:
+        app.close()
+
+
+def test_window_builds_the_next_solver_ahead_and_s_opens_it_at_once(xdisplay, tmp_path):
+    """With one simulation built ahead (MRSPH_AHEAD=1: what s would open), pool_2d runs
+    while pool_2d with the next solver builds in a worker of its own; once the stats say
+    it is ready, s opens it without a loading frame, within a second, and it advances."""
+    from mrsph.app.switch import next_solver
+
+    app = App([str(REPO / "main.py"), "pool_2d", "--width", WIDTH, "--height", HEIGHT], xdisplay, tmp_path, ahead=1)
+    try:
+        app.wait_window(FIRST_FRAMES_TIMEOUT_S)
+        app.wait_frames(3, FIRST_FRAMES_TIMEOUT_S)
+        deadline = time.time() + FIRST_FRAMES_TIMEOUT_S
+        while not app.stats()[-1]["ahead_ready"]:
+            app.alive()
+            assert time.time() < deadline, f"nothing built ahead within {FIRST_FRAMES_TIMEOUT_S} s:\n{app.output()}"
+            time.sleep(0.5)
+        rows = app.stats()
+        assert not any(r["loading"] for r in rows), "building ahead showed the loading panel"
+        want = next_solver("wcsph")
+        pressed = time.time()
+        app.xdo("key", "s")
+        while True:
+            app.alive()
+            new = app.stats()[len(rows) :]
+            running = [r for r in new if r["solver"] == want and not r["loading"]]
+            if len(running) >= 3:
+                break
+            assert time.time() < pressed + 60, f"{len(running)} {want} frames after s:\n{app.output()}"
+            time.sleep(0.1)
+        first = running[0]
+        assert first["unix_s"] - pressed < 1.0, f"pool_2d with {want} opened {first['unix_s'] - pressed:.2f} s after s"
+        assert not any(r["loading"] for r in new), "a simulation built ahead opened through the loading panel"
+        assert first["message"].startswith(f"opened pool_2d with {want} in 0."), first["message"]
+        assert running[-1]["time"] > running[0]["time"], "it does not advance"
         assert app.quit() == 0, app.output()
     finally:
         app.close()

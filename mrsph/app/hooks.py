@@ -7,7 +7,8 @@ paused, scene (the one drawn), wall_s (since the window's start), unix_s (the wa
 clock), fps, speed (simulated seconds per wall second), camera_distance (3D, else null),
 surface, tint, color_mode, surface_ms (what computing the water view took this frame; 0
 when off or reused), loading (the frame shows the loading panel), opening (what it
-opens, else null), solver (the pressure solver; null for the stand-in and before the
+opens, else null), ahead_ready (how many simulations built ahead of a switch are ready:
+mrsph.app.ahead), solver (the pressure solver; null for the stand-in and before the
 first scene runs) with density_iterations, divergence_iterations, density_error,
 unconverged and clamped of the simulation's stats row (null where the row has none),
 message (the HUD's message line as shown, "" when none).
@@ -72,6 +73,7 @@ def stats_row(app, snap, disturbance) -> dict:
         "surface_ms": round(1e3 * app.renderer.surface_s, 3),
         "loading": app.loading is not None,
         "opening": app.opening.label if app.opening is not None else None,
+        "ahead_ready": app.sims.ahead.ready(),
         "solver": st.get("solver", getattr(app, "solver", None)) if snap is not None else None,
         **{k: st.get(k) for k in SOLVER_KEYS},
         "message": app.message.shown(),

@@ -42,6 +42,8 @@ import traceback
 import warnings
 from multiprocessing.connection import Connection
 
+from .ahead import Ahead
+
 #: Simulations kept for a switch back besides the running one: a worker holds about
 #: 320 MB for demo_3d, 180 MB for demo_2d.
 KEEP = 3
@@ -208,7 +210,10 @@ def _serve(conn: Connection, make_sim, takes_overrides: bool) -> None:
         op, args = msg[0], msg[1:]
         try:
             if op == "build":
-                sim = build(make_sim, takes_overrides, *args, stage=lambda s: conn.send(("stage", s)))
+                name, overrides, nice = args
+                if nice:
+                    os.nice(nice)  # before Taichi starts its threads: they inherit it
+                sim = build(make_sim, takes_overrides, name, overrides, stage=lambda s: conn.send(("stage", s)))
                 reply = ("ready", _describe(sim))
             elif op == "reset":
                 sim.set_disturbance(None)
@@ -368,6 +373,19 @@ class RemoteSim:
     def alive(self) -> bool:
         return self.state != "dead"
 
+    def hurry(self) -> None:
+        """Back to the window's priority, every thread of the worker, where this process
+        may raise a priority (root, or RLIMIT_NICE); else it stays as it was built."""
+        try:
+            tids = [int(t) for t in os.listdir(f"/proc/{self.pid}/task")]
+        except (OSError, ValueError):
+            tids = [self.pid]
+        for tid in tids:
+            try:
+                os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, 0))
+            except OSError:
+                pass
+
     def close(self) -> None:
         """Let the worker go: one that runs ends its program, writing the kernels it
         compiled into Taichi's cache; one still building is ended at once (a newer
@@ -474,6 +492,9 @@ class LocalSim:
     def alive(self) -> bool:
         return self.state != "dead"
 
+    def hurry(self) -> None:
+        pass
+
     def close(self) -> None:
         self.sim, self.state = None, "dead"
 
@@ -491,13 +512,15 @@ class LocalSim:
 
 
 class Sims:
-    """The window's simulations: the one being opened, and up to ``keep`` it ran before
-    (least recently used first out), in processes of their own where possible."""
+    """The window's simulations: the one being opened, up to ``keep`` it ran before
+    (least recently used first out), and those built ahead of a switch (``ahead``), in
+    processes of their own where possible."""
 
     def __init__(self, make_sim, takes_overrides: bool, keep: int = KEEP):
         self.make, self.takes, self.keep_n = make_sim, takes_overrides, keep
         self.kept: collections.OrderedDict = collections.OrderedDict()
         self.zygote = None
+        self.ahead = Ahead(self)
         ok, self.why_local = separate_processes_possible()
         if ok:
             try:
@@ -512,23 +535,31 @@ class Sims:
 
     def open(self, name: str, overrides: dict | None = None):
         """A simulation of ``name`` with ``overrides``, busy until ``poll()`` says ready:
-        a kept one restarts, else a new one is built."""
+        one built ahead comes as it is, a kept one restarts, else a new one is built."""
         key = key_of(name, overrides)
+        handle = self.ahead.take(key)
+        if handle is not None:
+            return handle
         handle = self.kept.pop(key, None)
         if handle is not None and handle.alive():
             handle.begin("reset")
             return handle
-        if self.zygote is not None:
-            try:
-                pid, conn = self.zygote.spawn()
-            except OSError:
-                self.zygote = None
-                self.why_local = "the zygote process stopped"
-            else:
-                handle = RemoteSim(pid, conn, key)
-                handle.begin("build", name, overrides)
-                return handle
-        return LocalSim(self.make, self.takes, name, overrides, key)
+        handle = self.spawn(name, overrides)
+        return handle if handle is not None else LocalSim(self.make, self.takes, name, overrides, key)
+
+    def spawn(self, name: str, overrides: dict | None, nice: int = 0):
+        """A new worker building ``name`` (at ``nice``), or None where none can be forked."""
+        if self.zygote is None:
+            return None
+        try:
+            pid, conn = self.zygote.spawn()
+        except OSError:
+            self.zygote = None
+            self.why_local = "the zygote process stopped"
+            return None
+        handle = RemoteSim(pid, conn, key_of(name, overrides))
+        handle.begin("build", name, overrides, nice)
+        return handle
 
     def put_back(self, handle) -> None:
         """The window leaves ``handle``: kept for a switch back if it runs, else closed."""
@@ -545,6 +576,7 @@ class Sims:
             self.kept.popitem(last=False)[1].close()
 
     def close(self) -> None:
+        self.ahead.close()
         for handle in self.kept.values():
             handle.close()
         self.kept.clear()

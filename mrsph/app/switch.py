@@ -15,6 +15,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
+from .ahead import AFTER_S
 from .view import scene_setting
 
 #: Longest reason the HUD shows (it wraps it into the panel's width).
@@ -90,9 +91,7 @@ class Switching:
         """Start opening ``name`` with ``overrides``; the running scene stays on screen
         until it is ready (``poll_opening``). A newer choice replaces one still opening."""
         label = label or name
-        # an override the scene has anyway is none: a switch back opens the kept one
-        base = self.base_of.get(name, {})
-        overrides = {k: v for k, v in (overrides or {}).items() if k not in base or base[k] != v}
+        overrides = self._own(name, overrides)
         if not self.sims.separate and not self._same_precision(name):
             return False
         if self.opening is not None:
@@ -132,10 +131,43 @@ class Switching:
         self.scene_name, self.label, self.overrides = op.name, op.label, op.overrides
         if not op.overrides:  # the scene as make_sim gives it: what its overrides change
             self.base_of[op.name] = {k: scene_setting(op.handle.scene, k, None) for k in WINDOW_KEYS}
+        self.opened_at = time.perf_counter()
         self._on_new_sim()
         self.note(f"opened {op.label} in {took:.1f} s")
         if op.then is not None:
             op.then()
+
+    def _own(self, name: str, overrides) -> dict:
+        """``overrides`` less those ``name`` has anyway: a switch back finds the kept one."""
+        base = self.base_of.get(name, {})
+        return {k: v for k, v in (overrides or {}).items() if k not in base or base[k] != v}
+
+    # -- building ahead (mrsph.app.ahead) -------------------------------------------------
+    def build_ahead(self) -> None:
+        """Once the running scene has run a moment, build what s, Tab and shift+Tab would
+        open; nothing new starts while a scene opens."""
+        ahead = self.sims.ahead
+        running = self.sim is not None and self.opening is None and self.sims.separate
+        if running and self.ahead_n and time.perf_counter() - self.opened_at > AFTER_S:
+            now = (self.scene_name, tuple(sorted(self.overrides.items())))
+            if now != self.ahead_for:
+                self.ahead_for = now
+                ahead.want(self.likely_next()[: self.ahead_n])
+        ahead.tick(start=running)
+
+    def likely_next(self) -> list:
+        """What s, Tab and shift+Tab would open now: [(name, overrides)], in that order."""
+        items = []
+        if self.solver and self.can_override:
+            want = next_solver(self.solver)
+            if why_not(self.sim.scene, want) is None:
+                items.append((self.scene_name, self._own(self.scene_name, {**self.overrides, "fluid.solver": want})))
+        names = self.scene_names
+        if self.scene_name in names and len(names) > 1:
+            i = names.index(self.scene_name)
+            for j in dict.fromkeys(((i + 1) % len(names), (i - 1) % len(names))):
+                items.append((names[j], {}))
+        return items
 
     # -- what the keys and buttons ask ----------------------------------------------------
     def step_scene(self, step: int = 1) -> None:

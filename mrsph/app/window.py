@@ -36,6 +36,7 @@ import sys
 import time
 
 from . import palette
+from .ahead import count as ahead_count
 from .hooks import AUTO_SCREENSHOT_FRAME, SCREENSHOT_ENV, STATS_ENV, loading_shot_path, stats_row, write_screenshot
 from .host import Sims
 from .hud import HUD_MARGIN_PX, Message, Rates, Speed, draw_hud, hud_rect_px
@@ -105,6 +106,7 @@ class _App(Switching):
         self.pointer = Pointer()  # who owns a drag (fluid, camera, HUD)
         self.mouse = None
         self.sims = Sims(make_sim, self.can_override)
+        self.ahead_n, self.ahead_for, self.opened_at = ahead_count(), None, time.perf_counter()
         self.open_scene(scene_name)
         if not self.sims.separate:
             # the simulation first: it initialises Taichi as it needs, and the window
@@ -256,6 +258,7 @@ class _App(Switching):
         self.poll_opening()
         if self.sim is not had and had is None:
             self._on_new_sim()  # the first scene: the window's state follows it
+        self.build_ahead()
         self.loading = loading_lines(self.opening, self.sims.separate)[0] if self.opening else None
         # fit the domain into the area left of the HUD panel, so nothing hides (3D:
         # when the camera is framed, at the start or on f); before any camera use

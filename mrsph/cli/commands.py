@@ -374,7 +374,14 @@ def _run_window_or_video(scene, args) -> int:
 
     ok, why = display_available()
     if ok:
+        from mrsph.app import ahead
         from mrsph.app.window import run_window
+
+        try:
+            ahead.count()
+        except ValueError as e:
+            _err(f"mrsph: {e}")
+            return EXIT_USAGE
 
         if args.dump:
             _err("mrsph: --dump applies to headless runs and recordings; the window does not dump")
