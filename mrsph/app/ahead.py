@@ -52,8 +52,9 @@ def count(environ=os.environ) -> int:
 class Ahead:
     """The simulations being built, or built, ahead of a switch (never shown yet)."""
 
-    def __init__(self, sims):
-        self.sims = sims
+    def __init__(self, sims, key_of):
+        """sims: the window's ``host.Sims``; key_of(name, overrides): its keys."""
+        self.sims, self.key_of = sims, key_of
         self.handles: collections.OrderedDict = collections.OrderedDict()  # key -> handle, wanted order
         self.wanted: list = []  # [(key, name, overrides)]
         self.failed: set = set()  # keys whose build failed: not tried again
@@ -71,9 +72,7 @@ class Ahead:
     def want(self, items: list) -> None:
         """Build ahead ``items`` ([(name, overrides)], likeliest first); the handles of
         others are kept if ready, ended if not."""
-        from .host import key_of
-
-        self.wanted = [(key_of(name, ov), name, ov) for name, ov in items]
+        self.wanted = [(self.key_of(name, ov), name, ov) for name, ov in items]
         keys = {k for k, _, _ in self.wanted}
         for key in [k for k in self.handles if k not in keys]:
             self.sims.put_back(self.handles.pop(key))

@@ -520,7 +520,7 @@ class Sims:
         self.make, self.takes, self.keep_n = make_sim, takes_overrides, keep
         self.kept: collections.OrderedDict = collections.OrderedDict()
         self.zygote = None
-        self.ahead = Ahead(self)
+        self.ahead = Ahead(self, key_of)
         ok, self.why_local = separate_processes_possible()
         if ok:
             try:
