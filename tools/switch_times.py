@@ -10,7 +10,9 @@ frames the window reports (its ``MRSPH_WINDOW_STATS`` lines, mrsph/app/hooks.py)
 start and for each key it prints how long until the window answered (its first frame
 that says it is loading, or the new scene itself) and until the first frame of the new
 scene and solver that the simulation advanced ("first frame"); where a scene or solver
-was opened before in this run, it says so ("seen"). ``s`` goes to the next pressure
+was opened before in this run, it says so ("seen"). The window builds what the next
+key would open ahead while it waits (mrsph/app/ahead.py), so the times depend on
+--settle; ``MRSPH_AHEAD=0`` in the environment times it without. ``s`` goes to the next pressure
 solver of the scene schema's list, Tab to the next scene of ``python3 main.py list``,
 shift+Tab to the one before. Each key waits for the window to be quiet (--settle
 seconds of frames after the last switch) first.
