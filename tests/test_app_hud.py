@@ -57,6 +57,8 @@ def test_wcsph_row_shows_the_mean_compression_and_no_iterations():
         "unconverged": 0,
     }
     assert solver_lines(row, "wcsph") == ["solver wcsph   (s: next dfsph)", "mean compression 0.31 %"]
+    ready = solver_lines(row, "wcsph", next_ready=True)[0]
+    assert ready == "solver wcsph   (s: next dfsph, ready)" and len(ready) <= HUD_TEXT_CHARS
 
 
 def test_a_solver_the_hud_does_not_know_shows_its_figures_and_clamped_only_above_zero():
@@ -156,6 +158,7 @@ def _fake_app(snap, solver, live):
         solver=solver,
         tolerance=0.001,
         solver_seen=set(),
+        next_ready=lambda: True,  # the longest solver line
         message=Message(),
         rates=Rates(),
         params={"fluid.viscosity": 4.0, "fluid.stiffness": 400.0, "gravity_y": -9.81},

@@ -574,6 +574,9 @@ def test_window_builds_the_next_solver_ahead_and_s_opens_it_at_once(xdisplay, tm
         rows = app.stats()
         running = next(i for i, r in enumerate(rows) if not r["loading"])  # the start's panel before
         assert not any(r["loading"] for r in rows[running:]), "building ahead showed the loading panel"
+        app.next_frame()
+        assert app.stats()[-1]["s_ready"], "the HUD does not say that what s opens is ready"
+        assert not rows[running]["s_ready"], "the HUD said ready before anything was built ahead"
         want = next_solver("wcsph")
         pressed = time.time()
         app.xdo("key", "s")

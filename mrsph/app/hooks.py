@@ -8,9 +8,10 @@ clock), fps, speed (simulated seconds per wall second), camera_distance (3D, els
 surface, tint, color_mode, surface_ms (what computing the water view took this frame; 0
 when off or reused), loading (the frame shows the loading panel), opening (what it
 opens, else null), ahead_ready (how many simulations built ahead of a switch are ready:
-mrsph.app.ahead), solver (the pressure solver; null for the stand-in and before the
-first scene runs) with density_iterations, divergence_iterations, density_error,
-unconverged and clamped of the simulation's stats row (null where the row has none),
+mrsph.app.ahead), s_ready (what s opens is ready: the HUD's "s: next ..., ready"),
+solver (the pressure solver; null for the stand-in and before the first scene runs) with
+density_iterations, divergence_iterations, density_error, unconverged and clamped of the
+simulation's stats row (null where the row has none),
 message (the HUD's message line as shown, "" when none).
 ``MRSPH_WINDOW_SCREENSHOT=path``: write the screenshot there (the AUTO_SCREENSHOT_FRAME-th
 frame of a running scene, and on ``p``), and every frame that shows the loading panel
@@ -74,6 +75,7 @@ def stats_row(app, snap, disturbance) -> dict:
         "loading": app.loading is not None,
         "opening": app.opening.label if app.opening is not None else None,
         "ahead_ready": app.sims.ahead.ready(),
+        "s_ready": app.next_ready(),
         "solver": st.get("solver", getattr(app, "solver", None)) if snap is not None else None,
         **{k: st.get(k) for k in SOLVER_KEYS},
         "message": app.message.shown(),

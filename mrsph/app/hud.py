@@ -121,7 +121,9 @@ def _number(st: dict, key: str) -> float | None:
         return None
 
 
-def solver_lines(st: dict, solver: str | None, tolerance: float | None = None, seen: set | None = None) -> list[str]:
+def solver_lines(
+    st: dict, solver: str | None, tolerance: float | None = None, seen: set | None = None, next_ready: bool = False
+) -> list[str]:
     """The HUD's lines on the pressure solver, from a stats row ``st`` of
     ``Simulation.stats()``: ``solver`` (else the running scene's ``solver``), the mean
     iterations a step since the last row of its solves (``density_iterations``,
@@ -130,14 +132,16 @@ def solver_lines(st: dict, solver: str | None, tolerance: float | None = None, s
     compression), ``unconverged``, ``shortened`` (steps halved so that a solve converged) and ``clamped``
     (shown when above 0); ``tolerance``:
     ``dfsph.density_tolerance``, shown beside the error; ``clamped`` counts the particles
-    a velocity clamp slowed (pbf). Any key may be missing. No
+    a velocity clamp slowed (pbf); ``next_ready``: what ``s`` opens is ready (built
+    ahead or kept), so the first line says so. Any key may be missing. No
     lines for a simulation without a pressure solver (the app's stand-in)."""
     name = st.get("solver") or solver
     if not name:
         return []
     seen = set() if seen is None else seen
     nxt = next_solver(name)
-    lines = [f"solver {name}" + (f"   (s: next {nxt})" if nxt != name else "")]
+    ready = ", ready" if next_ready else ""
+    lines = [f"solver {name}" + (f"   (s: next {nxt}{ready})" if nxt != name else "")]
     its = {}
     for key, label in (("density_iterations", "density"), ("divergence_iterations", "divergence")):
         value = _number(st, key)
@@ -220,7 +224,7 @@ def hud_rows(self, snap) -> list:
     else:
         slow = " (slow motion)" if self.frame_sim < 0.999 * self.frame_dt else ""
         rows.append(_text(f"speed {speed:.3g}x real time{slow}"))
-    solver = solver_lines(st, self.solver, self.tolerance, self.solver_seen) if self.solver else []
+    solver = solver_lines(st, self.solver, self.tolerance, self.solver_seen, self.next_ready()) if self.solver else []
     if solver:
         solver = (solver + [""] * SOLVER_LINES)[:SOLVER_LINES]
     rows += [_text(line) for line in solver]

@@ -16,6 +16,7 @@ import time
 from dataclasses import dataclass, field
 
 from .ahead import AFTER_S
+from .host import key_of
 from .view import scene_setting
 
 #: Longest reason the HUD shows (it wraps it into the panel's width).
@@ -149,7 +150,7 @@ class Switching:
         ahead = self.sims.ahead
         running = self.sim is not None and self.opening is None and self.sims.separate
         if running and self.ahead_n and time.perf_counter() - self.opened_at > AFTER_S:
-            now = (self.scene_name, tuple(sorted(self.overrides.items())))
+            now = self._running_key()
             if now != self.ahead_for:
                 self.ahead_for = now
                 ahead.want(self.likely_next()[: self.ahead_n])
@@ -158,16 +159,29 @@ class Switching:
     def likely_next(self) -> list:
         """What s, Tab and shift+Tab would open now: [(name, overrides)], in that order."""
         items = []
+        self.s_key = None
         if self.solver and self.can_override:
             want = next_solver(self.solver)
             if why_not(self.sim.scene, want) is None:
                 items.append((self.scene_name, self._own(self.scene_name, {**self.overrides, "fluid.solver": want})))
+                self.s_key = key_of(*items[0])
         names = self.scene_names
         if self.scene_name in names and len(names) > 1:
             i = names.index(self.scene_name)
             for j in dict.fromkeys(((i + 1) % len(names), (i - 1) % len(names))):
                 items.append((names[j], {}))
         return items
+
+    def next_ready(self) -> bool:
+        """Whether what ``s`` opens is ready now (built ahead, or kept from before)."""
+        key = getattr(self, "s_key", None) if self.ahead_for == self._running_key() else None
+        if key is None or self.opening is not None:
+            return False
+        handle = self.sims.ahead.handles.get(key) or self.sims.kept.get(key)
+        return handle is not None and handle.state == "ready"
+
+    def _running_key(self) -> tuple:
+        return (self.scene_name, tuple(sorted(self.overrides.items())))
 
     # -- what the keys and buttons ask ----------------------------------------------------
     def step_scene(self, step: int = 1) -> None:
