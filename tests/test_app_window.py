@@ -36,9 +36,13 @@ FIRST_FRAMES_TIMEOUT_S = 300
 #: of the KE of the mouse's disc of water at that speed that the fluid gains. Measured:
 #: 4.4 % at a peak hand speed of 0.24 m/s, 1.2 % at 0.63 m/s (faster frames: the moves
 #: land unevenly between frames and the peak overstates the push), 0.04-0.15 % with the
-#: push's strength at 0, whose KE also stays under 5x (see the test).
+#: push's strength at 0.
 MIN_HAND_SPEED = 0.05
 STIR_EFFICIENCY = 0.003
+#: ... and the least KE after the stir over the KE before: with the push at 0 the KE stays
+#: under 5x (and the efficiency at 0.04-0.15 %); a working push at a slow hand (0.071 m/s,
+#: a loaded machine's frames) read 4.3x at an efficiency of 8.6 %.
+STIR_KE_RATIO = 3.0
 EXIT_TIMEOUT_S = 60
 # Parts of the window covered by panels (legend top-left, HUD on the right), whose
 # coloured text must not be taken for fluid.
@@ -356,10 +360,10 @@ def test_window_real_scene_stir_and_quit(xdisplay, tmp_path):
         disc_mass = float(config.get("fluid.rest_density")) * np.pi * (RADIUS_FRACTION * size) ** 2
         asked = 0.5 * disc_mass * hand**2
         gained = ke_stirred - ke_before
-        assert gained > STIR_EFFICIENCY * asked and ke_stirred > 5.0 * ke_before, (
+        assert gained > STIR_EFFICIENCY * asked and ke_stirred > STIR_KE_RATIO * ke_before, (
             f"stirring did not move the fluid: KE {ke_before:.3g} -> {ke_stirred:.3g} J at a hand "
             f"speed of {hand:.3g} m/s; gained {gained:.3g} J = {gained / asked:.3g} of the disc's "
-            f"{asked:.3g} J (expected > {STIR_EFFICIENCY}, and KE > 5x)"
+            f"{asked:.3g} J (expected > {STIR_EFFICIENCY}, and KE > {STIR_KE_RATIO}x)"
         )
         assert app.quit() == 0, app.output()
     finally:
