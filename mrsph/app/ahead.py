@@ -4,7 +4,7 @@ while the window runs another, so that the switch finds them ready.
 Why. A scene seen on this machine still takes 8-11 s to open in a new process on a
 2-core CPU (docs/app.md): Taichi's offline cache keeps a kernel's optimised LLVM IR, not
 its machine code, so a new process turns each kernel into IR in Python again (2.6 s for
-demo_2d) and generates its machine code again (5.3 s, most of it for the two fused
+demo_2d) and generates its machine code again (5.3 s, most of it for the three fused
 kernels of a step and the level pass). Neither can be skipped from Python. What can be
 done is to do it before the key is pressed.
 

@@ -380,9 +380,10 @@ class RemoteSim:
             tids = [int(t) for t in os.listdir(f"/proc/{self.pid}/task")]
         except (OSError, ValueError):
             tids = [self.pid]
+        ours = os.getpriority(os.PRIO_PROCESS, 0)
         for tid in tids:
             try:
-                os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, 0))
+                os.setpriority(os.PRIO_PROCESS, tid, ours)
             except OSError:
                 pass
 

@@ -153,28 +153,30 @@ class Switching:
             now = self._running_key()
             if now != self.ahead_for:
                 self.ahead_for = now
-                ahead.want(self.likely_next()[: self.ahead_n])
+                solver, scenes = self.likely_next()
+                self.s_key = None if solver is None else key_of(*solver)
+                items = ([solver] if solver is not None else []) + scenes
+                ahead.want(items[: self.ahead_n])
         ahead.tick(start=running)
 
-    def likely_next(self) -> list:
-        """What s, Tab and shift+Tab would open now: [(name, overrides)], in that order."""
-        items = []
-        self.s_key = None
+    def likely_next(self) -> tuple:
+        """What s, Tab and shift+Tab would open now: (the scene with the next solver, or
+        None where it cannot take it; [the next scene, the previous one]), each as
+        (name, overrides)."""
+        solver = None
         if self.solver and self.can_override:
             want = next_solver(self.solver)
             if why_not(self.sim.scene, want) is None:
-                items.append((self.scene_name, self._own(self.scene_name, {**self.overrides, "fluid.solver": want})))
-                self.s_key = key_of(*items[0])
-        names = self.scene_names
+                solver = (self.scene_name, self._own(self.scene_name, {**self.overrides, "fluid.solver": want}))
+        names, scenes = self.scene_names, []
         if self.scene_name in names and len(names) > 1:
             i = names.index(self.scene_name)
-            for j in dict.fromkeys(((i + 1) % len(names), (i - 1) % len(names))):
-                items.append((names[j], {}))
-        return items
+            scenes = [(names[j], {}) for j in dict.fromkeys(((i + 1) % len(names), (i - 1) % len(names)))]
+        return solver, scenes
 
     def next_ready(self) -> bool:
         """Whether what ``s`` opens is ready now (built ahead, or kept from before)."""
-        key = getattr(self, "s_key", None) if self.ahead_for == self._running_key() else None
+        key = self.s_key if self.ahead_for == self._running_key() else None
         if key is None or self.opening is not None:
             return False
         handle = self.sims.ahead.handles.get(key) or self.sims.kept.get(key)

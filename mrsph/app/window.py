@@ -106,7 +106,8 @@ class _App(Switching):
         self.pointer = Pointer()  # who owns a drag (fluid, camera, HUD)
         self.mouse = None
         self.sims = Sims(make_sim, self.can_override)
-        self.ahead_n, self.ahead_for, self.opened_at = ahead_count(), None, time.perf_counter()
+        self.ahead_n, self.opened_at = ahead_count(), time.perf_counter()
+        self.ahead_for = self.s_key = None  # what the builds ahead are for; what s opens
         self.open_scene(scene_name)
         if not self.sims.separate:
             # the simulation first: it initialises Taichi as it needs, and the window
