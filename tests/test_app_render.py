@@ -299,22 +299,30 @@ def test_ggui_orientation_up_is_up(offscreen):
     assert ys.mean() < H * 0.3 and xs.mean() < W * 0.3, (ys.mean(), xs.mean())
 
 
-def test_renderer_reallocates_only_when_growing(offscreen):
+@pytest.mark.parametrize("dim", DIMS)
+def test_renderer_compiles_no_kernel(offscreen, monkeypatch, dim):
+    """The renderer packs GGUI's vertex buffers with numpy (mrsph.app.vbo): a frame of
+    particles, of the water view, one with more particles and a 3D one after a 2D one
+    compile no Taichi kernel (each cost 50-90 ms at a scene's first frame)."""
+    from taichi.lang import kernel_impl
+
     from mrsph.app.render import Renderer
 
+    compiled = []
+    materialize = kernel_impl.Kernel.materialize
+
+    def counted(self, *args, **kwargs):
+        compiled.append(self.func.__name__)
+        return materialize(self, *args, **kwargs)
+
     r = Renderer(offscreen)
-    big = fake_snapshot(2, frames=0)
-    small = fake_snapshot(2, frames=0, spacing=0.03)
-    r.draw(small)
-    f0, cap0 = r._pos2.field, r._pos2.capacity
-    r.draw(small)
-    assert r._pos2.field is f0, "field recreated for the same particle count"
-    r.draw(big)
-    assert r._pos2.capacity >= len(big.x) > cap0
-    f1 = r._pos2.field
-    r.draw(small)
-    r.draw(big)
-    assert r._pos2.field is f1, "field recreated although the capacity sufficed"
+    ggui_frame(offscreen, fake_snapshot(2, frames=0), r)  # the window's own first frame
+    monkeypatch.setattr(kernel_impl.Kernel, "materialize", counted)
+    for snap in (fake_snapshot(dim, frames=0, spacing=0.03), fake_snapshot(dim, frames=0)):
+        r.draw(snap)
+        r.draw(snap, surface=True)
+        r.draw(snap, color_mode="speed", marks=())
+    assert not compiled, compiled
 
 
 # ----------------------------------------------------------------------------- legend, layout

@@ -1,9 +1,9 @@
 """The GGUI renderer: the one drawing routine behind the interactive window and the
 offscreen (``show_window=False``) recorder, so a video looks like the window.
 
-It reads a snapshot (numpy, host side), uploads it into Taichi fields sized for a
-capacity that only grows (no per-frame field creation: each new field costs a
-compile and a memory block Taichi never returns), and draws
+It reads a snapshot (numpy, host side), packs GGUI's vertex buffers with numpy
+(:mod:`mrsph.app.vbo`: no Taichi kernel to compile, at the first frame or ever), and
+draws
 
 * 2D: ``canvas.circles`` with per-vertex colour and radius, in painter's order
   (virtual under real, coarse under fine), obstacles filled with ``canvas.triangles``,
@@ -17,9 +17,6 @@ compile and a memory block Taichi never returns), and draws
   (3D: rings facing the camera), and, in the water view (``surface=True``), the fluid
   as a filled, level-tinted area with its outline (2D) or a lit mesh (3D) from
   :mod:`mrsph.io.surface` instead of the particles.
-
-``canvas.circles`` / ``canvas.lines`` / ``canvas.triangles`` always draw their whole
-field, so unused slots are parked far outside the view (``_PARK``) with radius 0.
 """
 
 from __future__ import annotations
@@ -33,58 +30,17 @@ from . import geometry, palette
 from . import legend as key_panel
 from .palette import Style
 from .raster import AMBIENT, DIFFUSE, LINE_WIDTH_FRACTION
+from .vbo import Vertices, pack
 from .view import OrbitCamera, View2D, fitted_view, framed_camera
 
-#: Where unused slots go: far outside the [0, 1]^2 canvas and any 3D view.
-_PARK = -1.0e6
-#: Smallest capacity of a particle buffer, and how much it grows when it must: growing
-#: by half again keeps reallocations rare while a refining fluid gains particles.
-_MIN_CAPACITY = 1024
-#: Vertices per scene.mesh field: GGUI 1.7.4 on lavapipe drew nothing of a mesh of
+#: Vertices per scene.mesh call: GGUI 1.7.4 on lavapipe drew nothing of a mesh of
 #: 75 600 vertices (pool_3d's first water view was invisible; 60 000 and 66 000 drew),
 #: so larger meshes are drawn in parts of this many. A multiple of 3: whole triangles.
 MESH_CHUNK = 65535
-_GROWTH = 1.5
 #: 3D line width handed to scene.lines (pixels where the driver supports wide lines).
 LINE_WIDTH_3D = 2.0
 #: The 2D water view's lit free surface: its line width (a fraction of the height).
 SURFACE_LINE_FRACTION = 1.6 * LINE_WIDTH_FRACTION
-
-
-class _Buffer:
-    """A Taichi field of ``components``-vectors (or scalars when 0) that grows on demand.
-
-    ``upload(a)`` writes ``a`` (n rows) into the first n slots and parks the rest, using
-    a persistent numpy staging array so a frame allocates nothing on the Taichi side.
-    """
-
-    def __init__(self, components: int, park: float, max_capacity: int | None = None):
-        self.components, self.park, self.max_capacity = components, park, max_capacity
-        self.capacity = 0
-        self.field = None
-        self._staging = None
-
-    def _allocate(self, n: int) -> None:
-        cap = max(_MIN_CAPACITY, int(n * _GROWTH) if self.capacity else n)
-        if self.max_capacity:
-            cap = max(min(cap, self.max_capacity), n)
-        shape = (cap, self.components) if self.components else (cap,)
-        if self.components:
-            self.field = ti.Vector.field(self.components, ti.f32, shape=cap)
-        else:
-            self.field = ti.field(ti.f32, shape=cap)
-        self._staging = np.full(shape, self.park, dtype=np.float32)
-        self.capacity = cap
-
-    def upload(self, a: np.ndarray):
-        a = np.asarray(a, dtype=np.float32)
-        n = len(a)
-        if n > self.capacity:
-            self._allocate(n)
-        self._staging[:n] = a
-        self._staging[n:] = self.park
-        self.field.from_numpy(self._staging)
-        return self.field
 
 
 class Renderer:
@@ -106,27 +62,9 @@ class Renderer:
         self.viewport = (0.0, 0.0, 1.0, 1.0)
         self._scene3d = None
         self._ti_camera = None
-        self._pos2 = _Buffer(2, _PARK)
-        self._pos3 = _Buffer(3, _PARK)
-        self._col = _Buffer(3, 0.0)
-        self._rad = _Buffer(0, 0.0)
-        self._tri = _Buffer(2, _PARK)
-        self._line2 = _Buffer(2, _PARK)
-        self._line3 = _Buffer(3, _PARK)
-        self._line_col = _Buffer(3, 0.0)
-        self._shell_pos = _Buffer(3, _PARK)
-        self._mesh: list = []  # 3D water: (vertices, normals, colours) per chunk
-        self._mesh_c = _Buffer(3, 0.0)
-        self._area_v = _Buffer(2, _PARK)
-        self._swatch_v = _Buffer(2, _PARK)
-        self._outside = _Buffer(2, _PARK)
-        self._surface_line = _Buffer(2, _PARK)
-        self._drop_pos = _Buffer(2, _PARK)
-        self._drop_col = _Buffer(3, 0.0)
-        self._drop_rad = _Buffer(0, 0.0)
+        self.gpu = Vertices()  # this frame's vertex buffers
         self._water_edge = None
         self.dim, self.tint, self.surface = 1.0, False, False
-        self._swatch_c = _Buffer(3, 0.0)
         self.legend_shown = False
         self._legend_rows: list = []
         #: the window keeps the legend one size in every colour mode (the view would jump
@@ -136,7 +74,7 @@ class Renderer:
         self.surface_s = 0.0
         self._water_cache = None  # (snapshot, colours, surface) of the last frame
         self._shell_key = None
-        self._shell_r = 0.0
+        self._shell_r, self._shells = 0.0, None  # obstacle shells (3D), kept while they hold
 
     # -- view --------------------------------------------------------------------------
     @property
@@ -223,22 +161,15 @@ class Renderer:
         if self.dim != 1.0:
             rgb = (rgb * self.dim).astype(np.float32)
         keep = np.ones(len(rgb), dtype=bool) if show_virtual else ~palette.is_virtual(snapshot.kind)
-        # GGUI's own staging kernels, compiled in an f64 program, warn "Assign may lose
-        # precision: f32 <- f64" a dozen times: not ours to fix, so not shown (mrsph.runtime
-        # runs Taichi at WARN, restored after)
-        ti.set_logging_level(ti.ERROR)
-        try:
-            if snapshot.dim == 2:
-                self._draw_canvas(snapshot, rgb, keep)
-            else:
-                self._draw_scene(snapshot, rgb, keep)
-            if legend:
-                rows = self._legend_rows
-                tri, col = key_panel.swatch_triangles(rows, self.size, self.legend_box_px(snapshot))
-                self.canvas.triangles(self._swatch_v.upload(tri), per_vertex_color=self._swatch_c.upload(col))
-        finally:
-            ti.set_logging_level(ti.WARN)
+        self.gpu.new_frame()
+        if snapshot.dim == 2:
+            self._draw_canvas(snapshot, rgb, keep)
+        else:
+            self._draw_scene(snapshot, rgb, keep)
         if legend:
+            rows = self._legend_rows
+            tri, col = key_panel.swatch_triangles(rows, self.size, self.legend_box_px(snapshot))
+            self.gpu.triangles(self.canvas, pack(tri, colour=col), per_colour=True)
             key_panel.draw_panel(self.window.get_gui(), rows, self.size, self.legend_box_px(snapshot))
 
     def _draw_canvas(self, snap, rgb, keep):
@@ -252,7 +183,7 @@ class Renderer:
         if water is not None:
             if len(water.triangles):
                 tri = view.world_to_canvas(water.triangles)
-                self.canvas.triangles(self._area_v.upload(tri), per_vertex_color=self._mesh_c.upload(water.colours))
+                self.gpu.triangles(self.canvas, pack(tri, colour=water.colours), per_colour=True)
             keep = keep & virt  # the body stands for the real particles
             self._water_edge = water.surface
         idx = np.nonzero(keep)[0]
@@ -262,39 +193,24 @@ class Renderer:
             pos = view.world_to_canvas(np.asarray(snap.x)[idx, :2])
             # per_vertex_radius is a fraction of the window height in GGUI's canvas.
             rad = view.radius_px(np.asarray(snap.radius)[level[idx]]) * palette.DISC_SCALE * self.style.point_scale / h
-            self.canvas.circles(
-                self._pos2.upload(pos),
-                radius=0.0,
-                per_vertex_color=self._col.upload(rgb[idx]),
-                per_vertex_radius=self._rad.upload(rad),
-            )
+            self.gpu.circles(self.canvas, pack(pos, radius=rad, colour=rgb[idx]), per_colour=True, per_radius=True)
         if water is not None and len(water.drops):
-            self.canvas.circles(
-                self._drop_pos.upload(view.world_to_canvas(water.drops)),
-                radius=0.0,
-                per_vertex_color=self._drop_col.upload(water.drop_colours),
-                per_vertex_radius=self._drop_rad.upload(view.radius_px(water.drop_radius) / h),
-            )
+            r = view.radius_px(water.drop_radius) / h
+            drops = pack(view.world_to_canvas(water.drops), radius=r, colour=water.drop_colours)
+            self.gpu.circles(self.canvas, drops, per_colour=True, per_radius=True)
         # what lies outside the domain is the background: the discs and the body's
         # edge at the walls stop at them (and the obstacles, drawn next, cover theirs)
         outside = geometry.outside_domain_triangles(view, snap.domain_min, snap.domain_max)
-        self.canvas.triangles(self._outside.upload(outside), color=tuple(float(c) for c in self.style.background))
+        self.gpu.triangles(self.canvas, pack(outside), False, tuple(float(c) for c in self.style.background))
         tris = [geometry.obstacle_triangles(o) for o in snap.obstacles]
         if tris:
             tri = view.world_to_canvas(np.concatenate(tris))
-            self.canvas.triangles(self._tri.upload(tri), color=palette.OBSTACLE_FILL)
+            self.gpu.triangles(self.canvas, pack(tri), False, palette.OBSTACLE_FILL)
         if self._water_edge is not None and len(self._water_edge):
-            self.canvas.lines(
-                self._surface_line.upload(view.world_to_canvas(self._water_edge)),
-                width=SURFACE_LINE_FRACTION,
-                color=tuple(float(c) * self.dim for c in palette.WATER_EDGE),
-            )
+            edge = pack(view.world_to_canvas(self._water_edge))
+            self.gpu.lines(self.canvas, edge, SURFACE_LINE_FRACTION, False, [c * self.dim for c in palette.WATER_EDGE])
         segs, cols = self._outline_segments(snap, 2)
-        self.canvas.lines(
-            self._line2.upload(view.world_to_canvas(segs)),
-            width=LINE_WIDTH_FRACTION,
-            per_vertex_color=self._line_col.upload(cols),
-        )
+        self.gpu.lines(self.canvas, pack(view.world_to_canvas(segs), colour=cols), LINE_WIDTH_FRACTION, True)
 
     def _water(self, snap, rgb):
         """The water view (mrsph.app.geometry.water), or None when it is off; the time
@@ -354,38 +270,17 @@ class Renderer:
         water = self._water(snap, rgb)
         if water is not None:
             verts, normals, vrgb = water[1], water[2], water[3]
-            if len(verts):
-                for k, start in enumerate(range(0, len(verts), MESH_CHUNK)):
-                    if k == len(self._mesh):
-                        self._mesh.append(tuple(_Buffer(3, p, MESH_CHUNK) for p in (_PARK, 0.0, 0.0)))
-                    part = slice(start, start + MESH_CHUNK)
-                    bv, bn, bc = self._mesh[k]
-                    scene.mesh(
-                        bv.upload(verts[part]),
-                        normals=bn.upload(normals[part]),
-                        per_vertex_color=bc.upload(vrgb[part]),
-                        two_sided=True,
-                        vertex_count=len(verts[part]),
-                    )
+            for start in range(0, len(verts), MESH_CHUNK):
+                part = slice(start, start + MESH_CHUNK)
+                self.gpu.mesh(scene, pack(verts[part], normal=normals[part], colour=vrgb[part]), per_colour=True)
             keep = keep & palette.is_virtual(snap.kind)
-        n = int(keep.sum())
-        if n:
+        if keep.any():
             rad = np.asarray(snap.radius, np.float64)[np.asarray(snap.level)[keep]] * self.style.point_scale
-            scene.particles(
-                self._pos3.upload(np.asarray(snap.x)[keep]),
-                radius=float(rad.max()),
-                per_vertex_color=self._col.upload(rgb[keep]),
-                per_vertex_radius=self._rad.upload(rad),
-                index_count=n,
-            )
+            fluid = pack(np.asarray(snap.x)[keep], radius=rad, colour=rgb[keep])
+            self.gpu.particles(scene, fluid, per_colour=True, per_radius=True, radius=float(rad.max()))
         self._draw_shells(scene, snap)
         segs, cols = self._outline_segments(snap, 3)
-        scene.lines(
-            self._line3.upload(segs),
-            width=LINE_WIDTH_3D,
-            per_vertex_color=self._line_col.upload(cols),
-            vertex_count=len(segs),
-        )
+        self.gpu.scene_lines(scene, pack(segs, colour=cols), LINE_WIDTH_3D, per_colour=True)
         self.canvas.scene(scene)
 
     def _draw_shells(self, scene, snap):
@@ -394,14 +289,11 @@ class Renderer:
         if key != self._shell_key:
             shells = [geometry.obstacle_shell(o) for o in snap.obstacles]
             pts = [p for p, _ in shells if len(p)]
-            self._shell_n = sum(len(p) for p in pts)
             self._shell_r = min([r for p, r in shells if len(p)], default=0.0)
-            if self._shell_n:
-                self._shell_pos.upload(np.concatenate(pts))
+            self._shells = pack(np.concatenate(pts)) if pts else pack(np.zeros((0, 3)))
             self._shell_key = key
-        if self._shell_n:
-            colour = tuple(min(c * 1.5, 1.0) for c in palette.OBSTACLE_FILL)
-            scene.particles(self._shell_pos.field, radius=self._shell_r, color=colour, index_count=self._shell_n)
+        colour = tuple(min(c * 1.5, 1.0) for c in palette.OBSTACLE_FILL)
+        self.gpu.particles(scene, self._shells, False, False, colour, self._shell_r)
 
 
 class ImguiIniGuard:

@@ -44,7 +44,7 @@ from .loading import loading_lines, loading_panel
 from .marks import frame_marks
 from .mouse import MouseDisturbance, safe_speed
 from .pointer import Pointer
-from .probe import display_available  # noqa: F401  (mrsph.cli.commands imports it from here)
+from .probe import display_available
 from .switch import Switching, first_line, running_solver
 from .view import scene_setting
 
@@ -87,7 +87,7 @@ def _accepts_overrides(make_sim) -> bool:
 class _App(Switching):
     """State of the running window; :func:`run_window` is its only user."""
 
-    def __init__(self, make_sim, scene_name, scene_names, width, height, frame_budget=None):
+    def __init__(self, make_sim, scene_name, scene_names, width, height, frame_budget=None, opened=None):
         import taichi as ti
 
         from mrsph import runtime
@@ -109,6 +109,13 @@ class _App(Switching):
         self.ahead_n, self.opened_at = ahead_count(), time.perf_counter()
         self.ahead_for = self.s_key = None  # what the builds ahead are for; what s opens
         self.open_scene(scene_name)
+        ok, why = display_available()  # a test window in a subprocess, while the scene builds
+        if not ok:
+            self.opening.handle.close()
+            self.sims.close()
+            raise NoDisplay(why)
+        if opened is not None:
+            opened()
         if not self.sims.separate:
             # the simulation first: it initialises Taichi as it needs, and the window
             # then runs in that program (the stand-in leaves it to the window)
@@ -450,6 +457,10 @@ class _App(Switching):
             self.loading_shots += 1
 
 
+class NoDisplay(RuntimeError):
+    """No window can open here; the text says why (mrsph.app.probe)."""
+
+
 def run_window(
     make_sim,
     scene_name: str,
@@ -457,6 +468,7 @@ def run_window(
     width: int = 1280,
     height: int = 720,
     frame_budget: float | None = None,
+    opened=None,
 ) -> None:
     """Open the interactive window on ``scene_name`` and run until closed (Esc).
 
@@ -467,9 +479,11 @@ def run_window(
     ``scene_names`` are the scenes offered by Tab and the help panel's buttons.
     ``frame_budget``: wall seconds of simulation per drawn frame (None: whole frames).
     A first scene that cannot be built raises its error (the window closes).
+    The display is tried (a test window in a subprocess) while the first scene builds:
+    where no window can open, :class:`NoDisplay` says why; where one can, ``opened()``
+    is called before it opens.
     """
-    ok, why = display_available()
-    if not ok:
-        raise RuntimeError(f"cannot open a window: {why}")
-    app = _App(make_sim, scene_name, scene_names, width, height, frame_budget)
+    if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        raise NoDisplay(display_available()[1])  # at once: no display is named
+    app = _App(make_sim, scene_name, scene_names, width, height, frame_budget, opened)
     app.run()

@@ -370,50 +370,46 @@ def _record(sim, out, frames: int, args) -> Path:
 
 
 def _run_window_or_video(scene, args) -> int:
-    from mrsph.app.window import display_available
+    from mrsph.app import ahead
+    from mrsph.app.window import NoDisplay, run_window
+    from mrsph.scene.config import SCENES_DIR, list_scenes, load_scene
 
-    ok, why = display_available()
-    if ok:
-        from mrsph.app import ahead
-        from mrsph.app.window import run_window
+    try:
+        ahead.count()
+    except ValueError as e:
+        _err(f"mrsph: {e}")
+        return EXIT_USAGE
+    notes = []  # said once the window opens: a recording does take them
+    if args.dump:
+        notes.append("mrsph: --dump applies to headless runs and recordings; the window does not dump")
+    if args.frames is not None:
+        notes.append(
+            "mrsph: --frames applies to headless runs and recordings; the window runs "
+            "until it is closed (add --headless to run N frames)"
+        )
+    names = [name for name, _ in list_scenes()]
+    # the window offers the scenes of scenes/ by name; a scene from elsewhere by path
+    own = Path(scene.path).resolve() == (SCENES_DIR / f"{scene.name}.toml").resolve()
+    first = scene.name if own else str(scene.path)
+    if first not in names:
+        names = [first] + names
 
-        try:
-            ahead.count()
-        except ValueError as e:
-            _err(f"mrsph: {e}")
-            return EXIT_USAGE
+    # one thread count for the window's life, as --threads resolves it for the first
+    # scene: another count re-initialises Taichi, which frees the window's fields
+    # under it (a scene switch from a small scene to a large one crashed the window)
+    from mrsph import runtime
 
-        if args.dump:
-            _err("mrsph: --dump applies to headless runs and recordings; the window does not dump")
-        if args.frames is not None:
-            _err(
-                "mrsph: --frames applies to headless runs and recordings; the window runs "
-                "until it is closed (add --headless to run N frames)"
-            )
-        from mrsph.scene.config import SCENES_DIR, list_scenes, load_scene
+    fixed = argparse.Namespace(**{**vars(args), "threads": runtime.auto_threads(scene, args.threads)})
 
-        names = [name for name, _ in list_scenes()]
-        # the window offers the scenes of scenes/ by name; a scene from elsewhere by path
-        own = Path(scene.path).resolve() == (SCENES_DIR / f"{scene.name}.toml").resolve()
-        first = scene.name if own else str(scene.path)
-        if first not in names:
-            names = [first] + names
+    def make_sim(name, overrides=None):
+        # --set applies to every scene the window opens; the window's own overrides
+        # (the refinement checkbox) come on top
+        s = load_scene(name, args.overrides)
+        if overrides:
+            s = s.with_overrides(overrides)
+        return _make_sim(s, fixed)
 
-        # one thread count for the window's life, as --threads resolves it for the first
-        # scene: another count re-initialises Taichi, which frees the window's fields
-        # under it (a scene switch from a small scene to a large one crashed the window)
-        from mrsph import runtime
-
-        fixed = argparse.Namespace(**{**vars(args), "threads": runtime.auto_threads(scene, args.threads)})
-
-        def make_sim(name, overrides=None):
-            # --set applies to every scene the window opens; the window's own overrides
-            # (the refinement checkbox) come on top
-            s = load_scene(name, args.overrides)
-            if overrides:
-                s = s.with_overrides(overrides)
-            return _make_sim(s, fixed)
-
+    try:
         run_window(
             make_sim,
             first,
@@ -421,8 +417,11 @@ def _run_window_or_video(scene, args) -> int:
             args.width or WINDOW_SIZE[0],
             args.height or WINDOW_SIZE[1],
             frame_budget=args.frame_budget,
+            opened=lambda: [_err(note) for note in notes],
         )
         return EXIT_OK
+    except NoDisplay as e:
+        why = str(e)
     frames = args.frames or FALLBACK_FRAMES
     out = FALLBACK_DIR / f"{scene.name}.mp4"
     problem = args.dump and dir_problem("--dump", Path(args.dump))
