@@ -598,5 +598,8 @@ def test_window_builds_the_next_solver_ahead_and_s_opens_it_at_once(xdisplay, tm
         assert first["message"].startswith(f"opened pool_2d with {want} in 0."), first["message"]
         assert running[-1]["time"] > running[0]["time"], "it does not advance"
         assert app.quit() == 0, app.output()
+        # two workers and the window started Taichi: it announces its start once
+        log = (tmp_path / "app.log").read_text(errors="replace")
+        assert log.count("Starting on arch") == 1, log[-3000:]
     finally:
         app.close()

@@ -30,7 +30,9 @@ ones still come back at once, new ones compile again.
 from __future__ import annotations
 
 import collections
+import contextlib
 import ctypes
+import io
 import os
 import pickle
 import signal
@@ -213,7 +215,10 @@ def _serve(conn: Connection, make_sim, takes_overrides: bool) -> None:
                 name, overrides, nice = args
                 if nice:
                     os.nice(nice)  # before Taichi starts its threads: they inherit it
-                sim = build(make_sim, takes_overrides, name, overrides, stage=lambda s: conn.send(("stage", s)))
+                # Taichi announces "Starting on arch=x64" on stdout in each process: the
+                # window's own says it once, not once a worker
+                with contextlib.redirect_stdout(io.StringIO()):
+                    sim = build(make_sim, takes_overrides, name, overrides, stage=lambda s: conn.send(("stage", s)))
                 reply = ("ready", _describe(sim))
             elif op == "reset":
                 sim.set_disturbance(None)
