@@ -1,9 +1,12 @@
-"""tools/tank_rest.py: the resting tank's harness (docs/validation.md, "Resting tank");
-its runs are judged by hand, so only what it runs is tested here."""
+"""The resting tanks' tools: tools/tank_rest.py, the resting tank's harness (docs/validation.md,
+"Resting tank"), whose runs are judged by hand, so only what it runs is tested here; and
+tools/column_heave.py, the deep column step by step, whose measures are held on a column
+that rests."""
 
 import subprocess
 import sys
 
+import pytest
 from toolload import load_tool
 
 
@@ -23,9 +26,10 @@ def test_nudges_move_one_key_each_by_about_round_off(dim):
     assert all(r[0] == "dfsph.warm_start=0.4" for r in runs[1:]), runs
 
 
-def test_a_bad_key_is_one_line_naming_it():
+@pytest.mark.parametrize("tool", ["tank_rest", "column_heave"])
+def test_a_bad_key_is_one_line_naming_it(tool):
     proc = subprocess.run(
-        [sys.executable, "tools/tank_rest.py", "--set", "dfsph.warm_start=true"],
+        [sys.executable, f"tools/{tool}.py", "--set", "dfsph.warm_start=true"],
         capture_output=True,
         text=True,
         timeout=120,
@@ -33,3 +37,12 @@ def test_a_bad_key_is_one_line_naming_it():
     assert proc.returncode == 2, proc.stderr
     lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
     assert lines == ["--set dfsph.warm_start: wrong type (got true (boolean); expected a number in [0, 1])"], lines
+
+
+def test_column_heave_reads_a_resting_wcsph_column_as_hydrostatic():
+    """tools/column_heave.py on the deep tank made coarse (20 layers), under wcsph, which
+    rests: the floor's pressure reads hydrostatic and the column does not heave."""
+    tool = load_tool("column_heave")
+    out = tool.heave("tank_rest_2d", "wcsph", ["particles.spacing=0.02"], 0.05, 20)
+    assert 0.9 < out["floor_min"] <= out["floor_max"] < 1.1, out
+    assert out["heave"] < 0.005, out
