@@ -34,7 +34,6 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 G = 9.81
-RHO0 = 1000.0
 FLOOR = 0.05  # m: the band above the floor whose pressure is compared with hydrostatic
 
 
@@ -71,22 +70,20 @@ def predicted_change(sim, scene, steps: int) -> dict:
     import numpy as np
     from scipy.spatial import cKDTree
 
-    from mrsph.sph.kernels import constants, lattice_gradient_factor
+    from mrsph.sph.kernels import constants, lattice_gradient_factor, poly6_np, spiky_grad_np
 
+    dim, rho0 = scene.dim, scene.params.fluid.rest_density
     h, m, s0 = float(sim.h0), float(sim.m0), float(sim.s0)
     lo = np.asarray(scene.data["domain"]["min"], float)
     hi = np.asarray(scene.data["domain"]["max"], float)
-    c = constants(h, scene.dim)
-    c_spiky = c["spiky"] / lattice_gradient_factor(s0, h, scene.dim)
+    c_poly6 = constants(h, dim)["poly6"]
+    calibration = lattice_gradient_factor(s0, h, dim)  # the solves' spiky constant is divided by it
 
     def density(x):
         xa, _ = _images(x, x, lo, hi, h)
-        tree = cKDTree(xa)
+        near = cKDTree(xa).query_ball_point(x, h)
         return np.array(
-            [
-                m * c["poly6"] * np.sum((h * h - np.sum((x[i] - xa[js]) ** 2, 1)) ** 3)
-                for i, js in enumerate(tree.query_ball_point(x, h))
-            ]
+            [m * poly6_np(np.linalg.norm(x[i] - xa[js], axis=1), h, dim).sum() for i, js in enumerate(near)]
         )
 
     names = [f"{b} {k}" for b in ("floor", "inner") for k in ("actual", "poly6", "spiky", "poly6 rms", "spiky rms")]
@@ -102,11 +99,10 @@ def predicted_change(sim, scene, steps: int) -> dict:
         pred = {"poly6": np.zeros(len(x0)), "spiky": np.zeros(len(x0))}
         for i, js in enumerate(tree.query_ball_point(x0, h)):
             r = x0[i] - xa[js]
-            rn = np.linalg.norm(r, axis=1)
-            ok = rn > 0.0
-            du, r, rn = v[i] - va[js][ok], r[ok], rn[ok]
-            g6 = (-6.0 * c["poly6"] * (h * h - rn**2) ** 2)[:, None] * r
-            gs = (-3.0 * c_spiky * (h - rn) ** 2 / rn)[:, None] * r
+            ok = np.linalg.norm(r, axis=1) > 0.0
+            du, r = v[i] - va[js][ok], r[ok]
+            g6 = (-6.0 * c_poly6 * (h * h - np.sum(r * r, 1)) ** 2)[:, None] * r  # poly6's gradient
+            gs = spiky_grad_np(r, h, dim) / calibration
             pred["poly6"][i] = dt * m * np.einsum("ij,ij->", du, g6)
             pred["spiky"][i] = dt * m * np.einsum("ij,ij->", du, gs)
         # the interior: beyond a support of every wall and below the top fifth of the column
@@ -118,7 +114,7 @@ def predicted_change(sim, scene, steps: int) -> dict:
             for kern in ("poly6", "spiky"):
                 sums[f"{band} {kern}"] += float(np.mean(pred[kern][sel]))
                 sums[f"{band} {kern} rms"] += float(np.sqrt(np.mean((pred[kern][sel] - change[sel]) ** 2)))
-    return {k: 100.0 * val / steps / RHO0 for k, val in sums.items()}
+    return {k: 100.0 * val / steps / rho0 for k, val in sums.items()}
 
 
 def heave(scene_name: str, solver: str, sets: list[str], until: float, every: int, predict: int = 0) -> dict:
@@ -131,6 +127,7 @@ def heave(scene_name: str, solver: str, sets: list[str], until: float, every: in
     H = float(scene.data["fluid"]["blocks"][0]["max"][1])
     sim = Simulation(scene, arch="cpu", threads=1)
     U = math.sqrt(G * H)
+    rho0 = scene.params.fluid.rest_density
     cell = 4.0 * float(sim.s0)
     t, vy, floor_p = [], [], []
     heads = (("t (s)", 7), ("dt (ms)", 7), ("vy/U", 8), ("|v|/U", 7), ("coll.", 6), ("p floor", 7), ("rho floor", 9))
@@ -151,8 +148,8 @@ def heave(scene_name: str, solver: str, sets: list[str], until: float, every: in
         collective = float(np.linalg.norm(mean_v[inv], axis=1).mean() / max(speed.mean(), 1e-30))
         low = x[:, 1] < FLOOR
         depth = H - x[low, 1]
-        ratio = float(np.mean(p["p"][low] / (RHO0 * G * depth)))
-        err = float(p["rho"][low].mean() / RHO0 - 1.0)
+        ratio = float(np.mean(p["p"][low] / (rho0 * G * depth)))
+        err = float(p["rho"][low].mean() / rho0 - 1.0)
         row = sim.stats()
         t.append(sim.time)
         vy.append(float(v[:, 1].mean() / U))
