@@ -12,8 +12,8 @@ from toolload import load_tool
 
 def test_nudges_move_one_key_each_by_about_round_off(dim):
     tool = load_tool("tank_rest")
-    runs = tool.nudged(dim, "dfsph", ["dfsph.warm_start=0.4"])
-    assert runs[0] == ["dfsph.warm_start=0.4"]
+    runs = tool.nudged(dim, "dfsph", ["dfsph.correction_time=0.003"])
+    assert runs[0] == ["dfsph.correction_time=0.003"]
     assert len(runs) == 1 + len(tool.NUDGES), runs
     moved = sorted(r[-1] for r in runs[1:])
     # the test's tank: viscosity 2.0, the default tolerance 0.001
@@ -23,20 +23,20 @@ def test_nudges_move_one_key_each_by_about_round_off(dim):
         "fluid.viscosity=1.98",
         "fluid.viscosity=2.02",
     ], moved
-    assert all(r[0] == "dfsph.warm_start=0.4" for r in runs[1:]), runs
+    assert all(r[0] == "dfsph.correction_time=0.003" for r in runs[1:]), runs
 
 
 @pytest.mark.parametrize("tool", ["tank_rest", "column_heave"])
 def test_a_bad_key_is_one_line_naming_it(tool):
     proc = subprocess.run(
-        [sys.executable, f"tools/{tool}.py", "--set", "dfsph.warm_start=true"],
+        [sys.executable, f"tools/{tool}.py", "--set", "dfsph.correction_time=true"],
         capture_output=True,
         text=True,
         timeout=120,
     )
     assert proc.returncode == 2, proc.stderr
     lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
-    assert lines == ["--set dfsph.warm_start: wrong type (got true (boolean); expected a number in [0, 1])"], lines
+    assert lines == ["--set dfsph.correction_time: wrong type (got true (boolean); expected a number >= 0)"], lines
 
 
 def test_column_heave_reads_a_resting_wcsph_column_as_hydrostatic():

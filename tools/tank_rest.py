@@ -1,7 +1,7 @@
 """How still the resting tank of ``tests/test_physics.py`` settles, over nudged settings.
 
     python3 tools/tank_rest.py --dim 2                               # the test's run, dfsph
-    python3 tools/tank_rest.py --dim 3 --set dfsph.warm_start=0.3 --nudge
+    python3 tools/tank_rest.py --dim 3 --set dfsph.correction_time=0.003 --nudge
     python3 tools/tank_rest.py --dim 2 --solver wcsph
 
 The scene is the test's (``tank_scene``: 0.3 m of water at rest in a 0.3 m tank, 2 cm

@@ -106,7 +106,7 @@ class Uniform:
         pass
 
     @ti.func
-    def follow_owners(self, j):
+    def follow_owners(self, j, vel: ti.template()):
         pass
 
     @ti.func
@@ -176,22 +176,23 @@ class Adaptive(Uniform):
                 ti.atomic_add(into[self.pool.children[j, q]], share)
 
     @ti.func
-    def follow_owners(self, j):
-        """Virtual particle j takes its owners' velocity: a virtual child its transient
+    def follow_owners(self, j, vel: ti.template()):
+        """Virtual particle j takes its owners' velocity, in the field ``vel`` (the
+        particles' own, or a field of velocity changes): a virtual child its transient
         parent's, a virtual parent its children's mass-weighted mean (an implicit pressure
         solve's iterations change the owners' velocities)."""
         p = ti.static(self.pool.p)
         if p[j].kind == VIRTUAL_CHILD:
-            p[j].v = p[p[j].parent].v
+            vel[j] = vel[p[j].parent]
         else:
             m = 0.0
             mv = ti.Vector.zero(float, self.dim)
             for q in range(p[j].nchild):
                 ch = self.pool.children[j, q]
                 m += p[ch].m
-                mv += p[ch].m * p[ch].v
+                mv += p[ch].m * vel[ch]
             if m > 0.0:
-                p[j].v = mv / m
+                vel[j] = mv / m
 
     @ti.func
     def anchor(self, j):
@@ -219,7 +220,7 @@ class Adaptive(Uniform):
         """Virtual particle j on its anchor, at its owners' velocity: after a solver moved
         the owners (``pbf``), as a spring at k dt >= 1 puts it (``advect``)."""
         self.pool.p[j].x = self.anchor(j)
-        self.follow_owners(j)
+        self.follow_owners(j, self.pool.p.v)
 
     @ti.func
     def advect(self, j, dt):

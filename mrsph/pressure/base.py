@@ -11,8 +11,9 @@ Device hooks (``ti.func``), called inside the other passes' loops:
   kernel gradient's scalar factor (∇W = grad · r_ij); 0 for a solver that does not push
   through the force pass;
 - ``cfl_rate(c, |u|, l)``: the rate of the CFL bound, dt <= λ / rate (0: no CFL bound);
-- ``note_step(moved)``: the spacings the step's fastest particle moves, max |u| dt / s,
-  once dt is chosen.
+- ``step_rate(i, l)``: a bound of the solver's own on particle i, dt <= 1 / rate (read
+  only where ``has_step_rate``);
+- ``note_step(dt)``: the step's dt, once chosen.
 
 Passes (``sph.step.Pass`` lists), which the Simulation schedules around its own:
 ``after_density()`` (before the forces), ``after_kick()`` (on the kicked velocities,
@@ -40,7 +41,7 @@ class TimeStepBound:
     length: str
     dt_max: float
     says: str
-    even_last_steps: bool = False  # a frame's last two steps share what is left (see integrator)
+    even_last_steps: bool = False  # a frame's steps are equal, what is left over the fewest (see integrator)
     force_limited: bool = True  # the force bound λ_f sqrt(h / |a|) applies
 
     def speed_at(self, dt: float, h0: float, s0: float) -> float:
@@ -66,6 +67,7 @@ class PressureSolver:
     # first, then sort, measure and project the predicted positions (a position-based solver)
     predicts = False
     uses_forces = True  # the force pass runs (pair pressure, viscosity); False: the solver's passes do it
+    has_step_rate = False  # ``step_rate`` bounds the step (else it is not called)
 
     # ------------------------------------------------------------------ host
     def bound(self) -> TimeStepBound:
@@ -138,5 +140,13 @@ class PressureSolver:
         return 0.0
 
     @ti.func
-    def note_step(self, moved):
+    def step_rate(self, i, l):
+        return 0.0
+
+    def step_rate_says(self, rate: float) -> str:
+        """What the solver's own bound is, for a blow-up message (``rate`` its max, 1/s)."""
+        return f"{self.name}'s own time-step bound sets it (1/dt = {rate:.3g} 1/s)"
+
+    @ti.func
+    def note_step(self, dt):
         pass

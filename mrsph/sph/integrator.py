@@ -6,9 +6,9 @@ the solver has nothing between them, and ``virtual_advect``).
 - accelerate: a_i = F_i/m_i + g + disturbances (the body forces), with the reactions the
   level coupling handed to i, and i's CFL and force rates and whether it is bad;
 - the time step: dt = min(dt_max, CFL bound λ L/(c + |u|), force bound λ_f sqrt(h/|a|),
-  viscous bound, disturbance bound), each particle with its own level's lengths, λ, L
-  and c the pressure solver's (``pressure.base.TimeStepBound``), then cut to the end of
-  the frame;
+  the solver's own bound 1/rate_i (dfsph's pressure bound), viscous bound, disturbance
+  bound), each particle with its own level's lengths, λ, L and c the pressure solver's
+  (``pressure.base.TimeStepBound``), then cut to the end of the frame;
 - kick u += dt a, drift x += dt u, collide (walls and obstacles, ``boundary.py``);
 - the virtual particles' advection (``multires.coupling``), after their owners moved.
 
@@ -30,6 +30,11 @@ from .step import Pass
 ACCEL_OVERFLOW = 1e30
 
 REDUCTION_BLOCKS = 256  # blocks of the time-step reduction (see ``accelerations``)
+
+# How much an implicit solver's step may grow on the last one's: a pressure burst that
+# shortened a step, then a step twice as long, rang the 2D adaptive deep tank's pressure
+# between 0.3 and 1.4 of hydrostatic (``timestep_func``).
+STEP_GROWTH = 1.25
 
 # What ``kick_drift_collide`` does for a particle: the kick, the drift and the walls.
 KICK, DRIFT, COLLIDE = 1, 2, 4
@@ -63,13 +68,14 @@ class Integrator:
         # physics.max_speed: a real particle faster than this is reported as a blow-up
         self.speed_limit = ti.field(float, shape=())
         self.speed_limit[None] = physics.max_speed
-        # reductions of the time-step phase: [max (c+|u|)/h, max |a|/h, bad count, first bad]
-        self.red_f = ti.field(float, shape=2)
+        # reductions of the time-step phase: [max (c+|u|)/h, max |a|/h, max solver rate],
+        # [bad count, first bad]
+        self.red_f = ti.field(float, shape=3)
         self.red_i = ti.field(ti.i32, shape=2)
         # what the host reads when a step does not go: (dt before the cut to the frame's
-        # end, force limit, bad count, first bad); a field, not the kernel's result,
-        # which costs more to pass back
-        self.step_report = ti.field(ti.f64, shape=4)
+        # end, force limit, bad count, first bad, the solver's rate); a field, not the
+        # kernel's result, which costs more to pass back
+        self.step_report = ti.field(ti.f64, shape=5)
         # the last step that went as its bounds chose it, before a cut to the frame's end
         # (the stats row's dt; read once a frame, by ``chosen_dt``)
         self.bound_dt = ti.field(ti.f64, shape=())
@@ -107,6 +113,7 @@ class Integrator:
     def clear_reductions(self):
         self.red_f[0] = 0.0
         self.red_f[1] = 0.0
+        self.red_f[2] = 0.0
         self.red_i[0] = 0
         self.red_i[1] = 2147483647
 
@@ -122,8 +129,8 @@ class Integrator:
     def accelerate(self, i, g, c_sound, stirred):
         """a_i = F_i/m_i + g + disturbances for real particle i, F_i with the reactions
         the coupling handed to it. Returns i's CFL rate (c + |u|)/h, its force rate
-        |a|/h, and whether it is bad: NaN/Inf velocity or acceleration, or a speed above
-        ``physics.max_speed``."""
+        |a|/h, the solver's own rate (``step_rate``, dt <= 1/rate), and whether it is bad:
+        NaN/Inf velocity or acceleration, or a speed above ``physics.max_speed``."""
         p = ti.static(self.pool.p)
         f = self.coupling.take_reaction(i, self._force(i))
         acc = f / p[i].m + g
@@ -136,13 +143,13 @@ class Integrator:
         an = acc.norm()
         # NaN fails both comparisons; Inf and speeds past physics.max_speed fail the first
         bad = not (speed <= self.speed_limit[None] and an < ACCEL_OVERFLOW)
-        return self.pressure.cfl_rate(c_sound, speed, l), an / h, bad
+        return self.pressure.cfl_rate(c_sound, speed, l), an / h, self.pressure.step_rate(i, l), bad
 
     @ti.func
     def accelerate_reduce(self, i, g, c_sound, stirred):
         """``accelerate`` one particle inside another pass's loop (a uniform run's force
         pass) and fold its rates into the reductions."""
-        cfl, force, bad = self.accelerate(i, g, c_sound, stirred)
+        cfl, force, own, bad = self.accelerate(i, g, c_sound, stirred)
         if bad:
             ti.atomic_add(self.red_i[0], 1)
             ti.atomic_min(self.red_i[1], i)
@@ -153,6 +160,9 @@ class Integrator:
                 ti.atomic_max(self.red_f[0], cfl)
             if force > self.red_f[1]:
                 ti.atomic_max(self.red_f[1], force)
+            if ti.static(self.pressure.has_step_rate):
+                if own > self.red_f[2]:
+                    ti.atomic_max(self.red_f[2], own)
 
     @ti.func
     def accelerations(self, n, c_sound, stirred):
@@ -166,21 +176,24 @@ class Integrator:
         # compare-and-swap loop, ten times the cost of the loop body when taken per particle
         blocks = ti.static(REDUCTION_BLOCKS)
         for b in range(blocks):
-            cfl, force, bad_count, first_bad = 0.0, 0.0, 0, 2147483647
+            cfl, force, own, bad_count, first_bad = 0.0, 0.0, 0.0, 0, 2147483647
             # block b's share of the pool, in 64 bits: b * n passes 2^31 from 8.4M particles
             lo = ti.cast(ti.cast(b, ti.i64) * n // blocks, ti.i32)
             hi = ti.cast(ti.cast(b + 1, ti.i64) * n // blocks, ti.i32)
             for i in range(lo, hi):
                 if is_real(p[i].kind):
-                    cfl_i, force_i, bad = self.accelerate(i, g, c_sound, stirred)
+                    cfl_i, force_i, own_i, bad = self.accelerate(i, g, c_sound, stirred)
                     if bad:
                         bad_count += 1
                         first_bad = ti.min(first_bad, i)
                     else:
                         cfl = ti.max(cfl, cfl_i)
                         force = ti.max(force, force_i)
+                        own = ti.max(own, own_i)
             ti.atomic_max(self.red_f[0], cfl)
             ti.atomic_max(self.red_f[1], force)
+            if ti.static(self.pressure.has_step_rate):
+                ti.atomic_max(self.red_f[2], own)
             ti.atomic_add(self.red_i[0], bad_count)
             ti.atomic_min(self.red_i[1], first_bad)
 
@@ -216,8 +229,9 @@ class Integrator:
     @ti.func
     def timestep_func(self, n):
         """Accelerations (unless the force pass took them), then dt = min(cap, λ/max rate,
-        λ_f / sqrt(max |a|/h)) cut to the end of the frame, whether the step goes, and
-        the solver's note of it; the reasons a step does not go in ``step_report``."""
+        λ_f / sqrt(max |a|/h), 1/max solver rate) cut to the end of the frame, whether the
+        step goes, and the solver's note of it; the reasons a step does not go in
+        ``step_report``."""
         st = self.state
         if ti.static(not self.fused_accelerations):
             self.accelerations(n, st.c_sound[None], st.stirred[None])
@@ -229,25 +243,34 @@ class Integrator:
             dt = ti.min(dt, st.cfl[None] / cfl_lim)
         if force_lim > 0.0:
             dt = ti.min(dt, st.force_factor[None] / ti.sqrt(force_lim))
+        own_lim = ti.cast(self.red_f[2], ti.f64)
+        if own_lim > 0.0:
+            dt = ti.min(dt, 1.0 / own_lim)
+        if ti.static(self.even_last_steps):
+            # an implicit solve's κ goes as 1/dt²: a frame's last step cut short would
+            # correct its density error in less time with more pressure, and every change
+            # of dt sets the pressure ringing (the resting deep tank's pressure read 1.65
+            # of hydrostatic in a last step cut to 0.36 of 0.62 ms). So dt grows by at most
+            # STEP_GROWTH on the last step's (not from below a few dt_min, so that a step
+            # cut to a sliver does not hold the next ones down), and a frame's steps are
+            # equal: what is left of it over the fewest steps the bound allows.
+            dt = ti.min(dt, ti.max(STEP_GROWTH * st.dt[None], 4.0 * st.dt_min[None]))
         st.go[None] = ti.cast(self.red_i[0] == 0 and dt >= st.dt_min[None], ti.i32)
         if st.go[None]:
             self.bound_dt[None] = dt
         if ti.static(self.even_last_steps):
-            # an implicit solve's κ goes as 1/dt²: a frame's last step cut to a sliver
-            # would correct the whole density error in it and leave a velocity kick
-            # of order error/dt. Where a full step would leave less than half a step,
-            # the last two share what is left; a leftover of round-off is absorbed.
             if max_dt <= dt * (1.0 + 1e-6):
                 dt = max_dt
-            elif max_dt < 1.5 * dt:
-                dt = 0.5 * max_dt
+            elif max_dt < 1e30:
+                dt = max_dt / ti.ceil(max_dt / dt * (1.0 - 1e-6))
         st.dt[None] = ti.min(dt, max_dt)
-        self.pressure.note_step(cfl_lim * st.dt[None])  # spacings moved, at most
+        self.pressure.note_step(st.dt[None])
         if not st.go[None]:
             self.step_report[0] = dt
             self.step_report[1] = force_lim
             self.step_report[2] = ti.cast(self.red_i[0], ti.f64)
             self.step_report[3] = ti.cast(self.red_i[1], ti.f64)
+            self.step_report[4] = own_lim
 
     @ti.kernel
     def integrate(self, n: ti.i32):
@@ -338,7 +361,7 @@ class Integrator:
         (the time-step pass said -1; ``where``: the step and time, for the message)."""
         ph = self.physics
         _, viscous_dt = self.bounds()
-        stable_dt, force_lim, bad, first_bad = self.step_report.to_numpy().tolist()
+        stable_dt, force_lim, bad, first_bad, own_lim = self.step_report.to_numpy().tolist()
         if bad > 0:
             self.report_bad(int(first_bad), int(bad), where)
         mu = self.viscosity()
@@ -351,11 +374,11 @@ class Integrator:
                 )
             raise SimulationError(
                 f"{where}: time step {stable_dt:.3g} s is below "
-                f"physics.dt_min = {ph.dt_min:g} s: {self.dt_cause(stable_dt, force_lim)}"
+                f"physics.dt_min = {ph.dt_min:g} s: {self.dt_cause(stable_dt, force_lim, own_lim)}"
             )
         raise AssertionError("a step that did not go left no reason in step_report")
 
-    def dt_cause(self, dt: float, force_lim: float) -> str:
+    def dt_cause(self, dt: float, force_lim: float, own_lim: float = 0.0) -> str:
         """Which bound made ``dt``: the disturbance cap, read from the disturbances, or one
         of the reduced rates: the force rate |a|/h is reported, and the CFL rate of the
         solver's bound (``TimeStepBound``, its λ, length and signal speed) is λ / dt.
@@ -375,6 +398,8 @@ class Integrator:
                 f"the force bound sets it (largest |a|/h = {force_lim:.3g} 1/s^2): the fluid "
                 f"is blowing up; lower the disturbance strength or {bound.key}"
             )
+        if own_lim > 0 and dt >= 0.999 / own_lim:
+            return f"{self.pressure.step_rate_says(own_lim)}: the fluid is blowing up; lower physics.dt_min"
         if bound.number == 0.0:  # no CFL bound: the solver's own step
             return f"{bound.says} sets it; lower physics.dt_min"
         rate = bound.number / dt

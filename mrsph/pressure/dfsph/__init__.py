@@ -22,51 +22,58 @@ TABLE = (
             doc="lambda of the CFL bound dt <= lambda s / max |u| "
             "(s the particle's level spacing): a particle moves at most lambda spacings a step",
         ),
+        "pressure_cfl": key(
+            "float",
+            0.3,
+            ">= 0",
+            doc="lambda_p of the pressure bound dt <= lambda_p s / sqrt(p / rho) (p the particle's last "
+            "pressure, s its level's spacing): the pressure holds each particle in its place in the "
+            "lattice with a stiffness of order p / s^2, explicitly, and a step past about 0.45 s / "
+            "sqrt(p / rho) lets the lattice ring (docs/METHOD.md §16); 0: no such bound",
+        ),
         "density_tolerance": key(
             "float",
             0.001,
             "> 0",
-            doc="the density solve stops when the average "
-            "predicted compression (rho* - rho0)/rho0 of the real particles is "
-            "within this (0.001 = 0.1 %)",
+            doc="the density solve stops when the average density error it leaves, |rho* - rho0| / rho0 "
+            "over the particles in its system, is within this (0.001 = 0.1 %)",
         ),
         "rest_tolerance": key(
             "float",
-            0.0005,
+            0.00001,
             "> 0",
-            doc="the tightest the density tolerance "
-            "gets: in a slow flow (slow_flow) density_tolerance is scaled by "
-            "how slow, down to this. The compression a solve leaves is undone "
-            "the next step at about tolerance s/dt, a noise of its own in water "
-            "at rest (the resting 3D tank moved at 1.3 % of sqrt(gH) "
-            "unscaled, 0.8 % at 0.0005); = density_tolerance: unscaled",
+            doc="the tightest density_tolerance gets: in a slow flow (slow_flow) density_tolerance and "
+            "max_density_error are scaled by how slow, the first down to this. An error eta a solve "
+            "leaves is undone at about eta s / correction_time, a noise of its own in water at rest, "
+            "and a smooth pressure error shows in the density only where it ends, at a floor: the "
+            "80-deep tank at rest needs 1e-5 (docs/METHOD.md §16); = density_tolerance: unscaled",
         ),
         "slow_flow": key(
             "float",
             0.1,
             "(0, 1]",
-            doc="a step in which the fastest particle moves "
-            "less than this share of its spacing is a slow flow: the density "
-            "tolerance is scaled by max |u| dt / s over this (see rest_tolerance)",
+            doc="a step in which the real particles move on average less than this share of their "
+            "spacing is a slow flow: the tolerances are scaled by mean |u| dt / s over this (see "
+            "rest_tolerance)",
         ),
         "max_density_error": key(
             "float",
             0.01,
             "> 0",
-            doc="and until no real particle's predicted "
-            "compression is above this (0.01 = 1 %): a hot spot of a few dozen "
-            "particles hides in the average (docs/performance.md, the stirred "
-            "soak); larger is faster",
+            doc="and until no particle's density error is above this (0.01 = 1 %; in a slow flow scaled "
+            "as density_tolerance is): a hot spot of a few dozen particles hides in the average "
+            "(docs/performance.md, the stirred soak); larger is faster",
         ),
         "correction_time": key(
             "float",
             0.002,
             ">= 0",
             unit="s",
-            doc="a compression a particle already has is removed over this time: a share "
-            "dt / correction_time of it a step, all of it in a step this long or longer (0: within "
-            "every step, the paper's). Removed within a step that the CFL bound shortened, it cost "
-            "a speed proportional to the flow's own and fed it (docs/METHOD.md §16)",
+            doc="a density error a particle already has (a compression, or within the fluid an "
+            "expansion) is removed over this time: a share dt / correction_time of it a step, all of "
+            "it in a step this long or longer (0: within every step, the paper's). Removed within a "
+            "step that the CFL bound shortened, a compression cost a speed proportional to the flow's "
+            "own and fed it (docs/METHOD.md §16)",
         ),
         "divergence_tolerance": key(
             "float",
@@ -75,12 +82,12 @@ TABLE = (
             doc="the divergence solve stops when the "
             "average density rate of change times dt, over rho0, is within this",
         ),
-        "min_iterations": key("int", 1, ">= 0", doc="velocity updates of the density solve at least"),
+        "min_iterations": key("int", 1, ">= 0", doc="iterations of the density solve at least"),
         "max_iterations": key(
             "int",
             100,
             ">= 1",
-            doc="velocity updates of the density solve at most; "
+            doc="iterations of the density solve at most; "
             "a solve that stops here is counted in stats (unconverged) and warned once",
         ),
         "shorten_steps": key(
@@ -104,15 +111,6 @@ TABLE = (
             "bool",
             True,
             doc="run the divergence solve each step (false: the density solve alone, as IISPH-like schemes)",
-        ),
-        "warm_start": key(
-            "float",
-            0.5,
-            "[0, 1]",
-            doc="the share of the last step's pressure the "
-            "density solve starts from, where the kicked fluid is compressed (0: a "
-            "cold start; 1, the whole, ratchets the 2D dam break's pressure up until "
-            "it blows up)",
         ),
     },
     "The divergence-free solver (fluid.solver = \"dfsph\"); ignored by the other solvers.",

@@ -69,11 +69,10 @@ class StoredPairs:
         return self.img_n[i] <= ti.static(self.max_images)
 
     @ti.func
-    def image_rate(self, i, rate):
+    def image_rate(self, i, rate, vel: ti.template()):
         """``rate`` plus Σ m_j (u_i − L u_j)·∇W_ij = Σ u_i·(m_j ∇W_ij) − u_j·(m_j Lᵀ ∇W_ij)
-        over i's kept image pairs."""
-        p = ti.static(self.pool.p)
-        vi = p[i].v
+        over i's kept image pairs, u the velocity field ``vel``."""
+        vi = vel[i]
         for k in range(self.img_n[i]):
-            rate += vi.dot(self.img_g[i, k]) - p[self.img_j[i, k]].v.dot(self.img_gl[i, k])
+            rate += vi.dot(self.img_g[i, k]) - vel[self.img_j[i, k]].dot(self.img_gl[i, k])
         return rate

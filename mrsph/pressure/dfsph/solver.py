@@ -7,38 +7,28 @@ Its passes in a step (``simulation.py`` schedules them):
 1. ``after_density``, ``dfsph_factors`` and ``divergence_solve``: the factor of each real particle,
    α_i = ρ_i / (|Σ_j m_j ∇W_ij|² + m_i Σ_j m_j |∇W_ij|²) (the second sum is the reaction
    of i's pressure on its neighbours; with equal masses it is the paper's Σ_j |m_j ∇W_ij|²,
-   see ``gradients.py``),
-   then the divergence solve (``dfsph.divergence_solve``, with the last step's dt): Jacobi iterations on the
-   velocities until the density's rate of change, Dρ_i/Dt = Σ_j m_j (u_i − u_j)·∇W_ij
-   (compression only), averaged over the real particles, times the step, is within
-   ``dfsph.divergence_tolerance`` of ρ0: κ_i = Dρ_i/Dt α_i, u_i −= Σ_j m_j (κ_i/ρ_i +
-   κ_j/ρ_j) ∇W_ij;
+   see ``gradients.py``), then the divergence solve (``dfsph.divergence_solve``, with the
+   last step's dt; Jacobi sweeps, ``jacobi.py``) until the density's rate of change,
+   Dρ_i/Dt = Σ_j m_j (u_i − u_j)·∇W_ij (compression only), averaged over the real
+   particles, times the step, is within ``dfsph.divergence_tolerance`` of ρ0;
 2. non-pressure accelerations (``forces.py`` with a zero pressure term, the integrator's
-   gravity and disturbances), the time step dt = λ s_l / |u| (``dfsph.cfl``, s_l the
-   particle's level spacing) with dt_max and the force and viscous bounds, and the kick
-   u* = u + dt a;
-3. ``after_kick``, ``density_solve``: the constant-density solve, Jacobi iterations until the average predicted
-   density error, (ρ*_i − ρ0)/ρ0 with ρ*_i = ρ_i + dt Σ_j m_j (u_i − u_j)·∇W_ij (compression
-   only, so that a free surface is not pulled in), is within ``dfsph.density_tolerance``
-   (tightened in slow flow down to ``dfsph.rest_tolerance``) and no particle's is
-   above ``dfsph.max_density_error`` (the stopping rule: ``tolerance.py``):
-   κ_i = (ρ*_i − ρ0) α_i / dt², u_i −= dt Σ_j m_j (κ_i/ρ_i + κ_j/ρ_j) ∇W_ij; warm-started
-   from the last step's pressure (carried by the sort in the particle's ``p``);
+   gravity and disturbances), the time step: dt = λ s_l / |u| (``dfsph.cfl``, s_l the
+   particle's level spacing), dt <= λ_p s_l / sqrt(p_i/ρ_i) (``dfsph.pressure_cfl``, the
+   pressure's hold on the lattice, ``step_rate``), dt_max and the force and viscous
+   bounds, and the kick u* = u + dt a;
+3. ``after_kick``, ``density_solve``: the constant-density solve, a pressure κ = p/ρ with
+   u = u* − dt Σ_j m_j (κ_i/ρ_i + κ'_j/ρ_j) ∇W_ij such that the predicted density
+   ρ*_i = ρ_i + dt Σ_j m_j (u_i − u_j')·∇W_ij is ρ0 where the fluid is compressed, to the
+   stopping rule (``tolerance.py``): by conjugate gradients on the whole pressure from the
+   last one (``krylov.py``, the default) or by the paper's Jacobi sweeps (``jacobi.py``);
+   a solve that stops at its maximum is run again on a step half as long;
 4. drift, collide and the virtual particles' advection (integrator).
 
 Both solves keep m_j inside every sum (particles of one level may differ in mass after a
-partial merge), visit the walls and obstacles as mirror images (x_i − x_j' = L(xq − x_j),
-u_j' = L u_j, κ_j' = κ_j), as the force pass does, so the response is the same at every
-level, and go through the level coupling: each level's sums include its virtual
-particles, whose velocities follow their owners' after every iteration, whose κ is their
-partner pressure (0 with the variational coupling), and whose reaction is handed back,
-split evenly, to the real particles they stand for. The pressure a particle shows
-(``p``, in dumps) is ρ_i Σ κ_i over the density solve's iterations: the p of
-u −= dt Σ m_j (p_i/ρ_i² + p_j/ρ_j²) ∇W.
-
-Iterations run ``ITERATIONS_PER_LAUNCH`` to a kernel launch, the convergence decided on
-the device; the host reads it once per launch. A solve that stops at its maximum
-iterations is counted (``stats``) and warned about once.
+partial merge) and visit the walls and obstacles as mirror images and the other levels
+through their virtual particles (``operator.py``). The pressure a particle shows (``p``, in
+dumps) is ρ_i κ_i of the density solve: the p of u −= dt Σ m_j (p_i/ρ_i² + p_j/ρ_j²) ∇W.
+A solve that stops at its maximum iterations is counted (``stats``) and warned about once.
 """
 
 import taichi as ti
@@ -51,20 +41,11 @@ from ..base import PressureSolver, TimeStepBound
 from ..eos import sound_speed
 from ..gradients import PairGradients
 from .counts import DENSITY, DIVERGENCE, SolveCounts
+from .jacobi import Sweeps
+from .krylov import Krylov
+from .operator import Operator
 from .pairs import StoredPairs
-from .tolerance import DONE, RUNS, Stopping
-
-# Jacobi iterations per kernel launch: the host reads the convergence after each launch.
-# More saves a launch and a read (~15 µs, against ~1.5 ms an iteration at 10k particles)
-# per iteration, but each is a copy of the iteration's code in the kernel, and Taichi's
-# compile time grows faster than the code: the DFSPH kernels took ~4 minutes to compile
-# on this CPU with two (the window's solver switch waited for them, and the five first
-# DFSPH compiles were half of the test suite's time). ``_sweep`` also runs the warm start
-# in this loop, so with more than one a launch it would warm-start more than once: take
-# the warm start out of the loop first.
-ITERATIONS_PER_LAUNCH = 1
-
-WARM = 2  # what a sweep (``_sweep``) runs: a solve's iteration (DENSITY, DIVERGENCE), or the warm start
+from .tolerance import Stopping
 
 
 @ti.data_oriented
@@ -84,10 +65,12 @@ class DFSPH(PressureSolver):
         self.dt_max = physics.dt_max
         self.rest_density = core.lev.rest_density
         self.stop = Stopping(params, self.rest_density)
+        # the pressure bound dt <= pressure_cfl s_l / sqrt(p_i / rho_i) (``step_rate``), in a
+        # field so that a scene's value does not compile the step again
+        self.has_step_rate = params.pressure_cfl > 0.0
+        self.inv_pressure_cfl = ti.field(float, shape=())
+        self.inv_pressure_cfl[None] = 1.0 / params.pressure_cfl if self.has_step_rate else 0.0
         self.divergence = params.divergence_solve
-        self.warm_start = params.warm_start
-        self.warm_share = ti.field(float, shape=())  # in a field, not compiled in
-        self.warm_share[None] = self.warm_start
         # the time over which an inherited compression is corrected (``_inherited``)
         self.correction_time = ti.field(float, shape=())
         self.correction_time[None] = params.correction_time
@@ -96,19 +79,20 @@ class DFSPH(PressureSolver):
         self.alpha = ti.field(float, shape=cap)
         self.pairs = PairGradients(core, coupling)  # ∇W of neighbours and images, the factor sums
         self.kept = StoredPairs(core.pool, self.dim, core.nb.max_neighbours, self.pairs.grad, self.pairs.add_factor)
-        self.kappa = ti.field(float, shape=cap)  # this iteration's κ_i
-        self.ksum = ti.field(float, shape=cap)  # Σ κ_i over the density solve
+        self.op = Operator(core, coupling, self.pairs, self.kept)  # the rate and the push
+        self.ksum = ti.field(float, shape=cap)  # the density solve's κ_i, p_i / ρ_i
         self.err = ti.field(ti.f64, shape=())  # Σ of the real particles' errors
         self.n_real = ti.field(ti.i32, shape=())
-        # the visits of each image's candidates, for Neighbours.images
+        self.speed_sum = ti.field(ti.f64, shape=())  # Σ |u_i| / s_i over the real particles
+        # the factor pass's visits of each image's candidates, for Neighbours.images
         self._factor_images = ImageNeighbours(self.nb, self.kept.image_pair)
-        self._rate_images = ImageNeighbours(self.nb, self._rate_pair)
-        self._push_images = ImageNeighbours(self.nb, self._push_image)
         self.counts = SolveCounts(self.stop.tolerance, self.stop.max_iterations, warn, params.max_density_error)
         # a step shortened when its density solve stops at its maximum (``_density_solve``):
         # the kicked velocities it starts again from
         self.shorten_steps = params.shorten_steps
         self.kicked = ti.Vector.field(self.dim, float, shape=cap if params.shorten_steps else 1)
+        self.sweeps = Sweeps(self)  # the divergence solve
+        self.krylov = Krylov(self, cap)  # the density solve
 
     # ------------------------------------------------------------------ interface
     def bound(self) -> TimeStepBound:
@@ -137,9 +121,28 @@ class DFSPH(PressureSolver):
         return speed / self.lev.s[l]
 
     @ti.func
-    def note_step(self, moved):
-        """The spacings the step's fastest particle moves (``RestTolerance``)."""
-        self.stop.rest.note_step(moved)
+    def step_rate(self, i, l):
+        """sqrt(p_i / ρ_i) / (λ_p s_l), p_i the last step's pressure: dt <= λ_p s_l /
+        sqrt(p_i / ρ_i) (``dfsph.pressure_cfl``). The pressure pushes a particle off its
+        place in the lattice back with a stiffness of order p/s², explicitly (the solve
+        is linear in the velocities and blind to that motion, which changes no density at
+        first order), so a step past about 0.45 s / sqrt(p/ρ) lets the lattice ring: the
+        80-deep tank at rest moved at 0.051 sqrt(gH) at 2 ms, 0.002 at 1 ms
+        (docs/validation.md)."""
+        p = ti.static(self.pool.p)
+        return ti.sqrt(ti.max(p[i].p, 0.0) / p[i].rho) * self.inv_pressure_cfl[None] / self.lev.s[l]
+
+    def step_rate_says(self, rate: float) -> str:
+        return (
+            f"dfsph's pressure bound sets it (dfsph.pressure_cfl: sqrt(p/rho)/(pressure_cfl s) = {rate:.3g} 1/s, "
+            "a pressure rising without bound)"
+        )
+
+    @ti.func
+    def note_step(self, dt):
+        """The spacings the real particles move on average this step, mean |u_i| / s_i
+        (summed by the factor pass) times dt (``RestTolerance``)."""
+        self.stop.rest.note_step(self.speed_sum[None] / ti.max(self.n_real[None], 1) * dt)
 
     # ------------------------------------------------------------------ host
     def reset_counters(self) -> None:
@@ -162,12 +165,12 @@ class DFSPH(PressureSolver):
         return [Pass("density_solve", "pressure", self._density_solve, decides=True)]
 
     def solve_loops(self, stats: dict) -> float:
-        """Two loops a Jacobi sweep (the rate, the push), the warm start's one sweep."""
-        warm = 1.0 if self.warm_start > 0.0 else 0.0
-        return 2.0 * (stats["density_iterations"] + stats["divergence_iterations"] + warm)
+        """Neighbour loops a step: the Krylov solve's (``Krylov.loops``), two a divergence
+        sweep (the rate, the push)."""
+        return self.krylov.loops(stats["density_iterations"]) + 2.0 * stats["divergence_iterations"]
 
     def _divergence_solve(self, n: int) -> None:
-        it, err, hit = self._solve(n, DIVERGENCE)
+        it, err, hit = self.sweeps.solve(n)
         self.counts.add(DIVERGENCE, it, err, hit, t=float(self.state.t[None]) if hit else None)
 
     def _density_solve(self, n: int):
@@ -181,11 +184,7 @@ class DFSPH(PressureSolver):
             self._keep_kicked(n)
         shortened = 0
         while True:
-            if self.warm_start > 0.0:
-                self._sweep(n, WARM, 0.0, 0, 0)
-            else:
-                self._cold(n)
-            it, err, hit = self._solve(n, DENSITY)
+            it, err, hit = self.krylov.solve(n, self.stop.args(DENSITY))
             if not (hit and shortened < self.shorten_steps and self._shorten(n)):
                 break
             shortened += 1
@@ -196,22 +195,12 @@ class DFSPH(PressureSolver):
         self._pressures(n)
         return float(self.state.dt[None]) if shortened else None
 
-    def _solve(self, n: int, which: int):
-        """Jacobi iterations, ``ITERATIONS_PER_LAUNCH`` a launch, each launch returning
-        whether the device says done (its outcome is read once, at the end: a state read
-        per launch was 13 of a demo_2d step's 43 calls); returns (iterations, average
-        error, stopped at the maximum)."""
-        self.stop.start()
-        while not self._sweep(n, which, *self.stop.args(which)):
-            pass
-        iterations, error, hit_max = self.stop.outcome()
-        return int(iterations), float(error), bool(hit_max)
-
     # ------------------------------------------------------------------ device
     @ti.kernel
     def _factors(self, n: ti.i32):
         p = ti.static(self.pool.p)
         self.n_real[None] = 0
+        self.speed_sum[None] = 0.0
         for i in range(n):
             if is_real(p[i].kind):
                 l, h, ctx = self.pairs.ctx(i)
@@ -229,181 +218,18 @@ class DFSPH(PressureSolver):
                 # an isolated particle has no neighbour to push: no pressure
                 self.alpha[i] = p[i].rho / den if den > 1e-12 * p[i].rho * p[i].rho else 0.0
                 self.n_real[None] += 1
+                self.speed_sum[None] += ti.cast(p[i].v.norm() / self.lev.s[l], ti.f64)
 
     @ti.func
-    def _rate(self, i):
-        """Σ_j m_j (u_i − u_j')·∇W_ij over i's neighbourhood: the listed neighbours from
-        ``kept``, an overflowed list or images that did not fit on the fly."""
-        p = ti.static(self.pool.p)
-        l, h, ctx = self.pairs.ctx(i)
-        rate = 0.0
-        if self.nb.is_listed(i):
-            vi = p[i].v
-            for q in range(self.nb.count[i]):
-                rate += (vi - p[self.nb.lists[i, q]].v).dot(self.kept.gw[i, q])
-        else:
-            self.nb.grid_candidates(
-                i, p[i].x, ti.Matrix.identity(float, self.dim), p[i].x, p[i].x, False, l, self._rate_pair, ctx, rate
-            )
-        if self.kept.images_kept(i):
-            rate = self.kept.image_rate(i, rate)
-        else:
-            self.nb.images(i, h, self._rate_images.visit, ctx, rate)
-        return rate
+    def inherited_share(self):
+        """The share of an inherited compression this step removes, dt / correction_time."""
+        h_dt = ti.cast(self.state.dt[None], float)
+        return ti.min(h_dt / ti.max(self.correction_time[None], 1e-30), 1.0)
 
     @ti.func
-    def _push_all(self, i):
-        """Σ_j m_j (κ_i/ρ_i + κ'_j/ρ_j) ∇W_ij over i's neighbourhood (listed neighbours from
-        ``kept``), the reactions of virtual neighbours handed on."""
-        p = ti.static(self.pool.p)
-        l, h, ctx = self.pairs.ctx(i)
-        acc = ti.Vector.zero(float, self.dim)
-        ki = self.kappa[i] / p[i].rho
-        if self.nb.is_listed(i):
-            mi = p[i].m
-            for q in range(self.nb.count[i]):
-                j = self.nb.lists[i, q]
-                f = (ki + self._shown(j)) * self.kept.gw[i, q]
-                acc += f
-                self.coupling.hand_reaction(j, -mi * f)
-        else:
-            self.nb.grid_candidates(
-                i, p[i].x, ti.Matrix.identity(float, self.dim), p[i].x, p[i].x, False, l, self._push_own, ctx, acc
-            )
-        if self.kept.images_kept(i):
-            for k in range(self.kept.img_n[i]):  # the walls are external: nothing handed on
-                acc += (ki + self._shown(self.kept.img_j[i, k])) * self.kept.img_g[i, k]
-        else:
-            self.nb.images(i, h, self._push_images.visit, ctx, acc)
-        return acc
-
-    @ti.func
-    def _rate_pair(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
-        """m_j (u_i − u_j')·∇W_ij, u_j' = L u_j."""
-        ok, g = self.pairs.grad(i, j, xq, L, p0, nrm, check, ctx)
-        if ok:
-            p = ti.static(self.pool.p)
-            acc += p[j].m * (p[i].v - L @ p[j].v).dot(g)
-
-    @ti.func
-    def _shown(self, j):
-        """κ'_j/ρ_j, κ'_j the pressure j shows its neighbours (the coupling's)."""
-        return self.coupling.partner_pressure(self.pool.p[j].kind, self.kappa[j]) / self.pool.p[j].rho
-
-    @ti.func
-    def _push(self, i, j, g):
-        """m_j (κ_i/ρ_i + κ'_j/ρ_j) ∇W_ij."""
-        p = ti.static(self.pool.p)
-        return p[j].m * (self.kappa[i] / p[i].rho + self._shown(j)) * g
-
-    @ti.func
-    def _push_own(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
-        """Own-level neighbour: its part of the velocity change, and the reaction of a
-        virtual j handed to its owners (as a force, m_i times the velocity change)."""
-        ok, g = self.pairs.grad(i, j, xq, L, p0, nrm, check, ctx)
-        if ok:
-            f = self._push(i, j, g)
-            acc += f
-            self.coupling.hand_reaction(j, -self.pool.p[i].m * f)
-
-    @ti.func
-    def _push_image(self, i, j, xq, L, p0, nrm, check: ti.template(), ctx: ti.template(), acc: ti.template()):
-        """A mirror image: the wall is external, nothing is handed on."""
-        ok, g = self.pairs.grad(i, j, xq, L, p0, nrm, check, ctx)
-        if ok:
-            acc += self._push(i, j, g)
-
-    @ti.func
-    def _update(self, n, scale):
-        """u_i −= scale Σ_j m_j (κ_i/ρ_i + κ'_j/ρ_j) ∇W_ij for every real i, then the
-        reactions handed to the owners of virtual neighbours, then the virtual particles'
-        velocities from their owners. Three loops (adaptive) or one."""
-        p = ti.static(self.pool.p)
-        for i in range(n):
-            if self.stop.state[RUNS] and is_real(p[i].kind):
-                p[i].v -= scale * self._push_all(i)
-        if ti.static(self.adaptive):
-            for i in range(n):
-                if self.stop.state[RUNS] and is_real(p[i].kind):
-                    r = self.coupling.take_reaction(i, ti.Vector.zero(float, self.dim))
-                    p[i].v += scale * r / p[i].m
-            for j in range(n):
-                if self.stop.state[RUNS] and is_virtual(p[j].kind):
-                    self.coupling.follow_owners(j)
-
-    @ti.kernel
-    def _sweep(self, n: ti.i32, mode: ti.i32, tol: ti.f64, min_it: ti.i32, max_it: ti.i32) -> ti.i32:
-        """One kernel for the three sweeps over the fluid, ``mode`` a runtime argument: a
-        Jacobi iteration of the density or the divergence solve (``ITERATIONS_PER_LAUNCH``
-        of them), or the density solve's warm start. Each measures the rate of the current
-        velocities, sets κ from it, and updates the velocities (``_update``); an iteration
-        first decides on the device whether to stop (``Stopping``: converged after at
-        least ``min_it`` updates, or ``max_it`` reached). One kernel, not three, because
-        every copy of the neighbour sums costs compile time (the three took 3x as long,
-        docs/performance.md).
-
-        The warm start: where the kicked velocities compress a particle (ρ*_i > ρ0), κ_i
-        starts at ``dfsph.warm_start`` times the last step's p_i/ρ_i (0 for a new particle),
-        elsewhere at 0. Less than the whole of the last pressure, and none where the fluid
-        is not compressed, since a solve only adds pressure (its errors are compressions):
-        a warm start past the solution is not taken back within the step, and the next
-        step starts from it again."""
-        p = ti.static(self.pool.p)
-        rho0 = ti.static(self.rest_density)
-        h_dt = ti.cast(self.state.dt[None], float)  # this step's (the last one's before the kick)
-        state, peak = ti.static(self.stop.state, self.stop.peak)
-        share = ti.min(h_dt / ti.max(self.correction_time[None], 1e-30), 1.0)  # of an inherited compression
-        for _ in ti.static(range(ITERATIONS_PER_LAUNCH)):
-            self.err[None] = 0.0
-            peak[None] = 0.0
-            state[RUNS] = 1 if mode == WARM else 1 - state[DONE]
-            for i in range(n):
-                if state[RUNS] and is_real(p[i].kind):
-                    rate = self._rate(i)
-                    if mode == DENSITY:
-                        e = ti.max(self._inherited(i, share) + h_dt * rate, 0.0)  # ρ* − ρ0, compression only
-                        self.kappa[i] = e * self.alpha[i] / (h_dt * h_dt)
-                        self.err[None] += ti.cast(e, ti.f64)
-                        if e > peak[None]:  # a float max is a compare-and-swap loop
-                            ti.atomic_max(peak[None], e)
-                    elif mode == DIVERGENCE:
-                        e = ti.max(rate, 0.0)  # Dρ/Dt, compression only
-                        self.kappa[i] = e * self.alpha[i]
-                        self.err[None] += ti.cast(e * h_dt, ti.f64)
-                    else:
-                        k = 0.0
-                        if self._inherited(i, share) + h_dt * rate > 0.0:
-                            k = self.warm_share[None] * p[i].p / p[i].rho
-                        self.kappa[i] = k
-                        self.ksum[i] = k
-                elif mode == WARM:
-                    self.kappa[i] = 0.0
-                    self.ksum[i] = 0.0
-            if mode != WARM and state[RUNS]:
-                avg = self.err[None] / ti.max(self.n_real[None], 1) / rho0
-                self.stop.decide(mode, avg, tol, min_it, max_it)
-            # the mode in the loop's bound, not around the loop: only a kernel's outermost
-            # loops run in parallel, and inside an `if` this one ran on one thread (on a
-            # GPU, 8 ms of every 9 a sweep took at 100k particles)
-            for i in range(ti.select(mode == DENSITY, n, 0)):
-                if state[RUNS] and is_real(p[i].kind):
-                    self.ksum[i] += self.kappa[i]
-            self._update(n, 1.0 if mode == DIVERGENCE else h_dt)
-        return state[DONE]
-
-    @ti.func
-    def _inherited(self, i, share):
-        """The part of particle i's density error, ρ_i − ρ0 − δρ_i, that this step's density
-        solve removes: a compression only its ``share`` (dt / ``dfsph.correction_time``, at
-        most 1), a deficit whole. Removed within one step, a compression η costs a speed
-        η s/dt, and a step the CFL bound shortened, dt = λ s/|u|, makes that η |u|/λ: the
-        flow's own speed fed back. In the stirred soak, fluid thrown against the ceiling,
-        compressed 25 % beyond what the step predicted, went from 16 to 30 m/s in one step
-        and on to 71 m/s; corrected over 2 ms, it stays within 31 m/s (docs/validation.md,
-        "Stirred soak"). A deficit pushes nothing: left whole, a free surface is free as
-        before."""
-        c = self.pool.p[i].rho - ti.static(self.rest_density) - self.fade.excess(i)
-        return ti.select(c > 0.0, share * c, c)
+    def excess(self, i):
+        """ρ_i − ρ0 − δρ_i: particle i's density error (δρ a split child's, ``fade``)."""
+        return self.pool.p[i].rho - ti.static(self.rest_density) - self.fade.excess(i)
 
     @ti.kernel
     def _keep_kicked(self, n: ti.i32):
@@ -437,13 +263,7 @@ class DFSPH(PressureSolver):
         if ti.static(self.adaptive):
             for j in range(n):
                 if is_virtual(p[j].kind):
-                    self.coupling.follow_owners(j)
-
-    @ti.kernel
-    def _cold(self, n: ti.i32):
-        for i in range(n):
-            self.ksum[i] = 0.0
-            self.kappa[i] = 0.0
+                    self.coupling.follow_owners(j, self.pool.p.v)
 
     @ti.kernel
     def _pressures(self, n: ti.i32):

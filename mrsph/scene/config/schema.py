@@ -164,7 +164,7 @@ SCHEMA = Table(
                 ),
                 "artificial_viscosity_cap": Key(
                     "float",
-                    0.0,
+                    0.15,
                     "[0, 0.35]",
                     doc="kappa of a cap on the artificial viscosity, alpha c <= kappa h / dt (h the "
                     "level's support, dt the last step's); 0 = no cap. Explicit, the term "
