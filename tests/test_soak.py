@@ -179,7 +179,13 @@ def test_strict_soak_fails_on_a_solve_stopped_at_its_maximum(fresh_program, monk
         steps=20,
         check_every=10,
         gesture_s=0.025,
-        overrides=('fluid.solver="dfsph"', "dfsph.max_iterations=1", "dfsph.density_tolerance=1e-9"),
+        # shorten_steps = 0: a solve at its maximum would otherwise halve the step and retry
+        overrides=(
+            'fluid.solver="dfsph"',
+            "dfsph.max_iterations=1",
+            "dfsph.density_tolerance=1e-9",
+            "dfsph.shorten_steps=0",
+        ),
         strict=True,
     )
     assert res.unconverged >= 10 and not res.ok, (res.unconverged, res.failures)

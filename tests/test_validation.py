@@ -1,7 +1,7 @@
 """tools/validate.py's quick runs against the validation targets (docs/validation.md), a
-representative few in ``-m slow``: every solver at rest in the 2D deep tank and on Martin & Moyce's
+representative few in ``-m slow``: every solver at rest in the 2D deep tank (dfsph in 3D too) and on Martin & Moyce's
 2D front, one adaptive run against its uniform twin, and wcsph and dfsph on Lobovsky's 2D wall
-pressure. The rest (3D, the other adaptive runs, MARIN's box) is the command's:
+pressure. The rest (3D but dfsph's tank, the other adaptive runs, MARIN's box) is the command's:
 ``python3 tools/validate.py --quick`` runs every one and marks each target held or missed in its
 table, and docs/validation.md holds what it gave.
 
@@ -46,6 +46,7 @@ def quick(case: str, dim: int, solver: str, mode: str) -> dict:
 SLOW = [
     *[("tank", 2, s, "uniform") for s in V.SOLVERS],
     ("tank", 2, "dfsph", "adaptive"),
+    ("tank", 3, "dfsph", "uniform"),
     *[("front", 2, s, "uniform") for s in V.SOLVERS],
     ("front", 2, "wcsph", "adaptive"),
     ("pressure", 2, "wcsph", "uniform"),
