@@ -102,11 +102,13 @@ class SolveLog:
         self.splits = self.merges = 0
         self.transient = self.virtual = False
         self.solver, self.tolerance = None, None
+        self.dts = []  # each logged step's dt
 
     def add(self, sim, row: dict) -> None:
         self.solver = sim.scene.data["fluid"]["solver"]
         self.tolerance = float(sim.scene.data["dfsph"]["density_tolerance"])
         self.steps += 1
+        self.dts.append(row["dt"])
         if row["density_error"] > self.worst_error:
             self.worst_error, self.worst_at = row["density_error"], sim.time
         self.unconverged += row["unconverged"]

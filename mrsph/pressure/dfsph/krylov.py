@@ -30,11 +30,12 @@ plain one; with levels it is not, and there unweighted conjugate gradients diver
 2D adaptive tank: r·z grew 1000-fold within 100 iterations), and BiCGSTAB broke down at
 times (a step's whole pressure came out negative); weighted, conjugate gradients hold.
 
-A particle is in the system where the kicked flow compresses it or it carried pressure
-the last step, unless it is sparse (``SPARSE_DEFICIT``); the others keep κ = 0. A sparse
-particle kept for its last pressure drifts: its κ hardly moves its neighbours, and a lone
-fine particle among coarse ones (0.2 ρ0 at its level) rose from 6.6 to 143 kPa in 0.11 s
-in a pool whose floor reads 3.1 kPa (docs/METHOD.md §16). The iterations start from the whole last pressure and
+A particle is in the system where the kicked flow compresses it or, within the fluid, it
+carried pressure the last step; the others keep κ = 0: at a free surface the pressure is
+where a compression is and nowhere else. A surface particle kept for its last pressure
+alone, its row asking for no compression, drifts where its κ hardly moves its neighbours:
+a lone fine particle among coarse ones (0.2 ρ0 at its level) rose from 6.6 to 143 kPa in
+0.11 s in a pool whose floor reads 3.1 kPa (docs/METHOD.md §16). The iterations start from the whole last pressure and
 move the velocities with κ as they go (u += a dt w), so a step that stops at any
 iteration leaves the velocities its pressure makes. At the end a negative κ, a pull, is
 taken back (its push undone): a pressure solve of a liquid does not pull.
@@ -53,12 +54,6 @@ from .tolerance import DONE, RUNS
 # layer under the surface misses nothing of a support two spacings wide; the surface
 # layer misses about a third.
 SURFACE_DEFICIT = 0.01
-
-# A particle whose density is this far below ρ0 has lost half its neighbours at its level
-# (a lone fine particle among coarse ones reads 0.2 ρ0; a surface one 0.6-0.9): its κ
-# hardly moves them, so the iterations let it wander and the pulls taken back at the end
-# ratchet it up. It is in the system only where the kicked flow compresses it.
-SPARSE_DEFICIT = 0.5
 
 # scalars of the iteration (``sc``): r·z (the last iteration's and this one's) and d·A d,
 # each weighted by the particles' volumes (``_vol``)
@@ -169,10 +164,10 @@ class Krylov:
                 c = s.excess(i)
                 x = share * c + h_dt * self.op.rate(i)
                 k = ti.max(p[i].p, 0.0) / p[i].rho
-                b = x if c > -SURFACE_DEFICIT * ti.static(s.rest_density) else ti.max(x, 0.0)
+                inside = c > -SURFACE_DEFICIT * ti.static(s.rest_density)
+                b = x if inside else ti.max(x, 0.0)
                 self.slack[i] = b - x
-                sparse = c < -SPARSE_DEFICIT * ti.static(s.rest_density)
-                if (b > 0.0 or (k > 0.0 and not sparse)) and s.alpha[i] > 0.0:
+                if (b > 0.0 or (k > 0.0 and inside)) and s.alpha[i] > 0.0:
                     self.on[i] = 1
                     s.ksum[i] = k
                     self.n_on[None] += 1
