@@ -35,8 +35,8 @@ carried pressure the last step; the others keep κ = 0: at a free surface the pr
 where a compression is and nowhere else. A surface particle kept for its last pressure
 alone, its row asking for no compression, drifts where its κ hardly moves its neighbours:
 a lone fine particle among coarse ones (0.2 ρ0 at its level) rose from 6.6 to 143 kPa in
-0.11 s in a pool whose floor reads 3.1 kPa (docs/METHOD.md §16). The iterations start from the whole last pressure and
-move the velocities with κ as they go (u += a dt w), so a step that stops at any
+0.11 s in a pool whose floor reads 3.1 kPa (docs/METHOD.md §16). The iterations start
+from the whole last pressure and move the velocities with κ as they go (u += a dt w), so a step that stops at any
 iteration leaves the velocities its pressure makes. At the end a negative κ, a pull, is
 taken back (its push undone): a pressure solve of a liquid does not pull.
 """
