@@ -48,9 +48,10 @@ PEAK_BOUND = {"3d-dfsph": 0.015, "3d-pbf": 0.025}
 # 1,681 real particles). 3D wcsph read 0.0071 to 0.0108 in three runs, so it is held to
 # 0.015, and so is 3D dfsph: 0.0089 and 0.0090 in two (2026-12-05, 4eb73d4), each split
 # throwing the pool to 0.013-0.014 for 0.02 s (its drifting pressure, which read 0.014 to
-# 0.029, is guarded by test_refined_pool_keeps_its_step). 3D pbf, a known shortfall the README names (docs/METHOD.md §17; uniform 0.004),
-# read 0.0167 to 0.0415 in four, so it is held to 0.06: the bound still catches the 0.136
-# it read before its tensile correction took one unit across the levels.
+# 0.029, is guarded by test_refined_pool_keeps_its_step). 3D pbf, a known shortfall the
+# README names (docs/METHOD.md §17; uniform 0.004), read 0.0167 to 0.0415 in four, so it
+# is held to 0.06: the bound still catches the 0.136 it read before its tensile
+# correction took one unit across the levels.
 REST_BOUND = {"3d": 0.015, "3d-dfsph": 0.015, "3d-pbf": 0.06}
 
 
