@@ -342,6 +342,7 @@ def run_one(case: str, dim: int, solver: str, mode: str, spacing: float, sets: l
         f"particles.spacing={spacing!r}",
         *sets,
     ]
+    commit = _commit()  # the code this run loads, read now: HEAD may move while it runs
     scene = load_scene(name, over)
     sim = Simulation(scene, arch="cpu", threads=1)
     start = time.perf_counter()
@@ -362,16 +363,24 @@ def run_one(case: str, dim: int, solver: str, mode: str, spacing: float, sets: l
         steps=sim.steps,
         wall_s=time.perf_counter() - start,
         date=datetime.date.today().isoformat(),
-        commit=_commit(),
+        commit=commit,
     )
     return out
 
 
 def _commit() -> str:
+    """HEAD's short hash, "+dirty" when the code, tools or scenes differ from it (the runs
+    and figures this command writes do not count)."""
     try:
-        return subprocess.run(
-            ["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True
-        ).stdout.strip()
+        git = ["git", "-C", str(ROOT)]
+        head = subprocess.run([*git, "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True)
+        dirty = subprocess.run(
+            [*git, "status", "--porcelain", "--", "mrsph", "tools", "scenes", "main.py"],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+        return head.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
 
