@@ -598,6 +598,72 @@ def test_a_lone_fine_particle_among_coarse_ones_is_absorbed(dim):
     assert not (after["kind"] == V_CHILD).any(), f"{dim}D: virtual children left with no fine particle"
 
 
+@pytest.mark.slow_params("3d")  # the quick run keeps 2D (conftest.py, "two tiers")
+@pytest.mark.parametrize("where", ["caged", "between"])
+def test_a_fine_particle_caged_in_a_coarse_one_is_absorbed_whatever_the_criteria_want(dim, where):
+    """A lone fine particle at a real coarse particle's place sits at the centre of that
+    particle's virtual children, whose pushes cancel there and return to their owner: no
+    pressure lowers its density, and in the stirred demo under dfsph its pressure rose to
+    0.5 GPa and the step fell a hundredfold, while the criteria's hysteresis kept it from
+    merging (``absorb.py``, ``caged``). Such a one is given to the coarse particle whatever
+    the criteria want; one between coarse particles ("between") is left to them.
+    Here the criteria want level 1.1 everywhere near it (a level-0 sphere 1.1 bands away),
+    inside the hysteresis band: nothing splits or merges by them. Without ``caged`` the
+    caged one stays."""
+    s1 = 2 * S0[dim]
+    band = 0.45  # the block (3 s1 either side) wants 0.83-1.37: nothing splits
+    far = [0.5] * dim
+    far[0] = 0.5 - 1.1 * band
+    scene = {
+        "description": "coarse block with one fine particle, wanting level 1.1",
+        "dim": dim,
+        "domain": {"min": [0.0] * dim, "max": [1.0] * dim},
+        "particles": {"spacing": S0[dim]},
+        "fluid": {
+            "viscosity": 1.0,
+            "stiffness": 1000.0,
+            "hydrostatic_start": False,
+            "blocks": [{"min": [0.5 - 3 * s1] * dim, "max": [0.5 + 3 * s1] * dim}],
+        },
+        "physics": {"gravity": [0.0] * dim},
+        "adaptivity": {"enabled": True, "levels": 2, "interval": 1000, "band": band, "merge_remnants": True},
+        "criteria": [{"type": "region", "shape": "sphere", "level": 0, "center": far, "radius": 1e-3}],
+    }
+    sim = make_sim(scene)
+    pool = raw_pool(sim)
+    real = np.isin(pool["kind"], REAL_KINDS)
+    assert (pool["level"][real] == 1).all(), f"{dim}D: the seed is not all coarse"
+    mass = real_mass(pool)
+    # the coarse particle nearest the block's centre, and a lattice cell's centre beside it
+    xs = pool["x"][real].astype(float)
+    host = xs[np.argmin(np.linalg.norm(xs - 0.5, axis=1))]
+    x = host + (1e-3 * S0[dim] if where == "caged" else 0.5 * s1)
+    sim.seeder.append(x[None, :], np.zeros((1, dim)), 0)
+    mass += float(sim.lev.m[0])
+    sim.multires.take_counters()
+    for _ in range(4):
+        sim.multires.adapt(sim.time)
+    counts = sim.multires.take_counters()
+    after = raw_pool(sim)
+    real = np.isin(after["kind"], REAL_KINDS)
+    fine = np.flatnonzero(real & (after["level"] == 0))
+    assert counts["splits"] == 0, f"{dim}D: the criteria split {counts['splits']}; they should want 1.1"
+    if where == "caged":
+        assert len(fine) == 0 and counts["absorbed"] == 1, (
+            f"{dim}D: after four passes {len(fine)} fine particle(s) left "
+            f"({', '.join(describe(after, int(i)) for i in fine)}), {counts['absorbed']} absorbed; "
+            f"expected the caged one given to the coarse particle round it"
+        )
+    else:
+        assert len(fine) == 1 and counts["absorbed"] == 0, (
+            f"{dim}D: {len(fine)} fine particle(s) left, {counts['absorbed']} absorbed; expected the one "
+            f"between coarse particles left fine, the criteria wanting neither level"
+        )
+    assert abs(real_mass(after) - mass) <= 1e-6 * mass, f"{dim}D: real mass {real_mass(after)} against {mass}"
+    bad = link_violations(sim, after)
+    assert not bad, f"{dim}D: " + "; ".join(bad)
+
+
 @pytest.mark.slow_params("3d-criteria-only", "3d-near-regular")
 @pytest.mark.parametrize("on", [False, True], ids=["criteria-only", "near-regular"])
 def test_transient_parent_next_to_a_regular_fine_particle_splits_when_asked(dim, on):

@@ -75,7 +75,9 @@ coarsest down (§5.4), rebuilding the grids between pairs, and for the coarse le
    than ``adaptivity.absorb_below`` (half) of level c's nominal mass is given instead to
    the nearest real level-c particle of any kind within half its support, which takes
    its mass and momentum and keeps its place; with no such neighbour the group stays
-   fine. So every real particle stays within [1/2, 2] of its level's nominal mass.
+   fine. So every real particle stays within [1/2, 2] of its level's nominal mass. A
+   light group inside a real coarse particle (``Absorption.caged``) goes the same way
+   whatever the criteria want.
 9. ``SplitFade.remeasure_touched`` (``adaptivity.split_fade`` only): every real particle
    whose neighbourhood this pair changed re-measures its fade offset (``fade.py``):
    level-c ones within h_c of a merge, an absorption, a new or gathered virtual parent
@@ -456,13 +458,13 @@ class Multires:
             least = self.merge_min
             if ti.static(self.merge_remnants) and (p[i].flags & VP_ANCHORED) != 0:
                 least = 1
-            if (
-                p[i].kind == VIRTUAL_PARENT
-                and p[i].level == c
-                and (k == self.nmax or (k >= least and self.gather.partner[i] == -1))
-                and p[i].lam > c + self.hysteresis
-                and (p[i].flags & MUST_SPLIT) == 0
-            ):
+            go = False
+            if p[i].kind == VIRTUAL_PARENT and p[i].level == c and (p[i].flags & MUST_SPLIT) == 0:
+                whole = k == self.nmax or (k >= least and self.gather.partner[i] == -1)
+                go = whole and p[i].lam > c + self.hysteresis
+                if not go and ti.static(self.absorb.on):
+                    go = self.absorb.caged(i, c)  # given away whatever the criteria want
+            if go:
                 ok = True
                 for q in range(p[i].nchild):
                     if (p[self.pool.children[i, q]].kind & ROLE_PARENT) != 0:
