@@ -193,6 +193,21 @@ def test_strict_soak_fails_on_a_solve_stopped_at_its_maximum(fresh_program, monk
     assert f"solves at their maximum {res.unconverged}" in res.summary(), res.summary()
 
 
+def test_a_collapsed_step_fails_the_soak_once_enough_windows_have_passed():
+    """The step check: a window whose mean step falls below STALL_FRACTION of the median
+    window's fails, as the dfsph soak's did when a caged fine particle's pressure took its
+    step from 0.2 ms to 2 us (docs/validation.md, "Stirred soak"); a stir's usual swings
+    (0.4-3 times the median) and the run's first windows do not."""
+    typical = [2e-4, 1e-4, 4e-4, 2.5e-4, 0.9e-4, 3e-4, 2e-4, 1.5e-4, 2e-4, 5e-4, 2e-4]
+    assert soak_tool.stalled(typical) is None
+    assert soak_tool.stalled(typical + [0.8e-4]) is None
+    line = soak_tool.stalled(typical + [3e-6])
+    assert line and line.startswith("the step collapsed: 3e-06 s"), line
+    assert "0.015 of the run's median 0.0002 s" in line, line
+    # too few windows to know the run's step
+    assert soak_tool.stalled(typical[: soak_tool.STALL_WINDOWS - 1] + [3e-6]) is None
+
+
 def test_mass_ratios_are_per_level_medians_of_the_real_particles():
     """The summary's mass drift: real particles only (a virtual one's mass is a share of
     its owner's), over the level's nominal mass; nan for a level with no real particle."""
