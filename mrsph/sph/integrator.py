@@ -76,6 +76,10 @@ class Integrator:
         # end, force limit, bad count, first bad, the solver's rate); a field, not the
         # kernel's result, which costs more to pass back
         self.step_report = ti.field(ti.f64, shape=5)
+        # the first bad particle as the time-step pass found it: x, u, a, level, kind. Read
+        # there, not from the pool afterwards: a solver that predicts first sorts and
+        # projects after the time-step pass, so the slot and the velocity change by then
+        self.bad_state = ti.field(ti.f64, shape=3 * self.dim + 2)
         # the last step that went as its bounds chose it, before a cut to the frame's end
         # (the stats row's dt; read once a frame, by ``chosen_dt``)
         self.bound_dt = ti.field(ti.f64, shape=())
@@ -271,6 +275,19 @@ class Integrator:
             self.step_report[2] = ti.cast(self.red_i[0], ti.f64)
             self.step_report[3] = ti.cast(self.red_i[1], ti.f64)
             self.step_report[4] = own_lim
+            if self.red_i[0] > 0:
+                self._keep_bad(self.red_i[1])
+
+    @ti.func
+    def _keep_bad(self, i):
+        p = ti.static(self.pool.p)
+        d = ti.static(self.dim)
+        for k in ti.static(range(d)):
+            self.bad_state[k] = ti.cast(p[i].x[k], ti.f64)
+            self.bad_state[d + k] = ti.cast(p[i].v[k], ti.f64)
+            self.bad_state[2 * d + k] = ti.cast(p[i].a[k], ti.f64)
+        self.bad_state[3 * d] = ti.cast(p[i].level, ti.f64)
+        self.bad_state[3 * d + 1] = ti.cast(p[i].kind, ti.f64)
 
     @ti.kernel
     def integrate(self, n: ti.i32):
@@ -417,11 +434,12 @@ class Integrator:
         )
 
     def report_bad(self, i: int, count: int, where: str):
-        def vec(field):
-            val = field[i]
-            return np.asarray(val.to_numpy() if hasattr(val, "to_numpy") else val, float)
-
-        x, v, a = vec(self.pool.p.x), vec(self.pool.p.v), vec(self.pool.p.a)
+        """The ``SimulationError`` for ``count`` bad particles, the first (slot ``i`` when
+        the time-step pass found it) as that pass read it (``bad_state``)."""
+        d = self.dim
+        state = self.bad_state.to_numpy()
+        x, v, a = state[:d], state[d : 2 * d], state[2 * d : 3 * d]
+        level, kind = int(state[3 * d]), int(state[3 * d + 1])
         limit = self.physics.max_speed
         speed = np.linalg.norm(v)
         if not (np.isfinite(v).all() and np.isfinite(a).all()):
@@ -434,6 +452,5 @@ class Integrator:
             f"{where}: {count} particle(s) with NaN/Inf velocity "
             f"or acceleration, an acceleration of {ACCEL_OVERFLOW:g} m/s^2 or more, or a speed "
             f"above physics.max_speed; first: particle {i}, "
-            f"level {int(self.pool.p.level[i])}, "
-            f"kind {int(self.pool.p.kind[i])}, x = {np.round(x, 4).tolist()}: {what}"
+            f"level {level}, kind {kind}, x = {np.round(x, 4).tolist()}: {what}"
         )

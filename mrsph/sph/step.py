@@ -215,7 +215,9 @@ class Stepper:
     def run(self, args: tuple) -> float:
         """One step; ``args`` are ``StepState``'s inputs (c_sound, stirred, cfl,
         force_factor, cap, dt_min, max_dt, t). Returns dt, or -1 when the step did not go
-        (nothing moved; the time-step pass left why)."""
+        (the time-step pass left why, and what it found; no particle was integrated, but
+        a fused launch runs the passes after it too: a solver that predicts first has
+        sorted and projected by then)."""
         for p in self._head:
             if p.when():
                 self._timed(p.timer, p.kernel, None)
