@@ -543,6 +543,26 @@ def test_no_particle_falls_below_half_its_level_mass(dim, absorb):
         assert lightest < 0.5, f"{dim}D without absorption: lightest {lightest:.3f}; the stir made no cascade"
 
 
+def coarse_block_scene(dim: int, half: int, band: float) -> dict:
+    """A block at rest, ``half`` coarse spacings either side of the domain's centre, seeded
+    coarse on two levels, for a fine particle put into it by hand."""
+    s1 = 2 * S0[dim]
+    return {
+        "description": "coarse block with one fine particle",
+        "dim": dim,
+        "domain": {"min": [0.0] * dim, "max": [1.0] * dim},
+        "particles": {"spacing": S0[dim]},
+        "fluid": {
+            "viscosity": 1.0,
+            "stiffness": 1000.0,
+            "hydrostatic_start": False,
+            "blocks": [{"min": [0.5 - half * s1] * dim, "max": [0.5 + half * s1] * dim}],
+        },
+        "physics": {"gravity": [0.0] * dim},
+        "adaptivity": {"enabled": True, "levels": 2, "interval": 1000, "band": band, "merge_remnants": True},
+    }
+
+
 @pytest.mark.slow_params("3d")  # the quick run keeps 2D (conftest.py, "two tiers")
 def test_a_lone_fine_particle_among_coarse_ones_is_absorbed(dim):
     """A remnant of one fine particle in fluid that wants the coarse level (a drag's
@@ -557,21 +577,7 @@ def test_a_lone_fine_particle_among_coarse_ones_is_absorbed(dim):
     time; docs/validation.md, "A cursor in resting water").
     Here: one fine particle in a coarse block at rest, four adaptivity passes."""
     s1 = 2 * S0[dim]
-    scene = {
-        "description": "coarse block with one fine particle",
-        "dim": dim,
-        "domain": {"min": [0.0] * dim, "max": [1.0] * dim},
-        "particles": {"spacing": S0[dim]},
-        "fluid": {
-            "viscosity": 1.0,
-            "stiffness": 1000.0,
-            "hydrostatic_start": False,
-            "blocks": [{"min": [0.5 - 4 * s1] * dim, "max": [0.5 + 4 * s1] * dim}],
-        },
-        "physics": {"gravity": [0.0] * dim},
-        "adaptivity": {"enabled": True, "levels": 2, "interval": 1000, "band": BAND[dim], "merge_remnants": True},
-    }
-    sim = make_sim(scene)
+    sim = make_sim(coarse_block_scene(dim, 4, BAND[dim]))
     pool = raw_pool(sim)
     assert (pool["level"][np.isin(pool["kind"], REAL_KINDS)] == 1).all(), f"{dim}D: the seed is not all coarse"
     mass = real_mass(pool)
@@ -614,21 +620,8 @@ def test_a_fine_particle_caged_in_a_coarse_one_is_absorbed_whatever_the_criteria
     band = 0.45  # the block (3 s1 either side) wants 0.83-1.37: nothing splits
     far = [0.5] * dim
     far[0] = 0.5 - 1.1 * band
-    scene = {
-        "description": "coarse block with one fine particle, wanting level 1.1",
-        "dim": dim,
-        "domain": {"min": [0.0] * dim, "max": [1.0] * dim},
-        "particles": {"spacing": S0[dim]},
-        "fluid": {
-            "viscosity": 1.0,
-            "stiffness": 1000.0,
-            "hydrostatic_start": False,
-            "blocks": [{"min": [0.5 - 3 * s1] * dim, "max": [0.5 + 3 * s1] * dim}],
-        },
-        "physics": {"gravity": [0.0] * dim},
-        "adaptivity": {"enabled": True, "levels": 2, "interval": 1000, "band": band, "merge_remnants": True},
-        "criteria": [{"type": "region", "shape": "sphere", "level": 0, "center": far, "radius": 1e-3}],
-    }
+    scene = coarse_block_scene(dim, 3, band)
+    scene["criteria"] = [{"type": "region", "shape": "sphere", "level": 0, "center": far, "radius": 1e-3}]
     sim = make_sim(scene)
     pool = raw_pool(sim)
     real = np.isin(pool["kind"], REAL_KINDS)

@@ -76,10 +76,10 @@ class Integrator:
         # end, force limit, bad count, first bad, the solver's rate); a field, not the
         # kernel's result, which costs more to pass back
         self.step_report = ti.field(ti.f64, shape=5)
-        # the first bad particle as the time-step pass found it: x, u, a, level, kind. Read
-        # there, not from the pool afterwards: a solver that predicts first sorts and
-        # projects after the time-step pass, so the slot and the velocity change by then
-        self.bad_state = ti.field(ti.f64, shape=3 * self.dim + 2)
+        # the first bad particle as the time-step pass found it (x, u, a; level, kind): a
+        # solver that predicts first sorts and projects after that pass, moving it
+        self.bad_xua = ti.Vector.field(self.dim, ti.f64, shape=3)
+        self.bad_lk = ti.field(ti.i32, shape=2)
         # the last step that went as its bounds chose it, before a cut to the frame's end
         # (the stats row's dt; read once a frame, by ``chosen_dt``)
         self.bound_dt = ti.field(ti.f64, shape=())
@@ -276,18 +276,12 @@ class Integrator:
             self.step_report[3] = ti.cast(self.red_i[1], ti.f64)
             self.step_report[4] = own_lim
             if self.red_i[0] > 0:
-                self._keep_bad(self.red_i[1])
-
-    @ti.func
-    def _keep_bad(self, i):
-        p = ti.static(self.pool.p)
-        d = ti.static(self.dim)
-        for k in ti.static(range(d)):
-            self.bad_state[k] = ti.cast(p[i].x[k], ti.f64)
-            self.bad_state[d + k] = ti.cast(p[i].v[k], ti.f64)
-            self.bad_state[2 * d + k] = ti.cast(p[i].a[k], ti.f64)
-        self.bad_state[3 * d] = ti.cast(p[i].level, ti.f64)
-        self.bad_state[3 * d + 1] = ti.cast(p[i].kind, ti.f64)
+                b = self.red_i[1]
+                self.bad_xua[0] = ti.cast(self.pool.p[b].x, ti.f64)
+                self.bad_xua[1] = ti.cast(self.pool.p[b].v, ti.f64)
+                self.bad_xua[2] = ti.cast(self.pool.p[b].a, ti.f64)
+                self.bad_lk[0] = self.pool.p[b].level
+                self.bad_lk[1] = self.pool.p[b].kind
 
     @ti.kernel
     def integrate(self, n: ti.i32):
@@ -435,11 +429,9 @@ class Integrator:
 
     def report_bad(self, i: int, count: int, where: str):
         """The ``SimulationError`` for ``count`` bad particles, the first (slot ``i`` when
-        the time-step pass found it) as that pass read it (``bad_state``)."""
-        d = self.dim
-        state = self.bad_state.to_numpy()
-        x, v, a = state[:d], state[d : 2 * d], state[2 * d : 3 * d]
-        level, kind = int(state[3 * d]), int(state[3 * d + 1])
+        the time-step pass found it) as that pass read it (``bad_xua``, ``bad_lk``)."""
+        x, v, a = self.bad_xua.to_numpy()
+        level, kind = self.bad_lk.to_numpy().tolist()
         limit = self.physics.max_speed
         speed = np.linalg.norm(v)
         if not (np.isfinite(v).all() and np.isfinite(a).all()):
