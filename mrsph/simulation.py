@@ -208,13 +208,16 @@ class Simulation:
                 if prm.fluid.hydrostatic_start:
                     if self.pressure.incompressible:  # an incompressible block: its pressure
                         ps = self.seeder.hydrostatic_pressure(xs, b.min, b.max)
-                    xs = self.seeder.hydrostatic(xs, b.min, b.max)
+                    if not self.adaptive:  # an adaptive start is compressed after its splits
+                        xs = self.seeder.hydrostatic(xs, b.min, b.max)
                 self.seeder.append(xs, np.tile(np.asarray(b.velocity, np.float64), (len(xs), 1)), level, ps)
         self._stirrers(0.0)
         if self.adaptive:
             for _ in range(self.levels):
                 self.multires.adapt(self.time)
             self.multires.take_counters()
+            if prm.fluid.hydrostatic_start:
+                self.seeder.hydrostatic_pool(prm.fluid.blocks)
         self.grids.sort(self.pool)
         if self.pool.refused[None] > 0:
             raise SimulationError(

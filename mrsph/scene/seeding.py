@@ -83,6 +83,29 @@ class Seeder:
         )
         return xs + np.outer(bottom + z - along, up)
 
+    def hydrostatic_pool(self, blocks) -> None:
+        """Move every particle in the pool (real and virtual) that lies in one of the
+        fluid ``blocks`` to hydrostatic equilibrium, as ``hydrostatic`` moves a lattice.
+
+        For an adaptive start, after the first adaptivity passes: the blocks are seeded
+        as uniform lattices and split where the criteria want the fluid finer, and a
+        split puts its children at fixed offsets from their parent. Compressed before the
+        split, each pair of sibling rows kept its parent's compression between them and
+        none within, so the fine rows pushed alternately up and down at ±0.4 g (the
+        resting 2D tank at rest, one step from t = 0); compressed after it, the fine
+        rows sit where a uniform fine run puts them."""
+        n = self.pool.count()
+        if n == 0:
+            return
+        x = self.pool.p.x.to_numpy()
+        pts = x[:n].astype(np.float64)
+        for b in blocks:
+            lo, hi = np.asarray(b.min, np.float64), np.asarray(b.max, np.float64)
+            inside = np.all((pts >= lo) & (pts <= hi), axis=1)
+            pts[inside] = self.hydrostatic(pts[inside], lo, hi)
+        x[:n] = pts
+        self.pool.p.x.from_numpy(x)
+
     def hydrostatic_pressure(self, xs: np.ndarray, lo, hi) -> np.ndarray:
         """ρ0 |g| depth of each point below the top of the block [lo, hi] (depth along
         gravity): the pressure of a block at rest, which an implicit solver starts from

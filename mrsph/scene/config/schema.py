@@ -177,8 +177,9 @@ SCHEMA = Table(
                     True,
                     doc="start each block compressed along gravity to "
                     "its hydrostatic density rho(rho0 |g| depth below the block's top), "
-                    "so that a resting pool starts in equilibrium instead of ringing; "
-                    "false = uniform lattice at rho0",
+                    "so that a resting pool starts in equilibrium instead of ringing (with levels, "
+                    "after the start's splits, so that fine particles sit where a uniform start puts "
+                    "them); false = uniform lattice at rho0",
                 ),
                 "blocks": Array(
                     Table(
