@@ -28,7 +28,7 @@ from .report import StatsReport
 from .scene.criteria import Criteria
 from .scene.emitters import Emitters
 from .scene.interaction import MOUSE_SLOT, Disturbance, Disturbances, Paths, StirrerPaths, path_sample
-from .scene.seeding import Seeder
+from .scene.seeding import Seeder, settle
 from .sph.boundary import Boundary
 from .sph.core import Core
 from .sph.density import Density
@@ -192,16 +192,10 @@ class Simulation:
         self.pool.refused[None] = 0
         self.coupling.reset()
         self.emitters.reset()
-        self.pressure.reset_counters()
-        self.time = 0.0
-        self.frame = 0
-        self.steps = 0
         self.dt = self.pressure.bound().dt_max  # the first step's "last dt"
         self.state.set_dt(self.dt)
         self.integrator.set_chosen_dt(self.dt)
-        self.report = StatsReport(self, self._warn)
-        self.grids.take_rebuilds()
-        self.warnings: list[str] = []
+        self._start_clocks()
         for b in prm.fluid.blocks:
             for level, xs in self.seeder.block_lattices(b.min, b.max):
                 ps = None
@@ -225,6 +219,21 @@ class Simulation:
                 f"small for the initial fluid ({self.pool.refused[None]} claims refused); "
                 "raise it or set 0 for automatic"
             )
+        if prm.fluid.settle > 0.0:
+            settle(self, prm.fluid.settle, prm.fluid.settle_damping)
+            if self.adaptive:
+                self.multires.take_counters()
+            self._start_clocks()
+
+    def _start_clocks(self) -> None:
+        """t = 0 and the run's counters at zero: a reset's, and again after the settle."""
+        self.pressure.reset_counters()
+        self.time = 0.0
+        self.frame = 0
+        self.steps = 0
+        self.report = StatsReport(self, self._warn)
+        self.grids.take_rebuilds()
+        self.warnings: list[str] = []
 
     # ================================================================== the step
     def step(self, max_dt: float | None = None) -> float:

@@ -611,6 +611,19 @@ def test_emitter_rules(dim):
     ]
 
 
+def test_a_settle_is_refused_with_emitters_or_stirrers(dim):
+    """The settle runs before t = 0, where an emitter's start and a stirrer's path have no time."""
+    scene = put(minimal(dim), "fluid.settle", 0.2)
+    assert load_scene(scene).fluid.settle == 0.2
+    scene["emitters"] = [{"center": [0.9] * dim, "radius": 0.05, "velocity": [-1.0] + [0.0] * (dim - 1)}]
+    expected = "expected 0 in a scene with [[emitters]]"
+    assert only_problem(scene) == f"<dict>: fluid.settle: with emitters (got 0.2; {expected})"
+    del scene["emitters"]
+    scene["stirrers"] = [{"radius": 0.1, "strength": 1.0, "path": [[0.0] + [0.5] * dim, [1.0] + [0.6] * dim]}]
+    expected = "expected 0 in a scene with [[stirrers]]"
+    assert only_problem(scene) == f"<dict>: fluid.settle: with stirrers (got 0.2; {expected})"
+
+
 def test_fluid_blocks_overlapping_each_other(dim):
     """Each block gets its own lattice: overlapping blocks would start at twice the
     density there and burst apart. Blocks that only touch are fine."""

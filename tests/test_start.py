@@ -33,3 +33,27 @@ def test_an_adaptive_start_puts_its_fine_particles_where_a_uniform_start_does(di
     # float32 positions near 0.4 m are 3e-8 m apart; the compression within a pair of rows
     # that the split missed is ~1e-5 m here
     assert gap.max() < 1e-6, f"a fine particle {gap.max():.2e} m off the uniform start's lattice"
+
+
+def test_the_settle_damps_the_fluid_before_the_clock_starts():
+    """fluid.settle on a pool across its tank thrown sideways at 0.5 m/s: 0.1 s at the
+    default damping (100/s, e^-10) takes its speed to under 1 % of that, and the run then
+    starts at t = 0 with its counters at zero; without the settle the pool moves at t = 0."""
+    base = {
+        "description": "a pool thrown sideways",
+        "dim": 2,
+        "domain": {"min": [0.0, 0.0], "max": [1.0, 0.5]},
+        "particles": {"spacing": 0.02},
+        "fluid": {"solver": "wcsph", "blocks": [{"min": [0.0, 0.0], "max": [1.0, 0.2], "velocity": [0.5, 0.0]}]},
+    }
+    thrown = Simulation(load_scene(base), arch="cpu", threads=1)
+    assert np.abs(thrown.particles()["v"][:, 0]).mean() == pytest.approx(0.5)
+    base["fluid"]["settle"] = 0.1
+    sim = Simulation(load_scene(base), arch="cpu", threads=1)
+    assert (sim.time, sim.frame, sim.steps) == (0.0, 0, 0)
+    p = sim.particles()
+    assert np.linalg.norm(p["v"], axis=1).mean() < 0.005, np.linalg.norm(p["v"], axis=1).mean()
+    # the settle ran: the pool was carried towards the wall before it stopped
+    assert p["x"][:, 0].mean() > thrown.particles()["x"][:, 0].mean() + 1e-4
+    sim.step()
+    assert sim.steps == 1 and sim.time > 0.0

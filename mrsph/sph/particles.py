@@ -159,6 +159,12 @@ class ParticlePool:
             self.p[i].nchild = 0
         self.n[None] = 0
 
+    @ti.kernel
+    def damp_velocities(self, factor: float):
+        """Every particle's velocity times ``factor`` (``fluid.settle``)."""
+        for i in range(self.n[None]):
+            self.p[i].v *= factor
+
     @ti.func
     def claim(self, count, reserve=0):
         """Claim ``count`` consecutive slots; returns the first, or -1 if they do not fit

@@ -251,6 +251,11 @@ def _check_values(c: Checker, d: dict) -> None:
         if e and given(e["start"], e["stop"]) and e["stop"] <= e["start"]:
             c.add(f"emitters.{i}.stop", "not after start", fmt_value(e["stop"]), f"a number > start = {e['start']!r}")
     fl = d["fluid"]
+    if fl and given(fl["settle"]) and fl["settle"] > 0:
+        # the settle runs before t = 0, where an emitter or a stirrer's path has no time
+        for table in ("emitters", "stirrers"):
+            if d[table]:
+                c.add("fluid.settle", f"with {table}", fmt_value(fl["settle"]), f"0 in a scene with [[{table}]]")
     if fl and fl["solver"] in SOLVERS:  # the running solver's own rules (its package)
         spec(fl["solver"]).rules(c, d)
     phys = d["physics"]

@@ -181,6 +181,27 @@ SCHEMA = Table(
                     "after the start's splits, so that fine particles sit where a uniform start puts "
                     "them); false = uniform lattice at rho0",
                 ),
+                "settle": Key(
+                    "float",
+                    0.0,
+                    "[0, 10]",
+                    "s",
+                    "before t = 0, run the fluid this long with every velocity damped "
+                    "(fluid.settle_damping), then start the clock at 0: a pool whose seeded "
+                    "lattice is not the discrete equilibrium (a 3D cubic lattice under its own weight "
+                    "rearranges; so does a level interface) starts at rest instead of ringing in its "
+                    "first acoustic mode, which the viscosities hardly damp; 0 = none. Not with "
+                    "emitters or stirrers, which have no time before 0",
+                ),
+                "settle_damping": Key(
+                    "float",
+                    100.0,
+                    "> 0",
+                    "1/s",
+                    "rate r at which fluid.settle damps: each step multiplies every velocity by "
+                    "exp(-r dt). Near the first acoustic mode's angular frequency, pi sqrt(k) / (2 H) "
+                    "for a pool H deep (110/s in the deep tanks), it damps that mode within a few periods",
+                ),
                 "blocks": Array(
                     Table(
                         {
