@@ -1,4 +1,5 @@
-"""The start of a run: the hydrostatic placement of a pool seeded with levels."""
+"""The start of a run (docs/METHOD.md §18): the hydrostatic placement of a pool seeded with
+levels, and the settle before t = 0."""
 
 import numpy as np
 import pytest

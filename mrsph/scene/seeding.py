@@ -93,9 +93,9 @@ class Seeder:
         as uniform lattices and split where the criteria want the fluid finer, and a
         split puts its children at fixed offsets from their parent. Compressed before the
         split, each pair of sibling rows kept its parent's compression between them and
-        none within, so the fine rows pushed alternately up and down at ±0.4 g (the
-        resting 2D tank at rest, one step from t = 0); compressed after it, the fine
-        rows sit where a uniform fine run puts them."""
+        none within, so the fine rows pushed alternately up and down at ±0.4 g (the 2D
+        deep tank, one step from t = 0); compressed after it, the fine rows sit where a
+        uniform fine run puts them."""
         n = self.pool.count()
         if n == 0:
             return
@@ -184,7 +184,7 @@ def settle(sim, seconds: float, rate: float) -> int:
     """``fluid.settle``: step ``sim`` for ``seconds`` with every velocity multiplied by
     exp(−rate dt) after each step, so that the pool finds the discrete equilibrium its
     seeded lattice is not (a 3D cubic lattice under 80 layers rearranges at ~0.05 s; a
-    level interface relaxes over ~0.3 s) with the energy that sets free damped instead of
+    level interface relaxes over ~0.4 s) with the energy that sets free damped instead of
     left ringing in the first acoustic mode. Returns the steps taken; the caller starts
     the clocks at 0 after it."""
     done, steps = 0.0, 0
