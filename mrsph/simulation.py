@@ -196,15 +196,8 @@ class Simulation:
         self.state.set_dt(self.dt)
         self.integrator.set_chosen_dt(self.dt)
         self._start_clocks()
-        for b in prm.fluid.blocks:
-            for level, xs in self.seeder.block_lattices(b.min, b.max):
-                ps = None
-                if prm.fluid.hydrostatic_start:
-                    if self.pressure.incompressible:  # an incompressible block: its pressure
-                        ps = self.seeder.hydrostatic_pressure(xs, b.min, b.max)
-                    if not self.adaptive:  # an adaptive start is compressed after its splits
-                        xs = self.seeder.hydrostatic(xs, b.min, b.max)
-                self.seeder.append(xs, np.tile(np.asarray(b.velocity, np.float64), (len(xs), 1)), level, ps)
+        hydro = prm.fluid.hydrostatic_start  # an adaptive start is compressed after its splits
+        self.seeder.seed_blocks(prm.fluid.blocks, hydro, self.pressure.incompressible, not self.adaptive)
         self._stirrers(0.0)
         if self.adaptive:
             for _ in range(self.levels):

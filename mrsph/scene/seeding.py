@@ -58,6 +58,21 @@ class Seeder:
             boxes = finer
         return [(level, xs) for level, xs in out if len(xs)]
 
+    def seed_blocks(self, blocks, hydrostatic: bool, incompressible: bool, compress: bool) -> None:
+        """Append every fluid block's lattices (``block_lattices``) at the block's velocity.
+        With a ``hydrostatic`` start an ``incompressible`` solver's particles start at the
+        block's pressure, and with ``compress`` (a uniform start; an adaptive one is
+        compressed after its splits, ``hydrostatic_pool``) the lattices are compressed."""
+        for b in blocks:
+            v = np.asarray(b.velocity, np.float64)
+            for level, xs in self.block_lattices(b.min, b.max):
+                ps = None
+                if hydrostatic and incompressible:
+                    ps = self.hydrostatic_pressure(xs, b.min, b.max)
+                if hydrostatic and compress:
+                    xs = self.hydrostatic(xs, b.min, b.max)
+                self.append(xs, np.tile(v, (len(xs), 1)), level, ps)
+
     def hydrostatic(self, xs: np.ndarray, lo, hi) -> np.ndarray:
         """Lattice points of the block [lo, hi] moved along gravity to hydrostatic equilibrium.
 
