@@ -284,17 +284,23 @@ def run_pressure(sim, scene) -> dict:
 #: MARIN's probes H1-H4: x (m), on the tank's centre line z = 0.5 m
 PROBES = (0.496, 0.992, 1.488, 2.638)
 WET = 0.02  # m: a probe is reached when its water first stands this high
+#: where the water that reaches H1 comes from: the far wall x = 0 beside the box (z = 0.15 m, in
+#: the stream that passes it) and the centre line between that wall and H1, (x, z) in m
+LEE = ((0.05, 0.15), (0.05, 0.5), (0.2, 0.5), (0.35, 0.5))
 
 
 def run_box(sim, scene) -> dict:
-    """The water height at H1-H4 every 2 ms to 1.5 s, against MARIN's; each probe's arrival."""
+    """The water height at H1-H4 every 2 ms to 1.5 s, against MARIN's; each probe's arrival; and
+    when the water reaches each point of ``LEE`` (the way it comes to H1)."""
     zc = 0.5 * float(scene.data["domain"]["max"][2])
     t, levels, tips = [0.0], [[0.0, 0.0, 0.0, 0.55]], [float(scene.data["fluid"]["blocks"][0]["min"][0])]
+    lee = [[0.0] * len(LEE)]
     while t[-1] < 1.5 - 1e-9:
         sim.advance(0.002)
         r = _real(sim)
         t.append(sim.time)
         levels.append([water_level(r["x"], r["vol"], r["h"], (px, zc), 0.8) for px in PROBES])
+        lee.append([water_level(r["x"], r["vol"], r["h"], at, 1.0) for at in LEE])
         # the front's tip along the centre line (within a coarse support of it), x reversed
         lane = np.abs(r["x"][:, 2] - zc) < 2 * sim.h0
         flipped = r["x"][lane] * np.array([-1.0, 1.0, 1.0])
@@ -302,6 +308,7 @@ def run_box(sim, scene) -> dict:
     t, levels = np.array(t), np.array(levels)
     exp = read_csv(DATA / "kleefsman_2005_heights.csv")
     out = {"t": t.tolist(), "level": levels.T.tolist(), "tip": tips, "probes": []}
+    out["lee"] = [{"at": at, "arrival": first_crossing(t, np.array(f), WET)} for at, f in zip(LEE, zip(*lee))]
     for k, name in enumerate(("H1", "H2", "H3")):
         te = exp["t"] <= 1.5
         diff = np.interp(exp["t"][te], t, levels[:, k]) - exp[name][te]
