@@ -284,9 +284,11 @@ def run_pressure(sim, scene) -> dict:
 #: MARIN's probes H1-H4: x (m), on the tank's centre line z = 0.5 m
 PROBES = (0.496, 0.992, 1.488, 2.638)
 WET = 0.02  # m: a probe is reached when its water first stands this high
-#: where the water that reaches H1 comes from: the far wall x = 0 beside the box (z = 0.15 m, in
-#: the stream that passes it) and the centre line between that wall and H1, (x, z) in m
-LEE = ((0.05, 0.15), (0.05, 0.5), (0.2, 0.5), (0.35, 0.5))
+#: where the water that reaches H1 comes from, (x, z) in m: the far wall x = 0 in the stream that
+#: passes beside the box (z = 0.15 m); 1.5 cm inside the box's shadow (its side at z = 0.2985),
+#: which a stream spreading sideways into the lee wets first; the centre line at the far wall and
+#: between it and H1
+LEE = ((0.05, 0.15), (0.2, 0.3), (0.35, 0.3), (0.05, 0.5), (0.2, 0.5), (0.35, 0.5))
 
 
 def run_box(sim, scene) -> dict:
