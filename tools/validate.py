@@ -15,7 +15,8 @@ The cases (docs/validation.md says what each measures and why):
 - ``pressure``: Lobovsky et al.'s (2014) H = 0.3 m column onto a wall (scenes/dam_break_pressure_*):
   the pressure at the wall's four sensors;
 - ``box``: MARIN's 3D dam break past a box (Kleefsman et al. 2005, scenes/dam_break_box_3d): the
-  water height at the four probes.
+  water height at the four probes, and when the water reaches six points between the box and the
+  far wall (``LEE``).
 
 A run is one case, dimension, solver (``fluid.solver``) and mode (``uniform``, or ``adaptive``:
 ``adaptivity.enabled = true``, the same finest spacing, coarse where the scene's criteria do not ask
