@@ -82,8 +82,8 @@ def _label(r: dict) -> str:
     return f"{r['solver']} {r['mode']}" + (" (full)" if _resolution(r) == "full" else "")
 
 
-def _stamp(fig, runs: dict) -> int:
-    """The runs' dates, commits and command at the figure's foot; returns its lines."""
+def _stamp(fig, runs: dict) -> None:
+    """The runs' dates, commits and command at the figure's foot, and the axes laid out above it."""
     plain = [r for r in runs.values() if not r["sets"]]
     dates = sorted({r["date"] for r in plain})
     commits = sorted({r["commit"] for r in plain})
@@ -93,7 +93,7 @@ def _stamp(fig, runs: dict) -> int:
     # wrapped to the figure's width (about 0.6 em a character at 7 pt, with room), so no line is cut off
     lines = textwrap.wrap(text, max(40, int(fig.get_figwidth() * 72 / (0.65 * 7))))
     fig.text(0.99, 0.005, "\n".join(lines), ha="right", va="bottom", fontsize=7, color="0.4")
-    return len(lines)
+    fig.tight_layout(rect=(0, 0.005 + len(lines) * 9.0 / (72 * fig.get_figheight()), 1, 1))
 
 
 def plot_tank(runs: dict, out: Path) -> Path | None:
@@ -116,8 +116,7 @@ def plot_tank(runs: dict, out: Path) -> Path | None:
         row[1].plot(1 - y, y, color="k", lw=2.5, alpha=0.35, label="rho0 g (H - y)")
         row[1].set(xlabel="p / (rho0 g H)", ylabel="y / H", title=f"{dim}D: pressure by depth, t = 2-2.2 s")
         row[1].legend(fontsize=7)
-    foot = _stamp(fig, runs) * 9.0 / (72 * fig.get_figheight())  # its lines' height, of the figure's
-    fig.tight_layout(rect=(0, 0.005 + foot, 1, 1))
+    _stamp(fig, runs)
     path = out / "tank_rest.png"
     fig.savefig(path, dpi=90)
     plt.close(fig)
@@ -143,8 +142,7 @@ def plot_front(runs: dict, out: Path) -> Path | None:
         axes[0, k].legend(fontsize=7)
         axes[1, k].set(xlabel="T = t sqrt(2g/a)", ylabel="height at the wall / 2a", xlim=(0, 3.2), ylim=(0, 1.05))
         axes[1, k].set_title(f"{dim}D residual column (no experimental series shipped)", fontsize=9)
-    foot = _stamp(fig, runs) * 9.0 / (72 * fig.get_figheight())  # its lines' height, of the figure's
-    fig.tight_layout(rect=(0, 0.005 + foot, 1, 1))
+    _stamp(fig, runs)
     path = out / "front.png"
     fig.savefig(path, dpi=90)
     plt.close(fig)
@@ -179,8 +177,7 @@ def plot_pressure(runs: dict, out: Path, dim: int) -> Path | None:
         )
     axes[0].legend(fontsize=7, ncol=2)
     axes[-1].set_xlabel("T = t sqrt(g/H)")
-    foot = _stamp(fig, runs) * 9.0 / (72 * fig.get_figheight())  # its lines' height, of the figure's
-    fig.tight_layout(rect=(0, 0.005 + foot, 1, 1))
+    _stamp(fig, runs)
     path = out / f"pressure_{dim}d.png"
     fig.savefig(path, dpi=90)
     plt.close(fig)
@@ -203,8 +200,7 @@ def plot_box(runs: dict, out: Path) -> Path | None:
         ax.set_title(f"probe H{k + 1}, {where[k]}", fontsize=9)
     axes[0].legend(fontsize=7, ncol=2)
     axes[-1].set_xlabel("t (s)")
-    foot = _stamp(fig, runs) * 9.0 / (72 * fig.get_figheight())  # its lines' height, of the figure's
-    fig.tight_layout(rect=(0, 0.005 + foot, 1, 1))
+    _stamp(fig, runs)
     path = out / "box_3d.png"
     fig.savefig(path, dpi=90)
     plt.close(fig)
@@ -253,8 +249,7 @@ def plot_resolution(runs: dict, out: Path) -> Path | None:
         ax.axhline(0.0, color="k", lw=0.8)
         ax.set(xlabel="finest spacing (m)", title=f"{dim}D {case}: against the spacing")
         ax.legend(fontsize=6)
-    foot = _stamp(fig, runs) * 9.0 / (72 * fig.get_figheight())  # its lines' height, of the figure's
-    fig.tight_layout(rect=(0, 0.005 + foot, 1, 1))
+    _stamp(fig, runs)
     path = out / "resolution.png"
     fig.savefig(path, dpi=90)
     plt.close(fig)
