@@ -127,6 +127,24 @@ def test_measures_read_what_they_should():
     assert rms < 1e-3 and shift == pytest.approx(-0.2, abs=0.006)
 
 
+def test_the_table_reads_the_scene_s_spacing_and_leaves_studies_out():
+    """Of a case's cached runs the table and its figures take, per solver and mode, the run at the
+    scene's spacing, or the quick one where no full run was made; a run finer than the scene's
+    (``--spacing``) or with overrides is a study, drawn against the spacing only."""
+    full = V.scene_spacing("box", 3)
+
+    def run(spacing, sets=(), solver="wcsph"):
+        r = {"case": "box", "dim": 3, "solver": solver, "mode": "uniform", "spacing": spacing, "sets": list(sets)}
+        return f"{solver}-{spacing}-{len(sets)}", r
+
+    runs = dict([run(full * 27 / 14), run(full), run(full * 27 / 40), run(full, ["fluid.viscosity=0.01"])])
+    runs.update([run(full * 27 / 14, solver="pbf")])
+    picked = R._runs(runs, "box", 3)
+    assert picked[("wcsph", "uniform")]["spacing"] == full, picked
+    assert picked[("wcsph", "uniform")]["sets"] == [], picked
+    assert picked[("pbf", "uniform")]["spacing"] == full * 27 / 14, picked
+
+
 def _tank_speeds(cap: float, until: float = 0.5, sets: tuple = ()) -> list[float]:
     """The quick 2D deep tank (40 layers) under dfsph at its own step: the mean speed over
     sqrt(gH) every 0.05 s."""

@@ -47,10 +47,15 @@ def _plt():
 
 def _runs(runs: dict, case: str, dim: int):
     """The case's runs in this dimension, by (solver, mode), each at the finest spacing cached for
-    it (a full run where one was made, else the quick one); runs with overrides are studies, left out."""
+    it (a full run where one was made, else the quick one); runs with overrides and runs finer
+    than the scene's (``--spacing``) are studies, left out (the latter drawn against the spacing)."""
     out: dict = {}
+    finest = None
     for r in runs.values():
         if r["case"] == case and r["dim"] == dim and not r["sets"]:
+            finest = full_spacing(case, dim) if finest is None else finest
+            if r["spacing"] < 0.9999 * finest:
+                continue
             best = out.get((r["solver"], r["mode"]))
             if best is None or r["spacing"] < best["spacing"]:
                 out[(r["solver"], r["mode"])] = r
