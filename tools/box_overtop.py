@@ -6,7 +6,8 @@
 
 The scene is tools/validate.py's box (scenes/dam_break_box_3d), uniform. Every 2 ms each real
 particle above the box's top (over its footprint) is marked; the mark moves with the particle.
-From ``--since`` on, every 20 ms it prints the time, the water above the box, the water in
+From ``--since`` on, every 20 ms it prints the time, the water above the box and its mean
+velocity along the tank and upwards (m/s; towards the far wall is negative), the water in
 the box's shadow (between x = 0.3 m and the box's back face, 5 cm inside its width) and the
 part of it that was marked, the water within 5 cm of H1 (x = 0.496 m; 10 cm across) and its
 marked part, all the marked water, all in litres, and H1's water height as validate.py reads
@@ -32,7 +33,7 @@ H1 = 0.496
 LAYERS_QUICK = 14
 
 
-COLUMNS = ("t", "above", "shadow", "shadow_over", "near_h1", "near_h1_over", "marked", "h1")
+COLUMNS = ("t", "above", "ux", "uy", "shadow", "shadow_over", "near_h1", "near_h1_over", "marked", "h1")
 
 
 def overtop(solver: str, quick: bool, sets: list[str], since: float, until: float) -> list[dict]:
@@ -73,9 +74,10 @@ def overtop(solver: str, quick: bool, sets: list[str], since: float, until: floa
         above = (x[:, 0] > x0) & (x[:, 0] < x1) & (x[:, 2] > z0) & (x[:, 2] < z1) & (x[:, 1] > top)
         shadow = (x[:, 0] > 0.3) & (x[:, 0] < x0) & (x[:, 2] > z0 + 0.05) & (x[:, 2] < z1 - 0.05)
         near = (np.abs(x[:, 0] - H1) < 0.05) & (np.abs(x[:, 2] - zc) < 0.1)
-        volumes = [float(vol[k].sum()) for k in (above, shadow, shadow & marked, near, near & marked, marked)]
+        volumes = [float(vol[k].sum()) for k in (shadow, shadow & marked, near, near & marked, marked)]
+        u = r["v"][above].mean(axis=0) if above.any() else np.zeros(3)
         h1 = V.water_level(x, r["vol"], r["h"], (H1, zc), 0.8)
-        rows.append(dict(zip(COLUMNS, (sim.time, *volumes, h1))))
+        rows.append(dict(zip(COLUMNS, (sim.time, float(vol[above].sum()), u[0], u[1], *volumes, h1))))
     return rows
 
 
@@ -95,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
         for msg in e.problems:
             print(msg, file=sys.stderr)
         return 2
-    print("     t   above  shadow of_it_over near_H1 of_it_over  marked     H1")
+    print("     t   above    u_x    u_y  shadow of_it_over near_H1 of_it_over  marked     H1")
     for row in rows:
         print(f"{row['t']:6.3f} " + " ".join(f"{row[k]:7.2f}" for k in COLUMNS[1:-1]) + f"  {row['h1']:6.3f}")
     return 0
