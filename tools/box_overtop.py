@@ -28,8 +28,6 @@ for p in (ROOT, ROOT / "tools"):
     if str(p) not in sys.path:
         sys.path.insert(0, str(p))
 
-BOX = (0.6635, 0.8245, 0.2985, 0.7015, 0.161)  # x from, x to, z from, z to, top (scene's [[obstacles]])
-H1 = 0.496
 LAYERS_QUICK = 14
 
 
@@ -51,7 +49,9 @@ def overtop(solver: str, quick: bool, sets: list[str], since: float, until: floa
     if scene.adaptivity.enabled:
         sys.exit("box_overtop.py: the mark is the criteria's slot, so the run must be uniform")
     sim = Simulation(scene, arch="cpu", threads=1)
-    x0, x1, z0, z1, top = BOX
+    box = scene.data["obstacles"][0]  # the box, as the scene (and any --set) puts it
+    (x0, _, z0), (x1, top, z1) = box["min"], box["max"]
+    h1_x = V.PROBES[0]
     P, N = sim.pool.p, sim.pool.n
 
     @ti.kernel
@@ -73,10 +73,10 @@ def overtop(solver: str, quick: bool, sets: list[str], since: float, until: floa
         x, vol = r["x"], r["vol"] * 1000.0  # litres
         above = (x[:, 0] > x0) & (x[:, 0] < x1) & (x[:, 2] > z0) & (x[:, 2] < z1) & (x[:, 1] > top)
         shadow = (x[:, 0] > 0.3) & (x[:, 0] < x0) & (x[:, 2] > z0 + 0.05) & (x[:, 2] < z1 - 0.05)
-        near = (np.abs(x[:, 0] - H1) < 0.05) & (np.abs(x[:, 2] - zc) < 0.1)
+        near = (np.abs(x[:, 0] - h1_x) < 0.05) & (np.abs(x[:, 2] - zc) < 0.1)
         volumes = [float(vol[k].sum()) for k in (shadow, shadow & marked, near, near & marked, marked)]
         u = r["v"][above].mean(axis=0) if above.any() else np.zeros(3)
-        h1 = V.water_level(x, r["vol"], r["h"], (H1, zc), 0.8)
+        h1 = V.water_level(x, r["vol"], r["h"], (h1_x, zc), 0.8)
         rows.append(dict(zip(COLUMNS, (sim.time, float(vol[above].sum()), u[0], u[1], *volumes, h1))))
     return rows
 
