@@ -50,12 +50,9 @@ def _runs(runs: dict, case: str, dim: int):
     it (a full run where one was made, else the quick one); runs with overrides and runs finer
     than the scene's (``--spacing``) are studies, left out (the latter drawn against the spacing)."""
     out: dict = {}
-    finest = None
+    scene = full_spacing(case, dim)
     for r in runs.values():
-        if r["case"] == case and r["dim"] == dim and not r["sets"]:
-            finest = full_spacing(case, dim) if finest is None else finest
-            if r["spacing"] < 0.9999 * finest:
-                continue
+        if r["case"] == case and r["dim"] == dim and not r["sets"] and r["spacing"] >= 0.9999 * scene:
             best = out.get((r["solver"], r["mode"]))
             if best is None or r["spacing"] < best["spacing"]:
                 out[(r["solver"], r["mode"])] = r
