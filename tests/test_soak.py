@@ -66,6 +66,12 @@ def test_obstacle_sdf_matches_boxes_and_circles():
     expected = [-0.5, -0.1, 1.0, math.sqrt(2.0), -0.5, 1.0]
     np.testing.assert_allclose(soak_tool.obstacle_sdf(x, obstacles), expected, atol=1e-12)
     assert np.isinf(soak_tool.obstacle_sdf(x, [])).all()
+    # the box stands on the floor: with the domain its bottom face is shut, the distance
+    # inside is to an open face and the distance outside is unchanged
+    domain = {"min": [0.0, 0.0], "max": [8.0, 8.0]}
+    x = np.array([[1.5, 0.0], [1.1, 0.01], [1.5, 0.9], [0.0, 0.5], [3.0, 2.0]])
+    expected = [-0.5, -0.1, -0.1, 1.0, math.sqrt(2.0)]
+    np.testing.assert_allclose(soak_tool.obstacle_sdf(x, obstacles[:1], domain), expected, atol=1e-12)
 
 
 def _parts(x, m, kind=None):
@@ -91,13 +97,15 @@ def test_checks_pass_on_a_clean_state_and_flag_each_fault():
     good = _parts([[0.5, 0.5], [1.5, 0.2], [1.2, 0.3]], [0.1, 0.1, 0.2])
     mass0 = math.fsum([float(np.float32(0.1)), float(np.float32(0.1)), float(np.float32(0.2))])
     assert soak_tool.check_state(good, SCENE, mass0, 1e-6) == []
-    cases = {
-        "NaN": _parts([[np.nan, 0.5], [1.5, 0.2], [1.2, 0.3]], [0.1, 0.1, 0.2]),
-        "outside the domain": _parts([[2.1, 0.5], [1.5, 0.2], [1.2, 0.3]], [0.1, 0.1, 0.2]),
-        "inside an obstacle": _parts([[1.1, 0.3], [1.5, 0.2], [1.2, 0.3]], [0.1, 0.1, 0.2]),
-        "real mass": _parts([[0.5, 0.5], [1.5, 0.2], [1.2, 0.3]], [0.1, 0.1, 0.2000001]),
-    }
-    for what, parts in cases.items():
+    cases = [
+        ("NaN", _parts([[np.nan, 0.5], [1.5, 0.2], [1.2, 0.3]], [0.1, 0.1, 0.2])),
+        ("outside the domain", _parts([[2.1, 0.5], [1.5, 0.2], [1.2, 0.3]], [0.1, 0.1, 0.2])),
+        ("inside an obstacle", _parts([[1.1, 0.3], [1.5, 0.2], [1.2, 0.3]], [0.1, 0.1, 0.2])),
+        # on the floor under the box, whose bottom face is shut (mrsph/sph/boundary.py)
+        ("inside an obstacle", _parts([[1.1, 0.0], [1.5, 0.2], [1.2, 0.3]], [0.1, 0.1, 0.2])),
+        ("real mass", _parts([[0.5, 0.5], [1.5, 0.2], [1.2, 0.3]], [0.1, 0.1, 0.2000001])),
+    ]
+    for what, parts in cases:
         problems = soak_tool.check_state(parts, SCENE, mass0, 1e-6)
         assert len(problems) == 1 and what in problems[0], (what, problems)
     # virtual particles carry no mass of their own and may sit in walls (solver.py)

@@ -145,13 +145,22 @@ def mass_ratios(parts: dict, nominal) -> list[float]:
 
 
 # ----------------------------------------------------------------------------- geometry
-def obstacle_sdf(x: np.ndarray, obstacles) -> np.ndarray:
+def obstacle_sdf(x: np.ndarray, obstacles, domain=None) -> np.ndarray:
     """Signed distance (positive outside) to the nearest obstacle, per row of x; +inf
-    without obstacles. Boxes and spheres as in ``Boundary.obstacle_sdf``."""
+    without obstacles. Boxes and spheres as in ``Boundary.obstacle_sdf``; with the
+    scene's ``domain``, a box's faces on its walls are shut, as there: the box reaches
+    past the wall, so that a particle on the floor under a post is inside it."""
+    from mrsph.sph.boundary import shut_faces
+
     best = np.full(len(x), np.inf)
     for o in obstacles:
         if o["shape"] == "box":
             lo, hi = np.asarray(o["min"], float), np.asarray(o["max"], float)
+            if domain is not None:
+                dlo, dhi = np.asarray(domain["min"], float), np.asarray(domain["max"], float)
+                shut_lo, shut_hi = shut_faces(lo, hi, dlo, dhi)
+                lo = np.where(shut_lo == 1, dlo - (dhi - dlo), lo)
+                hi = np.where(shut_hi == 1, dhi + (dhi - dlo), hi)
             q = np.abs(x - 0.5 * (lo + hi)) - 0.5 * (hi - lo)
             outside = np.linalg.norm(np.maximum(q, 0.0), axis=1)
             dist = np.where(outside > 0.0, outside, q.max(axis=1))
@@ -198,7 +207,7 @@ def check_state(parts: dict, scene_data: dict, mass0: float, tolerance: float) -
             f"(first at {np.round(xr[np.argmax(out)], 5).tolist()})"
         )
     if scene_data["obstacles"]:
-        phi = obstacle_sdf(xr, scene_data["obstacles"])
+        phi = obstacle_sdf(xr, scene_data["obstacles"], scene_data["domain"])
         inside = phi < -tolerance
         if inside.any():
             problems.append(f"{int(inside.sum())} real particle(s) inside an obstacle (deepest {-phi.min():.3g} m)")

@@ -5,6 +5,11 @@ shapes. A particle found inside one is projected back onto its surface along the
 distance gradient and loses the velocity component into it (times ``1 + restitution``),
 plus a share ``friction`` of its tangential velocity. Nothing here depends on particle
 size or spacing, so the same response holds at every resolution level.
+
+A box's face that lies on a wall of the domain (a post standing on the floor) is shut:
+a particle inside the box is never projected through it, since that would leave it on
+the wall inside the box's footprint, a slot of no width where it sits on its own images
+and the pressure crushing it grows without bound (a stirred demo's post filled so).
 """
 
 import numpy as np
@@ -30,12 +35,18 @@ class Boundary:
         self.n_boxes, self.n_spheres = len(boxes), len(spheres)
         self.box_c = ti.Vector.field(dim, float, shape=max(1, len(boxes)))
         self.box_half = ti.Vector.field(dim, float, shape=max(1, len(boxes)))
+        # per axis, 1 where the box's low (high) face lies on or past the domain's wall
+        self.box_shut_lo = ti.Vector.field(dim, int, shape=max(1, len(boxes)))
+        self.box_shut_hi = ti.Vector.field(dim, int, shape=max(1, len(boxes)))
         self.sph_c = ti.Vector.field(dim, float, shape=max(1, len(spheres)))
         self.sph_r = ti.field(float, shape=max(1, len(spheres)))
         for i, b in enumerate(boxes):
             lo, hi = np.asarray(b.min, float), np.asarray(b.max, float)
             self.box_c[i] = ((lo + hi) / 2).tolist()
             self.box_half[i] = ((hi - lo) / 2).tolist()
+            shut_lo, shut_hi = shut_faces(lo, hi, np.asarray(domain.min, float), np.asarray(domain.max, float))
+            self.box_shut_lo[i] = shut_lo.tolist()
+            self.box_shut_hi[i] = shut_hi.tolist()
         for i, s in enumerate(spheres):
             self.sph_c[i] = list(map(float, s.center))
             self.sph_r[i] = s.radius
@@ -79,15 +90,21 @@ class Boundary:
             if out_len > 0.0:
                 n = outside * ti.math.sign(d) / out_len
             else:
-                # inside: the nearest face is the axis with the largest (least negative) q
-                axis = 0
-                for k in ti.static(range(1, self.dim)):
-                    if q[k] > q[axis]:
-                        axis = k
-                dist = q[axis]
+                # inside: the nearest open face, over the axes the largest (least negative)
+                # distance; an axis whose nearer face is shut offers its far face
+                dist = -1e30
                 for k in ti.static(range(self.dim)):
-                    if k == axis:
-                        n[k] = 1.0 if d[k] >= 0.0 else -1.0
+                    side = 1 if d[k] >= 0.0 else -1
+                    qk = q[k]
+                    if (self.box_shut_hi[b][k] if side > 0 else self.box_shut_lo[b][k]) == 1:
+                        side = -side
+                        qk = -1e30
+                        if (self.box_shut_hi[b][k] if side > 0 else self.box_shut_lo[b][k]) == 0:
+                            qk = -(self.box_half[b][k] + ti.abs(d[k]))
+                    if qk > dist:
+                        dist = qk
+                        n = ti.Vector.zero(float, self.dim)
+                        n[k] = float(side)
             if dist < best:
                 best = dist
                 normal = n
@@ -125,3 +142,15 @@ class Boundary:
                             v[j] *= 1.0 - mu
                     v[k] = -e * v[k]
         return x, v
+
+
+def shut_faces(lo, hi, domain_lo, domain_hi):
+    """Per axis, whether a box's low and high faces lie on or past the domain's walls (as
+    int arrays, 1 shut). A box that reaches every wall keeps its faces open: shut, it
+    would have no face to leave by."""
+    tol = 1e-6 * (domain_hi - domain_lo)
+    shut_lo = (lo <= domain_lo + tol).astype(int)
+    shut_hi = (hi >= domain_hi - tol).astype(int)
+    if np.all(shut_lo & shut_hi):
+        shut_lo[:] = shut_hi[:] = 0
+    return shut_lo, shut_hi

@@ -253,7 +253,9 @@ SCHEMA = Table(
         ),
         "obstacles": Array(
             Table({"shape": SHAPE}, switch="shape", variants=SHAPES),
-            doc=f"Static solid shapes, at most {MAX_OBSTACLES} of each shape. The keys of the other shape are unknown.",
+            doc=f"Static solid shapes, at most {MAX_OBSTACLES} of each shape. The keys of the other shape are unknown. "
+            "A box's face on or past a wall of the domain (a post standing on the floor) is shut: "
+            "fluid pushed into the box leaves it by another face.",
         ),
         "emitters": Array(
             Table(
