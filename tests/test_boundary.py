@@ -64,6 +64,20 @@ def test_a_particle_in_a_post_near_the_floor_leaves_by_the_nearer_side(dim, taic
     assert v1[0, 0] <= 0.0 <= v1[1, 0], v1  # the velocity into the side is gone
 
 
+def test_a_step_through_the_floor_under_a_post_ends_beside_it(dim, taichi_f32):
+    """A particle beside the post's foot whose step ends below the floor, under the post:
+    the floor puts it back on the floor, inside the post, which pushes it out by its
+    nearer side (the other way round, the post did not see it below the floor and the
+    floor left it in the footprint)."""
+    b = _post(dim)
+    x = np.array([[1.123, -0.002, 0.2][:dim], [1.150, -0.001, 0.2][:dim]])
+    v = np.array([[2.0, -1.5, 0.0][:dim], [-2.0, -1.0, 0.0][:dim]])
+    x1, v1, _, _ = _collide(b, x, v)
+    np.testing.assert_allclose(x1[:, 0], [1.12, 1.152], atol=1e-6)
+    np.testing.assert_allclose(x1[:, 1], 0.0, atol=1e-7)
+    np.testing.assert_allclose(v1, 0.0, atol=1e-7)  # into the floor and into the post: gone
+
+
 def test_a_floating_box_keeps_its_bottom_face_open(dim, taichi_f32):
     """Only a face on a wall is shut: a box off the floor still projects down through its
     bottom when that face is the nearest."""

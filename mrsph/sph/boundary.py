@@ -123,15 +123,11 @@ class Boundary:
 
     @ti.func
     def collide(self, x, v):
-        """Project (x, v) out of obstacles and back into the domain box."""
+        """Project (x, v) back into the domain box, then out of the obstacles. In that
+        order: a step that crosses the floor beneath a post lands on the floor inside the
+        post, which then pushes it out by a side; the other way round, the post (seen from
+        below the floor) let it be, and the floor kept it in the post's footprint."""
         e, mu = self.restitution, self.friction
-        phi, n = self.obstacle_sdf(x)
-        if phi < 0.0:
-            x -= phi * n
-            vn = v.dot(n)
-            if vn < 0.0:
-                vt = v - vn * n
-                v = vt * (1.0 - mu) - e * vn * n
         for k in ti.static(range(self.dim)):
             if x[k] < self.lo[k] or x[k] > self.hi[k]:
                 x[k] = ti.min(ti.max(x[k], self.lo[k]), self.hi[k])
@@ -141,6 +137,15 @@ class Boundary:
                         if j != k:
                             v[j] *= 1.0 - mu
                     v[k] = -e * v[k]
+        phi, n = self.obstacle_sdf(x)
+        if phi < 0.0:
+            x -= phi * n
+            vn = v.dot(n)
+            if vn < 0.0:
+                vt = v - vn * n
+                v = vt * (1.0 - mu) - e * vn * n
+            # a box leaves by a face inside the domain; a sphere through a wall may not
+            x = ti.min(ti.max(x, self.lo), self.hi)
         return x, v
 
 
