@@ -247,7 +247,7 @@ SCHEMA = Table(
                     "m/s",
                     "a faster particle is reported as a "
                     "blow-up (the app's strongest stirring, tools/soak.py, asks for up to 80 "
-                    "m/s; its fastest particle reached 31 m/s with wcsph, 107 with dfsph, 57 with pbf)",
+                    "m/s; its fastest particle reached 31 m/s with wcsph, 107 with dfsph)",
                 ),
             }
         ),
