@@ -108,8 +108,10 @@ def test_outside_the_box_the_distance_is_unchanged(dim, taichi_f32):
     q = np.abs(x - c) - half
     out = np.linalg.norm(np.maximum(q, 0.0), axis=1)
     keep = out > 1e-4
-    _, _, phi, _ = _collide(b, x[keep], np.zeros((int(keep.sum()), dim)))
+    _, _, phi, n = _collide(b, x[keep], np.zeros((int(keep.sum()), dim)))
     np.testing.assert_allclose(phi, out[keep], atol=2e-6)
+    normal = np.maximum(q[keep], 0.0) * np.sign(x[keep] - c) / out[keep][:, None]
+    np.testing.assert_allclose(n, normal, atol=1e-4)
 
 
 @pytest.mark.parametrize(
