@@ -1147,6 +1147,13 @@ def test_pbf_refuses_an_odd_iteration_count_at_full_relaxation():
     load_scene("dam_break_2d", ['fluid.solver="pbf"', "pbf.iterations=4", "pbf.over_relaxation=1.0"])
     with pytest.raises(SceneError, match="pbf.min_iterations: above pbf.iterations"):
         load_scene("dam_break_2d", ['fluid.solver="pbf"', "pbf.min_iterations=5"])
+    # a count the step's error sets (pbf.min_iterations below pbf.iterations) is odd in some steps
+    varies = ['fluid.solver="pbf"', "pbf.iterations=4", "pbf.min_iterations=2"]
+    with pytest.raises(SceneError) as e:
+        load_scene("dam_break_2d", varies + ["pbf.over_relaxation=0.9"])
+    (line,) = e.value.problems
+    assert "pbf.over_relaxation" in line and "varies" in line and "0.9" in line and "at most 0.7" in line, line
+    load_scene("dam_break_2d", varies + ["pbf.over_relaxation=0.7", "pbf.max_density_error=0.2"])
 
 
 def test_the_app_reads_its_defaults_from_the_schema():

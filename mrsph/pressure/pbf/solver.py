@@ -119,6 +119,8 @@ class PBF(PressureSolver):
         self.min_iterations = cfg.iterations if cfg.min_iterations < 0 else cfg.min_iterations
         self.tolerance = ti.field(ti.f64, shape=())
         self.tolerance[None] = cfg.tolerance
+        self.max_error = ti.field(float, shape=())  # the largest particle error allowed; inf: none
+        self.max_error[None] = cfg.max_density_error if cfg.max_density_error > 0.0 else float("inf")
         self._warned = False
         self._lambda_images = ImageNeighbours(self.nb, self._lambda_pair)
         self._correct_images = ImageNeighbours(self.nb, self._correct_image)
@@ -148,15 +150,21 @@ class PBF(PressureSolver):
     def take_stats(self) -> dict:
         """The steps since the last call: the mean of their average density errors (at
         the last iteration's multipliers, before its corrections), the steps above
-        ``pbf.tolerance`` (warned about once) and the particles the clamp slowed."""
+        ``pbf.tolerance`` or with a particle above ``pbf.max_density_error`` (warned about
+        once) and the particles the clamp slowed."""
         err_sum, worst, peak, steps, unconverged, clamped, iters = self.stats.to_numpy().tolist()
         self.stats.fill(0.0)
         if unconverged and not self._warned:
             self._warned = True
+            largest = ""
+            if self.cfg.max_density_error > 0.0:
+                limit = self.cfg.max_density_error
+                largest = f" or a particle's above pbf.max_density_error = {limit:g} (worst {peak:.3g})"
             self.warn(
                 f"pbf: {int(unconverged)} of {int(steps)} steps stopped at pbf.iterations = {self.iterations} "
-                f"with an average density error above pbf.tolerance = {self.cfg.tolerance:g} (worst {worst:.3g}): "
-                "raise pbf.iterations or pbf.substeps (counted in stats as unconverged; warned once)"
+                f"with an average density error above pbf.tolerance = {self.cfg.tolerance:g} (worst {worst:.3g})"
+                + largest
+                + ": raise pbf.iterations or pbf.substeps (counted in stats as unconverged; warned once)"
             )
         return {
             "density_iterations": iters / steps if steps else 0.0,
@@ -220,9 +228,10 @@ class PBF(PressureSolver):
         with the correction); the average error into ``err``, the largest into ``peak``."""
         p = ti.static(self.pool.p)
         rho0 = ti.static(self.rest_density)
-        self.err[None] = 0.0
-        self.peak[None] = 0.0
-        self.n_real[None] = 0
+        if n > 0:  # a launch after the solve stopped keeps the last measure
+            self.err[None] = 0.0
+            self.peak[None] = 0.0
+            self.n_real[None] = 0
         for i in range(n):
             if is_real(p[i].kind):
                 l, h, ctx = self.pairs.ctx(i)
@@ -363,14 +372,15 @@ class PBF(PressureSolver):
     @ti.func
     def iterate_func(self, n):
         """One Jacobi iteration, steps 1-3, while the step's solve runs: it stops once the
-        average error measured is within ``pbf.tolerance`` after at least
-        ``pbf.min_iterations`` corrections, or after ``pbf.iterations``; decided here, on
-        the device (the loops' bounds 0 once it stops)."""
+        average error measured is within ``pbf.tolerance`` and the largest within
+        ``pbf.max_density_error`` after at least ``pbf.min_iterations`` corrections, or after
+        ``pbf.iterations``; decided here, on the device (the loops' bounds 0 once it stops)."""
         self._multipliers(ti.select(self.running[None] != 0, n, 0))
         if self.running[None] != 0:
             avg = self.err[None] / ti.max(self.n_real[None], 1)
             self.avg[None] = avg
-            if avg <= self.tolerance[None] and self.iteration[None] >= self.min_iterations:
+            within = avg <= self.tolerance[None] and self.peak[None] <= self.max_error[None]
+            if within and self.iteration[None] >= self.min_iterations:
                 self.running[None] = 0
         m = ti.select(self.running[None] != 0, n, 0)
         self._corrections(m)
