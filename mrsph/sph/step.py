@@ -43,9 +43,10 @@ class Pass(NamedTuple):
     None for the step's own). ``func(n)``: the same work as a device function, for the fused launch; None
     for work the host drives (an iterative solve's stopping, particles appended).
     ``when``: for a host pass, whether it runs this step (evaluated each step).
-    ``repeat``: launches a step (a solver's iterations); ``alone``: a launch of its own
-    when fused; ``loops``: the loops over every particle's neighbours a launch makes (what
-    ``bench`` counts as neighbour passes)."""
+    ``repeat``: launches a step (a solver's iterations); ``again``: then, up to ``most``
+    launches in all, one more while it says so (a host read, the solve's own stop);
+    ``alone``: a launch of its own when fused; ``loops``: the loops over every particle's
+    neighbours a launch makes (what ``bench`` counts as neighbour passes)."""
 
     name: str
     timer: str
@@ -55,6 +56,8 @@ class Pass(NamedTuple):
     decides: bool = False
     when: Callable[[], bool] | None = None
     repeat: int = 1
+    again: Callable[[], bool] | None = None
+    most: int = 0
     alone: bool = False
     loops: int = 0
 
@@ -189,18 +192,18 @@ class Stepper:
         self._head = self.passes[: device[0]] if device else self.passes
         self._inner = tuple(inner)
         self._tail = self.passes[device[-1] + 1 :] if device else ()
-        self.launches = []  # (Segment, times) of a fused step
+        self.launches = []  # (Segment, the pass it repeats or None) of a fused step
         run = []
         for p in self._inner if self.fused else ():
             if p.repeat > 1 or p.alone:
                 if run:
-                    self.launches.append((Segment(tuple(run), self.state, self.count), 1))
+                    self.launches.append((Segment(tuple(run), self.state, self.count), None))
                     run = []
-                self.launches.append((Segment((p,), self.state, self.count), p.repeat))
+                self.launches.append((Segment((p,), self.state, self.count), p))
             else:
                 run.append(p)
         if run:
-            self.launches.append((Segment(tuple(run), self.state, self.count), 1))
+            self.launches.append((Segment(tuple(run), self.state, self.count), None))
 
     # ------------------------------------------------------------------ host
     def wrap(self, name: str, wrapper: Callable) -> None:
@@ -223,8 +226,8 @@ class Stepper:
                 self._timed(p.timer, p.kernel, None)
         if self.fused and not self.profile():
             dt = -1.0
-            for segment, times in self.launches:
-                for _ in range(times):
+            for segment, p in self.launches:
+                for _ in launches(p):
                     dt = segment.run(*args)
         else:
             dt = self._by_pass(args)
@@ -253,7 +256,7 @@ class Stepper:
         self._timed("timestep", self.state.set, None, *args)
         n, dt = (0 if self._inner[0].counts else self.count_host()), 0.0
         for p in self._inner:
-            for _ in range(p.repeat):
+            for _ in launches(p):
                 out = self._launch(p, n)
             if p.counts:
                 n = out
@@ -280,3 +283,17 @@ class Stepper:
         ti.sync()
         self.timers[timer] = self.timers.get(timer, 0.0) + time.perf_counter() - t0
         return out
+
+
+def launches(p: Pass | None):
+    """A pass's launches, one at a time: ``repeat``, then while ``again`` (up to ``most``);
+    a fused run of passes (None) is launched once."""
+    if p is None:
+        yield None
+        return
+    for k in range(p.repeat):
+        yield k
+    k = p.repeat
+    while p.again is not None and k < p.most and p.again():
+        yield k
+        k += 1

@@ -41,9 +41,10 @@ TABLE = (
             "int",
             -1,
             ">= -1",
-            doc="corrections a step at least, whatever its error; -1 = pbf.iterations, a fixed count "
-            "(a solve that stops as soon as it is within its tolerance leaves the carried pressure to "
-            "decay and the next steps swing)",
+            doc="corrections a step at least, whatever its error, and then more while the error "
+            "measured for the last one is above pbf.tolerance or pbf.max_density_error; -1 = "
+            "pbf.iterations, a fixed count (a solve that stops as soon as it is within its tolerance "
+            "leaves the carried pressure to decay and the next steps swing)",
         ),
         "relaxation": key(
             "float",
@@ -160,6 +161,13 @@ def rules(check, data: dict) -> None:
                 f"below pbf.iterations = {cfg['iterations']})",
                 repr(cfg["over_relaxation"]),
                 "at most 0.7, or pbf.min_iterations = -1",
+            )
+        if cfg["min_iterations"] == 0:
+            check.add(
+                "pbf.min_iterations",
+                "0: a step makes at least one correction (the error it stops on is measured for one)",
+                "0",
+                "-1 or at least 1",
             )
         if cfg["min_iterations"] > cfg["iterations"]:
             check.add(

@@ -116,7 +116,8 @@ class PBF(PressureSolver):
         self.running = ti.field(ti.i32, shape=())  # the step's solve goes on
         self.avg = ti.field(ti.f64, shape=())  # its last measured average error
         self.peak = ti.field(float, shape=())  # and largest
-        self.min_iterations = cfg.iterations if cfg.min_iterations < 0 else cfg.min_iterations
+        # each launch corrects once: a step makes at least one
+        self.min_iterations = cfg.iterations if cfg.min_iterations < 0 else max(1, cfg.min_iterations)
         self.tolerance = ti.field(ti.f64, shape=())
         self.tolerance[None] = cfg.tolerance
         self.max_error = ti.field(float, shape=())  # the largest particle error allowed; inf: none
@@ -176,16 +177,28 @@ class PBF(PressureSolver):
 
     def after_density(self) -> list:
         """The projection of the predicted positions (this solver predicts first, so the
-        density pass measured them): its start,
-        ``pbf.iterations`` launches of one Jacobi iteration each (a kernel compiled once,
-        whatever the count), its end."""
+        density pass measured them): its start, ``pbf.min_iterations`` launches of one
+        Jacobi iteration each (a kernel compiled once, whatever the count) and more while
+        the solve runs, up to ``pbf.iterations``, its end."""
+        iterate = Pass(
+            "pbf_iterate", "pressure", self.iterate, self.iterate_func, repeat=self.min_iterations, alone=True, loops=2
+        )
+        if self.min_iterations < self.iterations:
+            # the rest launched while the solve runs: a host read a launch, not an empty launch
+            iterate = iterate._replace(again=self.solving, most=self.iterations)
         return [
             Pass("pbf_begin", "pressure", self.begin, self.begin_func, loops=1),
-            Pass(
-                "pbf_iterate", "pressure", self.iterate, self.iterate_func, repeat=self.iterations, alone=True, loops=2
-            ),
+            iterate,
             Pass("pbf_end", "pressure", self.end, self.end_func),
         ]
+
+    def solving(self) -> bool:
+        """Whether the step's solve goes on (its stop is decided on the device)."""
+        return self.running[None] != 0
+
+    def solve_loops(self, stats: dict) -> float:
+        """The neighbour loops of the iterations past pbf.min_iterations (stats: a stats row)."""
+        return 2.0 * max(0.0, (stats.get("density_iterations") or 0.0) - self.min_iterations)
 
     def after_kick(self) -> list:
         return [Pass("pbf_clamp", "integrate", self.clamp, self.clamp_func)]
@@ -371,22 +384,24 @@ class PBF(PressureSolver):
 
     @ti.func
     def iterate_func(self, n):
-        """One Jacobi iteration, steps 1-3, while the step's solve runs: it stops once the
-        average error measured is within ``pbf.tolerance`` and the largest within
-        ``pbf.max_density_error`` after at least ``pbf.min_iterations`` corrections, or after
-        ``pbf.iterations``; decided here, on the device (the loops' bounds 0 once it stops)."""
-        self._multipliers(ti.select(self.running[None] != 0, n, 0))
-        if self.running[None] != 0:
+        """One Jacobi iteration, steps 1-3, while the step's solve runs: it stops after a
+        correction, once at least ``pbf.min_iterations`` were made and the error measured
+        before it is within both ``pbf.tolerance`` (the average) and
+        ``pbf.max_density_error`` (the largest), or after ``pbf.iterations``; decided here,
+        on the device (the loops' bounds 0 once it stops). The error is the one measured
+        for the correction, so that a step that stops pays no measure of its own."""
+        go = self.running[None] != 0
+        self._multipliers(ti.select(go, n, 0))
+        m = ti.select(go, n, 0)
+        self._corrections(m)
+        self._apply(m, False)
+        if go:
             avg = self.err[None] / ti.max(self.n_real[None], 1)
             self.avg[None] = avg
+            self.iteration[None] += 1
             within = avg <= self.tolerance[None] and self.peak[None] <= self.max_error[None]
             if within and self.iteration[None] >= self.min_iterations:
                 self.running[None] = 0
-        m = ti.select(self.running[None] != 0, n, 0)
-        self._corrections(m)
-        self._apply(m, False)
-        if self.running[None] != 0:
-            self.iteration[None] += 1
 
     @ti.kernel
     def end(self, n: ti.i32):
