@@ -76,3 +76,6 @@ def test_a_hot_spot_hidden_in_the_average_keeps_the_iterations_going(dim):
     assert 2 < on[0] < 12, f"with the limit the step should go on, and stop once within it: {on}"
     assert on[1] <= LIMIT < off[1], f"the largest error should end within the limit: {on} against {off}"
     assert stats["unconverged"] == 0, stats
+    # the stats row (the HUD's iterations/step) and bench's neighbour passes count what was made
+    assert stats["density_iterations"] == on[0], stats
+    assert sim.neighbour_passes(stats) - sim.neighbour_passes({**stats, "density_iterations": 2}) == 2 * (on[0] - 2)
