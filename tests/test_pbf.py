@@ -76,6 +76,34 @@ def test_a_hot_spot_hidden_in_the_average_keeps_the_iterations_going(dim):
     assert 2 < on[0] < 12, f"with the limit the step should go on, and stop once within it: {on}"
     assert on[1] <= LIMIT < off[1], f"the largest error should end within the limit: {on} against {off}"
     assert stats["unconverged"] == 0, stats
+    assert solver.max_error[None] == pytest.approx(LIMIT)  # as the scene's key set it
     # the stats row (the HUD's iterations/step) and bench's neighbour passes count what was made
     assert stats["density_iterations"] == on[0], stats
     assert sim.neighbour_passes(stats) - sim.neighbour_passes({**stats, "density_iterations": 2}) == 2 * (on[0] - 2)
+
+    # a limit no step reaches: pbf.iterations, and the step counted short (and warned)
+    sim.restore_state(start)
+    solver.max_error[None] = 1e-6
+    sim.step()
+    stats = sim.stats()
+    assert int(solver.iteration[None]) == 12 and stats["unconverged"] == 1, stats
+    assert any("pbf.max_density_error" in w for w in sim.warnings), sim.warnings
+
+
+def test_the_step_launches_iterations_past_the_minimum_only_while_the_solve_runs():
+    """``Pass.again``: after ``repeat`` launches, one more while it says so, ``most`` in all;
+    fused, such a pass is a launch of its own even at one repeat and not ``alone``, or its
+    later launches would have nothing to run."""
+    from mrsph.sph.step import Pass, Stepper, launches
+
+    answers = iter([True, True, False, True])
+    solve = Pass("solve", "pressure", None, lambda n: None, repeat=2, again=lambda: next(answers), most=6)
+    assert len(list(launches(solve))) == 4
+    assert len(list(launches(solve._replace(again=lambda: True, most=5)))) == 5
+    assert len(list(launches(Pass("fixed", "pressure", None, lambda n: None, repeat=3)))) == 3
+    assert list(launches(None)) == [None]  # a fused run of passes: once
+
+    a, c = (Pass(name, "t", None, lambda n: None) for name in "ac")
+    b = Pass("b", "t", None, lambda n: None, again=lambda: False, most=4)
+    stepper = Stepper([a, b, c], None, True, lambda: False, None, None)
+    assert [tuple(p.name for p in seg.passes) for seg, _ in stepper.launches] == [("a",), ("b",), ("c",)]

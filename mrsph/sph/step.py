@@ -195,7 +195,7 @@ class Stepper:
         self.launches = []  # (Segment, the pass it repeats or None) of a fused step
         run = []
         for p in self._inner if self.fused else ():
-            if p.repeat > 1 or p.alone:
+            if p.repeat > 1 or p.again is not None or p.alone:
                 if run:
                     self.launches.append((Segment(tuple(run), self.state, self.count), None))
                     run = []

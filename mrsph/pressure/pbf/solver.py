@@ -423,7 +423,7 @@ class PBF(PressureSolver):
         self.stats[ERR_PEAK] = ti.max(self.stats[ERR_PEAK], ti.cast(self.peak[None], ti.f64))
         self.stats[STEPS] += 1.0
         self.stats[ITERS] += ti.cast(self.iteration[None], ti.f64)
-        if avg > self.tolerance[None]:
+        if avg > self.tolerance[None] or self.peak[None] > self.max_error[None]:
             self.stats[UNCONVERGED] += 1.0
 
     @ti.kernel
