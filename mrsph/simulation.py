@@ -189,6 +189,7 @@ class Simulation:
         """Back to t = 0: seed the fluid blocks, refine where the criteria ask."""
         prm = self.scene.params
         self.pool.clear()
+        self.pressure.forget_step()
         self.pool.refused[None] = 0
         self.coupling.reset()
         self.emitters.reset()
@@ -280,6 +281,7 @@ class Simulation:
         upto = {"grid": "grid", "density": block[density - 1], "forces": block[-1]}[last]
         args = self.integrator.step_args(None, int(self.disturbances.any_active()), self.time)
         n = self.stepper.run_span("grid", upto, args)
+        self.pressure.forget_step()  # sorted anew: the last step's slots are gone
         ti.sync()
         return n
 
@@ -349,6 +351,7 @@ class Simulation:
             k: getattr(p, k).to_numpy()[:n]
             for k in ("x", "v", "m", "rho", "p", "level", "kind", "parent", "nchild", "lam", "drho")
         }
+        out["p"] = self.pressure.reported_pressure(out["p"])
         keep = out["kind"] != DEAD
         if not virtual:
             keep &= out["kind"] < VIRTUAL_CHILD
@@ -421,6 +424,7 @@ class Simulation:
         self.integrator.set_chosen_dt(chosen_dt)
         self.emitters.progress = list(state["emitters"])
         self.grids.invalidate()  # the pool's slots are not those the lists were built for
+        self.pressure.forget_step()
         self.coupling.reset()
         self._stirrers(self.time)
 

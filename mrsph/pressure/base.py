@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import taichi as ti
 
 
@@ -118,6 +119,16 @@ class PressureSolver:
     def solve_loops(self, stats: dict) -> float:
         """Neighbour loops a step of its host-driven solves (``stats``: a stats row)."""
         return 0.0
+
+    def reported_pressure(self, p: np.ndarray) -> np.ndarray:
+        """The pressure a reader sees (dumps, snapshots, the validation), from the pool's
+        p of the first len(p) slots as the last step left them: p itself, unless a solver
+        keeps part of it apart (pbf: its tensile correction's, outside the warm start)."""
+        return p
+
+    def forget_step(self) -> None:
+        """The slots no longer hold the last step's particles (a reset, a restored state,
+        a sort outside a step): drop what ``reported_pressure`` adds."""
 
     def set_param(self, key: str, value) -> None:
         raise ValueError(f"{key}: not live-tunable with fluid.solver = {self.name}")

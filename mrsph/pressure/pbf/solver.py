@@ -26,9 +26,12 @@ runs ``pbf.iterations`` times
 
 XSPH smoothing in the last iteration's corrections (u_i += c Σ_j 2 m_j/(ρ_i + ρ_j)
 (u_j − u_i) W_ij, symmetric in the pair so that it keeps momentum),
-and p_i = q_i ρ_i² / dt², the pressure whose force moves x by q in a step: what dumps
-show, and what the next step's force pass applies a share of (the pair pressure term of
-weakly compressible SPH with this p). So part of the pressure that carries the water's
+and p_i = q_i ρ_i² / dt², the pressure whose force moves x by q in a step: what the next
+step's force pass applies a share of (the pair pressure term of weakly compressible SPH
+with this p). Dumps show p_i + q^t_i ρ_i² / dt², q^t_i the tensile corrections of the
+step's passes as a multiplier (half the mean of i's s_corr, weighted by m_j |∇W_ij|): they
+push as a pressure does, and in a resting tank they carry a few per cent of the weight
+(more at a level interface), which p alone would leave out. So part of the pressure that carries the water's
 weight acts as a force and the iterations correct the rest: without it, the weight is
 carried by each step's iterations alone and a column H deep compresses by about
 g H D_0 dt² / (ρ0 iterations), 30 % at the bottom of demo_2d's 7 mm level.
@@ -94,6 +97,8 @@ class PBF(PressureSolver):
         self.q = ti.field(float, shape=cap)  # the step's accumulated multiplier
         self.rho = ti.field(float, shape=cap)  # ρ at the last iteration's positions
         self.dq = ti.field(float, shape=cap)  # this iteration's change of it
+        self.qt = ti.field(float, shape=cap)  # the step's tensile corrections, as a multiplier
+        self.pt = ti.field(float, shape=cap)  # and as a pressure (Pa): the part of p outside q
         self.dx = ti.Vector.field(self.dim, float, shape=cap)  # this iteration's correction
         self.dv = ti.Vector.field(self.dim, float, shape=cap)  # XSPH's and the viscosity's velocity change
         L = core.levels
@@ -192,6 +197,13 @@ class PBF(PressureSolver):
             Pass("pbf_end", "pressure", self.end, self.end_func),
         ]
 
+    def reported_pressure(self, p: np.ndarray) -> np.ndarray:
+        """p plus the last step's tensile corrections as a pressure (``pt``), slot by slot."""
+        return p + self.pt.to_numpy()[: len(p)].astype(p.dtype)
+
+    def forget_step(self) -> None:
+        self.pt.fill(0.0)
+
     def solving(self) -> bool:
         """Whether the step's solve goes on (its stop is decided on the device)."""
         return self.running[None] != 0
@@ -266,11 +278,10 @@ class PBF(PressureSolver):
                     ti.atomic_max(self.peak[None], c)
 
     @ti.func
-    def _push(self, i, j, g, ctx: ti.template()):
-        """m_j (δq_i + δq'_j + s_corr) ∇W_ij, and XSPH's weight of j."""
+    def _tensile(self, i, j, ctx: ti.template()):
+        """The pair's tensile correction s_corr (0 without one)."""
         p = ti.static(self.pool.p)
         l = p[i].level
-        shown = self.coupling.partner_pressure(p[j].kind, self.dq[j])
         corr = 0.0
         if self.knobs[AP] > 0.0:
             d = ti.max(ctx[0] * ctx[0] - (p[i].x - p[j].x).norm_sqr(), 0.0)
@@ -280,6 +291,13 @@ class PBF(PressureSolver):
             # coarse side pushed into the fine one at every interface
             unit = self.den_rest[self.levels - 1]  # the same operations as per level, for uniform runs
             corr = self.knobs[AP] * self.rest_density / unit * ti.pow(w, self.cfg.artificial_pressure_exponent)
+        return corr
+
+    @ti.func
+    def _push(self, i, j, g, corr):
+        """m_j (δq_i + δq'_j + s_corr) ∇W_ij."""
+        p = ti.static(self.pool.p)
+        shown = self.coupling.partner_pressure(p[j].kind, self.dq[j])
         return p[j].m * (self.dq[i] + shown + corr) * g
 
     @ti.func
@@ -289,9 +307,11 @@ class PBF(PressureSolver):
         ok, g = self.pairs.grad(i, j, xq, L, p0, nrm, check, ctx)
         p = ti.static(self.pool.p)
         if ok:
-            f = self._push(i, j, g, ctx)
+            corr = self._tensile(i, j, ctx)
+            f = self._push(i, j, g, corr)
             for k in ti.static(range(self.dim)):
                 acc[k] += f[k]
+            self._tally(j, g, corr, acc)
             self.coupling.hand_reaction(j, -p[i].m * f)
         r2 = (p[i].x - p[j].x).norm_sqr()
         h = ctx[0]
@@ -315,9 +335,20 @@ class PBF(PressureSolver):
         handed on (and XSPH leaves the walls free-slip)."""
         ok, g = self.pairs.grad(i, j, xq, L, p0, nrm, check, ctx)
         if ok:
-            f = self._push(i, j, g, ctx)
+            corr = self._tensile(i, j, ctx)
+            f = self._push(i, j, g, corr)
             for k in ti.static(range(self.dim)):
                 acc[k] += f[k]
+            self._tally(j, g, corr, acc)
+
+    @ti.func
+    def _tally(self, j, g, corr, acc: ti.template()):
+        """The tensile correction and its weight m_j |∇W| in the pair's push: over i's pairs,
+        half their weighted mean is the multiplier whose pair terms push i as the
+        corrections do (exactly so where s_corr is the same for every pair)."""
+        wt = self.pool.p[j].m * g.norm()
+        acc[2 * self.dim] += corr * wt
+        acc[2 * self.dim + 1] += wt
 
     @ti.func
     def _corrections(self, n):
@@ -327,8 +358,10 @@ class PBF(PressureSolver):
         for i in range(n):
             if is_real(p[i].kind):
                 l, h, ctx = self.pairs.ctx(i)
-                acc = ti.Vector.zero(float, 2 * self.dim)
+                acc = ti.Vector.zero(float, 2 * self.dim + 2)
                 self._visit(i, self._correct_pair, self._correct_images.visit, ctx, acc)
+                if acc[2 * self.dim + 1] > 0.0:
+                    self.qt[i] += 0.5 * acc[2 * self.dim] / acc[2 * self.dim + 1]
                 self.dx[i] = -ti.Vector([acc[k] for k in ti.static(range(self.dim))])
                 self.dv[i] = ti.Vector([acc[self.dim + k] for k in ti.static(range(self.dim))])
 
@@ -375,6 +408,7 @@ class PBF(PressureSolver):
                 q = self.knobs[WARM] * p[i].p * dt * dt / (p[i].rho * p[i].rho)
             self.q[i] = q
             self.dq[i] = q
+            self.qt[i] = 0.0
         self._corrections(n)
         self._apply(n, True)
 
@@ -409,14 +443,18 @@ class PBF(PressureSolver):
 
     @ti.func
     def end_func(self, n):
-        """The pressure whose force would move x by q in a step (what dumps show, and the
-        next step's warm start), and the step's last measured error into the stats."""
+        """The pressure whose force would move x by q in a step (the next step's warm
+        start), the tensile corrections' as ``pt`` (what dumps show is their sum), and the
+        step's last measured error into the stats."""
         p = ti.static(self.pool.p)
         dt = ti.cast(self.state.dt[None], float)
         for i in range(n):
+            pt = 0.0
             if is_real(p[i].kind):
                 rho = self.rho[i]
                 p[i].p = self.q[i] * rho * rho / (dt * dt)
+                pt = self.qt[i] * rho * rho / (dt * dt)
+            self.pt[i] = pt
         avg = self.avg[None]
         self.stats[ERR_SUM] += avg
         self.stats[ERR_WORST] = ti.max(self.stats[ERR_WORST], avg)
