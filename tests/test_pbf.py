@@ -107,3 +107,47 @@ def test_the_step_launches_iterations_past_the_minimum_only_while_the_solve_runs
     b = Pass("b", "t", None, lambda n: None, again=lambda: False, most=4)
     stepper = Stepper([a, b, c], None, True, lambda: False, None, None)
     assert [tuple(p.name for p in seg.passes) for seg, _ in stepper.launches] == [("a",), ("b",), ("c",)]
+
+
+def test_dumps_show_the_tensile_corrections_pressure_with_the_multipliers():
+    """The tensile correction pushes each pair apart as a pressure would, so the pressure a
+    reader sees is the multipliers' (the pool's p, which the warm start reads) plus its part
+    (``pt``): 0.6 % of rho0 g H at the bottom of a still column 20 particles deep, none without the
+    correction, and none after the slots were filled or sorted anew outside a step."""
+    from mrsph.pressure.pbf.solver import AP
+    from mrsph.scene.config import load_scene
+    from mrsph.simulation import Simulation
+    from mrsph.sph.particles import VIRTUAL_CHILD
+
+    scene = _scene(2)
+    scene["pbf"] = {}  # the defaults: a fixed count
+    sim = Simulation(load_scene(scene), arch="cpu")
+    sim.advance(0.1)
+    state = sim.save_state()
+
+    def parts():
+        n = sim.pool.count()
+        real = sim.pool.p.kind.to_numpy()[:n] < VIRTUAL_CHILD
+        seen = sim.particles(virtual=False)
+        return seen["x"][:, 1], seen["p"], sim.pool.p.p.to_numpy()[:n][real]
+
+    y, seen, pooled = parts()
+    tensile = seen - pooled
+    weight = 1000.0 * 9.81 * 0.2
+    deep = y < 0.05
+    assert tensile.min() >= 0.0, "the correction only pushes apart"
+    share = float(tensile[deep].mean() / weight)
+    assert 0.004 < share < 0.01, f"the tensile part at the bottom: {share:.4f} rho0 g H (0.0064 measured)"
+    assert float(seen[deep].mean() / weight) > float(pooled[deep].mean() / weight) + 0.002
+
+    sim.advance(0.05)
+    sim.restore_state(state)  # other slots: what the last step kept is dropped, not misplaced
+    assert np.array_equal(*parts()[1:])
+    sim.step()
+    assert not np.array_equal(*parts()[1:])
+    sim.run_phases("grid")
+    assert np.array_equal(*parts()[1:])
+
+    sim.pressure.knobs[AP] = 0.0  # pbf.artificial_pressure = 0
+    sim.step()
+    assert np.array_equal(*parts()[1:])
