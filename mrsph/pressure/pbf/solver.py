@@ -278,13 +278,14 @@ class PBF(PressureSolver):
                     ti.atomic_max(self.peak[None], c)
 
     @ti.func
-    def _tensile(self, i, j, ctx: ti.template()):
-        """The pair's tensile correction s_corr (0 without one)."""
+    def _tensile(self, i, j, xq, ctx: ti.template()):
+        """The pair's tensile correction s_corr (0 without one), at the pair's distance:
+        from j to x_i, or to x_i's mirror image xq for an image pair."""
         p = ti.static(self.pool.p)
         l = p[i].level
         corr = 0.0
         if self.knobs[AP] > 0.0:
-            d = ti.max(ctx[0] * ctx[0] - (p[i].x - p[j].x).norm_sqr(), 0.0)
+            d = ti.max(ctx[0] * ctx[0] - (xq - p[j].x).norm_sqr(), 0.0)
             w = (d * d * d) / self.ap_w[l]
             # one unit on every level (the coarsest's), so that the term is one pressure across
             # the levels: in each level's own unit it grows as the spacing squared, and the
@@ -307,7 +308,7 @@ class PBF(PressureSolver):
         ok, g = self.pairs.grad(i, j, xq, L, p0, nrm, check, ctx)
         p = ti.static(self.pool.p)
         if ok:
-            corr = self._tensile(i, j, ctx)
+            corr = self._tensile(i, j, xq, ctx)
             f = self._push(i, j, g, corr)
             for k in ti.static(range(self.dim)):
                 acc[k] += f[k]
@@ -335,7 +336,7 @@ class PBF(PressureSolver):
         handed on (and XSPH leaves the walls free-slip)."""
         ok, g = self.pairs.grad(i, j, xq, L, p0, nrm, check, ctx)
         if ok:
-            corr = self._tensile(i, j, ctx)
+            corr = self._tensile(i, j, xq, ctx)
             f = self._push(i, j, g, corr)
             for k in ti.static(range(self.dim)):
                 acc[k] += f[k]
