@@ -28,13 +28,15 @@ XSPH smoothing in the last iteration's corrections (u_i += c Σ_j 2 m_j/(ρ_i + 
 (u_j − u_i) W_ij, symmetric in the pair so that it keeps momentum),
 and p_i = q_i ρ_i² / dt², the pressure whose force moves x by q in a step: what the next
 step's force pass applies a share of (the pair pressure term of weakly compressible SPH
-with this p). Dumps show p_i + q^t_i ρ_i² / dt², q^t_i the tensile corrections of the
-step's passes as a multiplier (half the mean of i's s_corr, weighted by m_j |∇W_ij|): they
-push as a pressure does, and in a resting tank they carry a few per cent of the weight
-(more at a level interface), which p alone would leave out. So part of the pressure that carries the water's
-weight acts as a force and the iterations correct the rest: without it, the weight is
-carried by each step's iterations alone and a column H deep compresses by about
-g H D_0 dt² / (ρ0 iterations), 30 % at the bottom of demo_2d's 7 mm level.
+with this p). So part of the pressure that carries the water's weight acts as a force and
+the iterations correct the rest: without it, the weight is carried by each step's
+iterations alone and a column H deep compresses by about g H D_0 dt² / (ρ0 iterations),
+30 % at the bottom of demo_2d's 7 mm level.
+
+Dumps show p_i + q^t_i ρ_i² / dt², q^t_i the tensile corrections of the step's passes as a
+multiplier (half the mean of i's s_corr, weighted by m_j |∇W_ij|): they push as a pressure
+does and carry part of the weight (0.2 % of ρ0 g H at the bottom of a still column 20
+deep, more at a level interface), which p alone would leave out.
 """
 
 import numpy as np
