@@ -20,7 +20,7 @@ runs ``pbf.iterations`` times
    multiplier j shows (the coupling's: 0 for a virtual particle, whose reaction
    m_i Σ m_j δq_i ∇W_ij is handed back, split evenly, to the real particles it stands
    for, so that the corrections over the real particles sum to zero); s_corr is the
-   tensile correction k (W(r)/W(Δq h))^n in units of a rest lattice's multiplier;
+   tensile correction (``tensile.py``);
 3. x_i += Δx_i and u_i += Δx_i / dt (the velocity from the position change), the walls
    and obstacles (collide), the virtual particles back on their owners;
 
@@ -31,12 +31,7 @@ step's force pass applies a share of (the pair pressure term of weakly compressi
 with this p). So part of the pressure that carries the water's weight acts as a force and
 the iterations correct the rest: without it, the weight is carried by each step's
 iterations alone and a column H deep compresses by about g H D_0 dt² / (ρ0 iterations),
-30 % at the bottom of demo_2d's 7 mm level.
-
-Dumps show p_i + q^t_i ρ_i² / dt², q^t_i the tensile corrections of the step's passes as a
-multiplier (half the mean of i's s_corr, weighted by m_j |∇W_ij|): they push as a pressure
-does and carry part of the weight (0.2 % of ρ0 g H at the bottom of a still column 20
-deep, more at a level interface), which p alone would leave out.
+30 % at the bottom of demo_2d's 7 mm level. Dumps add the tensile correction's share.
 """
 
 import numpy as np
@@ -50,6 +45,7 @@ from mrsph.sph.step import Pass
 from ..base import PressureSolver, TimeStepBound
 from ..eos import sound_speed
 from ..gradients import PairGradients
+from .tensile import TensileCorrection
 
 # knobs[]: scene values the kernels read from a field, so that changing one does not
 # compile the solver's kernels again
@@ -99,23 +95,19 @@ class PBF(PressureSolver):
         self.q = ti.field(float, shape=cap)  # the step's accumulated multiplier
         self.rho = ti.field(float, shape=cap)  # ρ at the last iteration's positions
         self.dq = ti.field(float, shape=cap)  # this iteration's change of it
-        self.qt = ti.field(float, shape=cap)  # the step's tensile corrections, as a multiplier
-        self.pt = ti.field(float, shape=cap)  # and as a pressure (Pa): the part of p outside q
         self.dx = ti.Vector.field(self.dim, float, shape=cap)  # this iteration's correction
         self.dv = ti.Vector.field(self.dim, float, shape=cap)  # XSPH's and the viscosity's velocity change
         L = core.levels
         self.den_rest = ti.field(float, shape=L)  # D of a rest lattice, per level
-        self.ap_w = ti.field(float, shape=L)  # poly6 at r = Δq h, per level (tensile correction)
         for l in range(L):
             h, s = self.lev.support(l), self.lev.spacing(l)
             self.den_rest[l] = rest_denominator(s, h, self.lev.m[l], self.lev.spiky[l], self.dim)
-            dq = cfg.artificial_pressure_radius * h
-            self.ap_w[l] = (h * h - dq * dq) ** 3
         self.knobs = ti.field(float, shape=7)
         for k, v in ((WARM, cfg.warm_start), (OMEGA, cfg.over_relaxation), (EPS, cfg.relaxation),
                      (XSPH, cfg.xsph), (AP, cfg.artificial_pressure),
                      (CLAMP, cfg.max_displacement), (VISC, self.mu)):  # fmt: skip
             self.knobs[k] = v
+        self.tensile = TensileCorrection(core, cfg, self.knobs, AP, self.den_rest)
         self.err = ti.field(ti.f64, shape=())  # Σ of this iteration's errors
         self.iteration = ti.field(ti.i32, shape=())  # of the step's, the one running
         self.n_real = ti.field(ti.i32, shape=())
@@ -165,8 +157,8 @@ class PBF(PressureSolver):
         if unconverged and not self._warned:
             self._warned = True
             largest = ""
-            if self.cfg.max_density_error > 0.0:
-                limit = self.cfg.max_density_error
+            limit = float(self.max_error[None])  # the bound the steps ran under
+            if np.isfinite(limit):
                 largest = f" or a particle's above pbf.max_density_error = {limit:g} (worst {peak:.3g})"
             self.warn(
                 f"pbf: {int(unconverged)} of {int(steps)} steps stopped at pbf.iterations = {self.iterations} "
@@ -200,11 +192,11 @@ class PBF(PressureSolver):
         ]
 
     def reported_pressure(self, p: np.ndarray) -> np.ndarray:
-        """p plus the last step's tensile corrections as a pressure (``pt``), slot by slot."""
-        return p + self.pt.to_numpy()[: len(p)].astype(p.dtype)
+        """p plus the last step's tensile corrections as a pressure, slot by slot."""
+        return self.tensile.reported(p, self.rho.to_numpy(), float(self.state.dt[None]))
 
     def forget_step(self) -> None:
-        self.pt.fill(0.0)
+        self.tensile.forget()
 
     def solving(self) -> bool:
         """Whether the step's solve goes on (its stop is decided on the device)."""
@@ -280,23 +272,6 @@ class PBF(PressureSolver):
                     ti.atomic_max(self.peak[None], c)
 
     @ti.func
-    def _tensile(self, i, j, xq, ctx: ti.template()):
-        """The pair's tensile correction s_corr (0 without one), at the pair's distance:
-        from j to x_i, or to x_i's mirror image xq for an image pair."""
-        p = ti.static(self.pool.p)
-        l = p[i].level
-        corr = 0.0
-        if self.knobs[AP] > 0.0:
-            d = ti.max(ctx[0] * ctx[0] - (xq - p[j].x).norm_sqr(), 0.0)
-            w = (d * d * d) / self.ap_w[l]
-            # one unit on every level (the coarsest's), so that the term is one pressure across
-            # the levels: in each level's own unit it grows as the spacing squared, and the
-            # coarse side pushed into the fine one at every interface
-            unit = self.den_rest[self.levels - 1]  # the same operations as per level, for uniform runs
-            corr = self.knobs[AP] * self.rest_density / unit * ti.pow(w, self.cfg.artificial_pressure_exponent)
-        return corr
-
-    @ti.func
     def _push(self, i, j, g, corr):
         """m_j (δq_i + δq'_j + s_corr) ∇W_ij."""
         p = ti.static(self.pool.p)
@@ -310,11 +285,11 @@ class PBF(PressureSolver):
         ok, g = self.pairs.grad(i, j, xq, L, p0, nrm, check, ctx)
         p = ti.static(self.pool.p)
         if ok:
-            corr = self._tensile(i, j, xq, ctx)
+            corr = self.tensile.term(i, j, xq, ctx[0])
             f = self._push(i, j, g, corr)
             for k in ti.static(range(self.dim)):
                 acc[k] += f[k]
-            self._tally(j, g, corr, acc)
+            self.tensile.tally(j, g, corr, acc, 2 * self.dim)
             self.coupling.hand_reaction(j, -p[i].m * f)
         r2 = (p[i].x - p[j].x).norm_sqr()
         h = ctx[0]
@@ -338,20 +313,11 @@ class PBF(PressureSolver):
         handed on (and XSPH leaves the walls free-slip)."""
         ok, g = self.pairs.grad(i, j, xq, L, p0, nrm, check, ctx)
         if ok:
-            corr = self._tensile(i, j, xq, ctx)
+            corr = self.tensile.term(i, j, xq, ctx[0])
             f = self._push(i, j, g, corr)
             for k in ti.static(range(self.dim)):
                 acc[k] += f[k]
-            self._tally(j, g, corr, acc)
-
-    @ti.func
-    def _tally(self, j, g, corr, acc: ti.template()):
-        """The tensile correction and its weight m_j |∇W| in the pair's push: over i's pairs,
-        half their weighted mean is the multiplier whose pair terms push i as the
-        corrections do (exactly so where s_corr is the same for every pair)."""
-        wt = self.pool.p[j].m * g.norm()
-        acc[2 * self.dim] += corr * wt
-        acc[2 * self.dim + 1] += wt
+            self.tensile.tally(j, g, corr, acc, 2 * self.dim)
 
     @ti.func
     def _corrections(self, n):
@@ -363,8 +329,7 @@ class PBF(PressureSolver):
                 l, h, ctx = self.pairs.ctx(i)
                 acc = ti.Vector.zero(float, 2 * self.dim + 2)
                 self._visit(i, self._correct_pair, self._correct_images.visit, ctx, acc)
-                if acc[2 * self.dim + 1] > 0.0:
-                    self.qt[i] += 0.5 * acc[2 * self.dim] / acc[2 * self.dim + 1]
+                self.tensile.close(i, acc, 2 * self.dim)
                 self.dx[i] = -ti.Vector([acc[k] for k in ti.static(range(self.dim))])
                 self.dv[i] = ti.Vector([acc[self.dim + k] for k in ti.static(range(self.dim))])
 
@@ -411,7 +376,7 @@ class PBF(PressureSolver):
                 q = self.knobs[WARM] * p[i].p * dt * dt / (p[i].rho * p[i].rho)
             self.q[i] = q
             self.dq[i] = q
-            self.qt[i] = 0.0
+            self.tensile.start(i)
         self._corrections(n)
         self._apply(n, True)
 
@@ -447,17 +412,13 @@ class PBF(PressureSolver):
     @ti.func
     def end_func(self, n):
         """The pressure whose force would move x by q in a step (the next step's warm
-        start), the tensile corrections' as ``pt`` (what dumps show is their sum), and the
-        step's last measured error into the stats."""
+        start) and the step's last measured error into the stats."""
         p = ti.static(self.pool.p)
         dt = ti.cast(self.state.dt[None], float)
         for i in range(n):
-            pt = 0.0
             if is_real(p[i].kind):
                 rho = self.rho[i]
                 p[i].p = self.q[i] * rho * rho / (dt * dt)
-                pt = self.qt[i] * rho * rho / (dt * dt)
-            self.pt[i] = pt
         avg = self.avg[None]
         self.stats[ERR_SUM] += avg
         self.stats[ERR_WORST] = ti.max(self.stats[ERR_WORST], avg)
