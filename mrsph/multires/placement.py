@@ -250,10 +250,15 @@ class Placement:
                         for k in ti.static(range(self.dim)):
                             grad[k] += sgn[k] * g_img[k]
                 ok, xo, nrm = b.obstacle_image(xi, h)
-                if ok:  # d(x_image)/dx_i = I − 2 n nᵀ
-                    r_img, g_img = self._fresh_density(xo, f, h2, c6, 0.5 * (xi + xo), nrm, True)
-                    rho += r_img
-                    grad += g_img - 2.0 * nrm.dot(g_img) * nrm
+                if ok:  # with the corner's images, as Neighbours.images visits them
+                    p0 = 0.5 * (xi + xo)
+                    for mask in range(2**self.dim):
+                        okc, xq, sgn = b.corner_image(xi, h, mask, p0, nrm)
+                        if okc:  # d(x_image)/dx_i = diag(sgn) (I − 2 n nᵀ), the two commuting
+                            r_img, g_img = self._fresh_density(xq, f, h2, c6, p0, nrm, True)
+                            rho += r_img
+                            g_img *= sgn
+                            grad += g_img - 2.0 * nrm.dot(g_img) * nrm
                 target = ti.cast(ti.static(self.rest_density), float)
                 vp = p[i].parent
                 if vp >= 0:

@@ -76,6 +76,19 @@ class Boundary:
         return phi < h, x - 2.0 * phi * n, n
 
     @ti.func
+    def corner_image(self, x, h, mask, p0, nrm):
+        """(valid, image, linear part of the wall mirror as ±1 per axis): x mirrored across
+        the walls of ``mask`` (none for mask 0), then across the obstacle's tangent plane
+        (p0, nrm). Valid for mask 0, and where that plane meets each of those walls at a
+        right angle (a box standing on the floor): the two mirrors then commute, and their
+        image fills the corner's quadrant, which neither mirror alone reaches."""
+        valid, xr, sign = self.domain_image(x, h, mask)
+        for k in ti.static(range(self.dim)):
+            if (mask >> k) & 1 and ti.abs(nrm[k]) > 1e-6:
+                valid = False
+        return valid, xr - 2.0 * (xr - p0).dot(nrm) * nrm, sign
+
+    @ti.func
     def obstacle_sdf(self, x):
         """Signed distance to the nearest obstacle (positive outside) and its outward normal."""
         best = 1e30
