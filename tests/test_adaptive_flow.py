@@ -38,9 +38,9 @@ KNOWN_FAILURES: dict[tuple[str, str], str] = {}
 # since the weaker symmetric coupling reads +0.9 % / +1.6 % and 3 % would let it through;
 # the 3D DFSPH pool to 1.5 %, since its average moves by that from run to run
 # (docs/validation.md, "Refined pool at rest").
-# 3D pbf's to 2.5 %: it read +1.58 % in one run and within 0.5 % in another (2026-12-02),
-# beside its refined pool's known shortfall (REST_BOUND, the README)
-PEAK_BOUND = {"3d-dfsph": 0.015, "3d-pbf": 0.025}
+# 3D pbf's to 1 %: it read +0.16 to +0.58 % in eight runs (2026-12-06; +1.58 % in one of two
+# before a wall image's tensile correction took the image's distance)
+PEAK_BOUND = {"3d-dfsph": 0.015, "3d-pbf": 0.01}
 
 # The refined pool's mean speed after 2 s, in sqrt(gH) (test_refined_pool_stays_at_rest):
 # 0.01. The 3D runs differ from run to run: they run on every core, and the adaptivity
@@ -49,10 +49,10 @@ PEAK_BOUND = {"3d-dfsph": 0.015, "3d-pbf": 0.025}
 # 0.015, and so is 3D dfsph: 0.0089 and 0.0090 in two (2026-12-05, 4eb73d4), each split
 # throwing the pool to 0.013-0.014 for 0.02 s (its drifting pressure, which read 0.014 to
 # 0.029, is guarded by test_refined_pool_keeps_its_step). 3D pbf, a known shortfall the
-# README names (docs/METHOD.md §17; uniform 0.004), read 0.0167 to 0.0415 in four, so it
-# is held to 0.06: the bound still catches the 0.136 it read before its tensile
-# correction took one unit across the levels.
-REST_BOUND = {"3d": 0.015, "3d-dfsph": 0.015, "3d-pbf": 0.06}
+# README names (docs/METHOD.md §17; uniform 0.005), read 0.0105 to 0.0168 in eight
+# (2026-12-06; 0.0167 to 0.0415 before a wall image's tensile correction took the image's
+# distance), so it is held to 0.03.
+REST_BOUND = {"3d": 0.015, "3d-dfsph": 0.015, "3d-pbf": 0.03}
 
 
 def make_sim(scene: dict):
