@@ -375,8 +375,12 @@ def test_adaptive_dam_break_front_is_not_far_off(dam_runs):
 # The adaptive front at 1 s against uniform (test_adaptive_dam_break_front_matches_uniform):
 # 5 %. 2D pbf's scatters more widely: over pbf.substeps 16-24 (tools/dam_front.py) it read
 # -1.8 % on average, -7.8 .. +6.2 % (2026-12-06), its uniform twins themselves 6 % apart
-# (docs/validation.md, "Adaptive dam break against uniform"). It is held to 9 %.
-FRONT_BOUND = {"2d-pbf": 0.09}
+# (docs/validation.md, "Adaptive dam break against uniform"). It is held to 9 %. 2D dfsph
+# read -3.3 % on average over dfsph.cfl 0.36-0.44, -5.5 .. -1.6 % (2026-12-06, 9ad0f48; -2.9 %,
+# -3.8 .. -1.4 %, before the corner image at the block's foot): the -5.5 % is the test's own
+# setting, whose uniform twin ran to 1.663 m against 1.607-1.634 m at the other four, so it is
+# held to 7 %.
+FRONT_BOUND = {"2d-pbf": 0.09, "2d-dfsph": 0.07}
 
 
 @pytest.mark.slow
