@@ -127,6 +127,28 @@ def test_measures_read_what_they_should():
     assert rms < 1e-3 and shift == pytest.approx(-0.2, abs=0.006)
 
 
+def test_marin_s_box_sensors_sit_on_the_scene_s_box():
+    """P1-P4 on the box's face towards the reservoir, P5-P8 on its top, within its width, as the
+    data's header places them; a sensor's rise and mean over its first impact on a made-up signal."""
+    import numpy as np
+
+    from mrsph.scene.config import load_scene
+
+    box = load_scene(V.SCENES["box"]).data["obstacles"][0]
+    (x0, _, z0), (x1, top, z1) = box["min"], box["max"]
+    for k, (x, y, z) in enumerate(V.BOX_SENSORS):
+        assert z0 < z < z1 and abs(z - 0.5 * (z0 + z1)) < 0.035, (k, z)
+        if k < 4:
+            assert x == pytest.approx(x1) and 0.0 < y < top, (k, x, y)
+        else:
+            assert y == pytest.approx(top) and x0 < x < x1 and x1 - x == pytest.approx(0.021 + 0.04 * (k - 4)), (k, x)
+    t = np.linspace(0.0, 1.0, 1001)
+    p = np.where(t >= 0.4, 2000.0, 0.0)
+    hit = V.sensor_impact(t, p)
+    assert hit["rise"] == pytest.approx(0.4, abs=0.001) and hit["mean"] == pytest.approx(2000.0, rel=0.02), hit
+    assert V.sensor_impact(t, 0.4 * p) == {"rise": None, "mean": None}
+
+
 def test_the_table_reads_the_scene_s_spacing_and_leaves_studies_out():
     """Of a case's cached runs the table and its figures take, per solver and mode, the run at the
     scene's spacing, or the quick one where no full run was made; a run finer than the scene's

@@ -15,8 +15,8 @@ The cases (docs/validation.md says what each measures and why):
 - ``pressure``: Lobovsky et al.'s (2014) H = 0.3 m column onto a wall (scenes/dam_break_pressure_*):
   the pressure at the wall's four sensors;
 - ``box``: MARIN's 3D dam break past a box (Kleefsman et al. 2005, scenes/dam_break_box_3d): the
-  water height at the four probes, and when the water reaches six points between the box and the
-  far wall (``LEE``).
+  water height at the four probes, the pressure at the box's eight sensors, and when the water
+  reaches six points between the box and the far wall (``LEE``).
 
 A run is one case, dimension, solver (``fluid.solver``) and mode (``uniform``, or ``adaptive``:
 ``adaptivity.enabled = true``, the same finest spacing, coarse where the scene's criteria do not ask
@@ -292,18 +292,42 @@ WET = 0.02  # m: a probe is reached when its water first stands this high
 LEE = ((0.05, 0.15), (0.2, 0.3), (0.35, 0.3), (0.05, 0.5), (0.2, 0.5), (0.35, 0.5))
 
 
+#: MARIN's pressure sensors on the box, (x, y, z) in m (validation/kleefsman_2005_pressure.csv): P1-P4
+#: on the face towards the reservoir, P5-P8 on the top, each a few cm off the centre line z = 0.5
+BOX_SENSORS = (
+    *[(0.8245, y, 0.5325) for y in (0.021, 0.061, 0.101, 0.141)],
+    *[(x, 0.161, 0.4745) for x in (0.8035, 0.7635, 0.7235, 0.6835)],
+)
+RISE = 1000.0  # Pa: the water has reached a sensor when its pressure first stands this high (0.1 m of head)
+IMPACT_S = 0.1  # s: a sensor's first impact, from its rise, over which its mean pressure is taken
+
+
+def sensor_impact(t: np.ndarray, p: np.ndarray) -> dict:
+    """A box sensor's rise (the first time its pressure stands ``RISE``) and its mean pressure over
+    the ``IMPACT_S`` from it; None for both where it never rises."""
+    rise = first_crossing(t, p, RISE)
+    if rise is None:
+        return {"rise": None, "mean": None}
+    span = (t >= rise) & (t <= rise + IMPACT_S)
+    return {"rise": rise, "mean": float(p[span].mean())}
+
+
 def run_box(sim, scene) -> dict:
-    """The water height at H1-H4 every 2 ms to 1.5 s, against MARIN's; each probe's arrival; and
-    when the water reaches each point of ``LEE`` (the way it comes to H1)."""
+    """The water height at H1-H4 every 2 ms to 1.5 s, against MARIN's; each probe's arrival; the
+    pressure at the box's sensors (``BOX_SENSORS``) and each one's first impact against the data's;
+    and when the water reaches each point of ``LEE`` (the way it comes to H1)."""
     zc = 0.5 * float(scene.data["domain"]["max"][2])
     t, levels, tips = [0.0], [[0.0, 0.0, 0.0, 0.55]], [float(scene.data["fluid"]["blocks"][0]["min"][0])]
     lee = [[0.0] * len(LEE)]
+    sensors, pressures = np.array(BOX_SENSORS), [[0.0] * len(BOX_SENSORS)]
     while t[-1] < 1.5 - 1e-9:
         sim.advance(0.002)
         r = _real(sim)
         t.append(sim.time)
         levels.append([water_level(r["x"], r["vol"], r["h"], (px, zc), 0.8) for px in PROBES])
         lee.append([water_level(r["x"], r["vol"], r["h"], at, 1.0) for at in LEE])
+        near = np.linalg.norm(r["x"] - sensors.mean(axis=0), axis=1) < 0.2 + r["h"]  # every sensor's support
+        pressures.append(shepard(sensors, r["x"][near], r["vol"][near], r["h"][near], r["p"][near]).tolist())
         # the front's tip along the centre line (within a coarse support of it), x reversed
         lane = np.abs(r["x"][:, 2] - zc) < 2 * sim.h0
         flipped = r["x"][lane] * np.array([-1.0, 1.0, 1.0])
@@ -312,6 +336,13 @@ def run_box(sim, scene) -> dict:
     exp = read_csv(DATA / "kleefsman_2005_heights.csv")
     out = {"t": t.tolist(), "level": levels.T.tolist(), "tip": tips, "probes": []}
     out["lee"] = [{"at": at, "arrival": first_crossing(t, np.array(f), WET)} for at, f in zip(LEE, zip(*lee))]
+    pressures = np.array(pressures)
+    out["pressure"] = np.round(pressures.T, 1).tolist()
+    box = read_csv(DATA / "kleefsman_2005_pressure.csv")
+    out["sensors"] = [
+        {"sim": sensor_impact(t, pressures[:, k]), "exp": sensor_impact(box["t"], box[f"P{k + 1}"])}
+        for k in range(len(BOX_SENSORS))
+    ]
     for k, name in enumerate(("H1", "H2", "H3")):
         te = exp["t"] <= 1.5
         diff = np.interp(exp["t"][te], t, levels[:, k]) - exp[name][te]

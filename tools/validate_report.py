@@ -209,6 +209,39 @@ def plot_box(runs: dict, out: Path) -> Path | None:
     return path
 
 
+def plot_box_pressure(runs: dict, out: Path) -> Path | None:
+    """The pressure at the box's sensors: P1-P4 up its face (left), P5-P8 back along its top (right)."""
+    plt = _plt()
+    sel = {k: r for k, r in _runs(runs, "box", 3).items() if "pressure" in r}
+    if not sel:
+        return None
+    exp = read_csv(DATA / "kleefsman_2005_pressure.csv")
+    fig, axes = plt.subplots(4, 2, figsize=(12, 10), sharex=True)
+    for k in range(8):
+        ax = axes[k % 4, k // 4]
+        ax.plot(exp["t"], exp[f"P{k + 1}"] / 1000.0, color="k", lw=1.0, label="MARIN (Kleefsman et al. 2005)")
+        for (solver, mode), r in sorted(sel.items()):
+            ax.plot(
+                r["t"],
+                np.array(r["pressure"][k]) / 1000.0,
+                color=COLOURS[solver],
+                ls=STYLES[mode],
+                lw=0.7,
+                label=_label(r),
+            )
+        where = f"{0.021 + 0.04 * (k % 4):.3f} m " + ("up the face" if k < 4 else "back along the top")
+        ax.set(xlim=(0.3, 1.5), ylabel="p (kPa)")
+        ax.set_title(f"sensor P{k + 1}, {where}", fontsize=9)
+    axes[0, 0].legend(fontsize=7, ncol=2)
+    for ax in axes[-1]:
+        ax.set_xlabel("t (s)")
+    _stamp(fig, runs)
+    path = out / "box_pressure_3d.png"
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
 def _metric(r: dict) -> list[tuple[str, float | None]]:
     """What a resolution study follows of a run: (name, value) pairs."""
     if r["case"] == "tank":
@@ -289,6 +322,14 @@ def _cell(runs: dict, case: str, dim: int, solver: str, mode: str, what: str) ->
     if what == "peak":
         s = r["sensors"][0]
         return f"{s['sim']['peak']:.2f}, T = {_num(s['sim']['arrival'])}"
+    if what == "P1":
+        if "sensors" not in r:
+            return "—"
+        sim, exp = r["sensors"][0]["sim"], r["sensors"][0]["exp"]
+        if sim["rise"] is None:
+            return "dry"
+        err = 100 * (sim["mean"] / exp["mean"] - 1)
+        return f"{sim['rise']:.3f} s ({sim['rise'] - exp['rise']:+.3f}), {sim['mean'] / 1000:.1f} kPa ({err:+.0f} %)"
     if what.startswith("H"):
         k = int(what[1]) - 1
         p = r["probes"][k]
@@ -375,6 +416,12 @@ ROWS = [
     ("box", 3, "H1", "MARIN H1, behind the box: arrival (data {H1}; ± 0.05 s)"),
     ("box", 3, "H2", "MARIN H2: arrival (data {H2})"),
     ("box", 3, "H3", "MARIN H3: arrival (data {H3})"),
+    (
+        "box",
+        3,
+        "P1",
+        "MARIN P1, the box's face 21 mm up: first at 1 kPa, mean over 0.1 s from it (data {P1}; no target)",
+    ),
 ]
 
 
@@ -392,6 +439,9 @@ def table(runs: dict) -> str:
             fill = {"exp": f"{s['mean']:.2f}", "peak": f"{s['peak']:.2f} at T = {s['arrival']:.2f}"}
         if case == "box":
             fill = {f"H{k + 1}": f"{p['arrival_exp']:.2f} s" for k, p in enumerate(any_run["probes"])}
+            with_p = [r for r in sel.values() if "sensors" in r]
+            e = with_p[0]["sensors"][0]["exp"] if with_p else None
+            fill["P1"] = "—" if e is None else f"{e['rise']:.3f} s, {e['mean'] / 1000:.1f} kPa"
         kinds = sorted({(_resolution(r), r["spacing"]) for r in sel.values()}, key=lambda k: k[1])
         label = text.format(**fill) + ", " + ", ".join(f"{kind} s = {sp:.4g} m" for kind, sp in kinds)
         cells = [_cell(runs, case, dim, s, m, what) for s in SOLVERS for m in MODES]
@@ -407,7 +457,7 @@ def report(runs: dict, out: Path) -> list[Path]:
     """Every figure the cached runs allow, and the table (printed, and written to table.md)."""
     out.mkdir(parents=True, exist_ok=True)
     made = [plot_tank(runs, out), plot_front(runs, out), plot_pressure(runs, out, 2)]
-    made += [plot_pressure(runs, out, 3), plot_box(runs, out), plot_resolution(runs, out)]
+    made += [plot_pressure(runs, out, 3), plot_box(runs, out), plot_box_pressure(runs, out), plot_resolution(runs, out)]
     text = table(runs)
     (out / "table.md").write_text(text)
     print(text)
