@@ -129,7 +129,8 @@ def test_measures_read_what_they_should():
 
 def test_marin_s_box_sensors_sit_on_the_scene_s_box():
     """P1-P4 on the box's face towards the reservoir, P5-P8 on its top, within its width, as the
-    data's header places them; a sensor's rise and mean over its first impact on a made-up signal."""
+    data's header places them; a sensor's first impact at ``RISE`` over ``IMPACT_S`` on a made-up
+    signal."""
     import numpy as np
 
     from mrsph.scene.config import load_scene
@@ -143,10 +144,11 @@ def test_marin_s_box_sensors_sit_on_the_scene_s_box():
         else:
             assert y == pytest.approx(top) and x0 < x < x1 and x1 - x == pytest.approx(0.021 + 0.04 * (k - 4)), (k, x)
     t = np.linspace(0.0, 1.0, 1001)
-    p = np.where(t >= 0.4, 2000.0, 0.0)
-    hit = V.sensor_impact(t, p)
-    assert hit["rise"] == pytest.approx(0.4, abs=0.001) and hit["mean"] == pytest.approx(2000.0, rel=0.02), hit
-    assert V.sensor_impact(t, 0.4 * p) == {"rise": None, "mean": None}
+    p = np.where(t >= 0.4, 2000.0, 0.0) + np.where(t >= 0.55, 5000.0, 0.0)  # a later load is past the impact
+    hit = V.impact(t, p, V.RISE, V.IMPACT_S)
+    assert hit["arrival"] == pytest.approx(0.4, abs=0.001) and hit["mean"] == pytest.approx(2000.0, rel=0.02), hit
+    assert hit["peak"] == 2000.0, hit
+    assert V.impact(t, 0.4 * p * (t < 0.55), V.RISE, V.IMPACT_S)["arrival"] is None
 
 
 def test_the_table_reads_the_scene_s_spacing_and_leaves_studies_out():

@@ -299,17 +299,7 @@ BOX_SENSORS = (
     *[(x, 0.161, 0.4745) for x in (0.8035, 0.7635, 0.7235, 0.6835)],
 )
 RISE = 1000.0  # Pa: the water has reached a sensor when its pressure first stands this high (0.1 m of head)
-IMPACT_S = 0.1  # s: a sensor's first impact, from its rise, over which its mean pressure is taken
-
-
-def sensor_impact(t: np.ndarray, p: np.ndarray) -> dict:
-    """A box sensor's rise (the first time its pressure stands ``RISE``) and its mean pressure over
-    the ``IMPACT_S`` from it; None for both where it never rises."""
-    rise = first_crossing(t, p, RISE)
-    if rise is None:
-        return {"rise": None, "mean": None}
-    span = (t >= rise) & (t <= rise + IMPACT_S)
-    return {"rise": rise, "mean": float(p[span].mean())}
+IMPACT_S = 0.1  # s: a sensor's first impact, from its arrival, over which its peak and mean are taken
 
 
 def run_box(sim, scene) -> dict:
@@ -340,7 +330,7 @@ def run_box(sim, scene) -> dict:
     out["pressure"] = np.round(pressures.T, 1).tolist()
     box = read_csv(DATA / "kleefsman_2005_pressure.csv")
     out["sensors"] = [
-        {"sim": sensor_impact(t, pressures[:, k]), "exp": sensor_impact(box["t"], box[f"P{k + 1}"])}
+        {"sim": impact(t, pressures[:, k], RISE, IMPACT_S), "exp": impact(box["t"], box[f"P{k + 1}"], RISE, IMPACT_S)}
         for k in range(len(BOX_SENSORS))
     ]
     for k, name in enumerate(("H1", "H2", "H3")):

@@ -326,10 +326,11 @@ def _cell(runs: dict, case: str, dim: int, solver: str, mode: str, what: str) ->
         if "sensors" not in r:
             return "—"
         sim, exp = r["sensors"][0]["sim"], r["sensors"][0]["exp"]
-        if sim["rise"] is None:
+        if sim["arrival"] is None:
             return "dry"
         err = 100 * (sim["mean"] / exp["mean"] - 1)
-        return f"{sim['rise']:.3f} s ({sim['rise'] - exp['rise']:+.3f}), {sim['mean'] / 1000:.1f} kPa ({err:+.0f} %)"
+        late = sim["arrival"] - exp["arrival"]
+        return f"{sim['arrival']:.3f} s ({late:+.3f}), {sim['mean'] / 1000:.1f} kPa ({err:+.0f} %)"
     if what.startswith("H"):
         k = int(what[1]) - 1
         p = r["probes"][k]
@@ -441,7 +442,7 @@ def table(runs: dict) -> str:
             fill = {f"H{k + 1}": f"{p['arrival_exp']:.2f} s" for k, p in enumerate(any_run["probes"])}
             with_p = [r for r in sel.values() if "sensors" in r]
             e = with_p[0]["sensors"][0]["exp"] if with_p else None
-            fill["P1"] = "—" if e is None else f"{e['rise']:.3f} s, {e['mean'] / 1000:.1f} kPa"
+            fill["P1"] = "—" if e is None else f"{e['arrival']:.3f} s, {e['mean'] / 1000:.1f} kPa"
         kinds = sorted({(_resolution(r), r["spacing"]) for r in sel.values()}, key=lambda k: k[1])
         label = text.format(**fill) + ", " + ", ".join(f"{kind} s = {sp:.4g} m" for kind, sp in kinds)
         cells = [_cell(runs, case, dim, s, m, what) for s in SOLVERS for m in MODES]
