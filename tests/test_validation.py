@@ -151,6 +151,42 @@ def test_marin_s_box_sensors_sit_on_the_scene_s_box():
     assert V.impact(t, 0.4 * p * (t < 0.55), V.RISE, V.IMPACT_S)["arrival"] is None
 
 
+def test_ritter_s_dam_break_holds_the_reservoir_s_water():
+    """Ritter's depth: 4/9 of the reservoir's at the gate at every time, none past the front
+    x = 2 sqrt(g H) t, and as much water downstream of the gate as has left the reservoir."""
+    import numpy as np
+
+    H, t = 0.55, 0.4
+    c0 = (V.G * H) ** 0.5
+    assert V.ritter_depth(np.array([0.0, 0.0]), np.array([0.1, 1.0]), H) == pytest.approx([4 * H / 9] * 2)
+    past = np.array([2.0, 2.2, 3.0]) * c0 * t
+    assert V.ritter_depth(past, t, H) == pytest.approx([0.0, 0.0, 0.0], abs=1e-12)
+
+    def integral(f, x):
+        return float((0.5 * (f[1:] + f[:-1]) * np.diff(x)).sum())
+
+    x = np.linspace(-c0 * t, 0.0, 4001)  # the reservoir's side, which the rarefaction has reached
+    drained = integral(H - (2 * c0 - x / t) ** 2 / (9 * V.G), x)
+    x = np.linspace(0.0, 2.0 * c0 * t, 4001)
+    assert integral(V.ritter_depth(x, t, H), x) == pytest.approx(drained, rel=1e-4)
+
+
+def test_a_probe_s_rise_tells_a_leading_film_from_the_body():
+    """The rise figure and the body row read a film ahead of the body as a flat start; H3's depth
+    is the mean over ``H3_WINDOW``."""
+    import numpy as np
+
+    t = np.linspace(0.0, 1.0, 501)
+    # 1 cm of film from 0.2 s, then the body rising 1 m/s from 0.3 s to 11 cm
+    level = np.where(t >= 0.2, 0.01, 0.0) + np.clip(t - 0.3, 0.0, 0.1)
+    rise = R.rise(t, level)
+    assert rise[R.LEVELS.tolist().index(0.005)] == pytest.approx(0.2, abs=0.002)
+    assert rise[R.LEVELS.tolist().index(V.BODY)] == pytest.approx(0.35, abs=0.002)
+    assert rise[-1] is None
+    assert R.h3_depth(t, np.where(t < 0.5, 0.08, 0.12)) == pytest.approx(0.1, abs=0.003)
+    assert V.H3_WINDOW == (0.3, 0.7) and 0.1 < R.h3_ritter() < 0.2
+
+
 def test_the_table_reads_the_scene_s_spacing_and_leaves_studies_out():
     """Of a case's cached runs the table and its figures take, per solver and mode, the run at the
     scene's spacing, or the quick one where no full run was made; a run finer than the scene's

@@ -80,6 +80,15 @@ def poly6(r: np.ndarray, h: np.ndarray, dim: int) -> np.ndarray:
     return np.where(r < h, c * np.clip(h * h - r * r, 0.0, None) ** 3, 0.0)
 
 
+def ritter_depth(x: np.ndarray, t: np.ndarray, depth: float) -> np.ndarray:
+    """Ritter's dam break on a dry bed (1892), the shallow-water solution for an ideal fluid: the
+    water's depth ``x`` m downstream of the gate at ``t`` s after ``depth`` m of water was
+    released at once, (2 c0 - x/t)^2 / 9g with c0 = sqrt(g depth), dry past the front x = 2 c0 t."""
+    c0 = math.sqrt(G * depth)
+    speed = np.asarray(x, float) / np.asarray(t, float)
+    return np.where(speed < 2.0 * c0, np.minimum((2.0 * c0 - speed) ** 2 / (9.0 * G), depth), 0.0)
+
+
 def shepard(points: np.ndarray, x: np.ndarray, vol: np.ndarray, h: np.ndarray, f: np.ndarray) -> np.ndarray:
     """f interpolated at ``points`` as sum V W f / sum V W over the particles (each with its own
     level's support h): at a wall the sum covers the fluid side only, which the mirror images
@@ -285,8 +294,15 @@ def run_pressure(sim, scene) -> dict:
 #: MARIN's probes H1-H4: x (m), on the tank's centre line z = 0.5 m
 PROBES = (0.496, 0.992, 1.488, 2.638)
 WET = 0.02  # m: a probe is reached when its water first stands this high
+#: m: a probe's body of water has come when it first stands this high: above the thin film that
+#: leads the experiment's front (at H3 2 mm to 2 cm within 0.03 s), which a run's front, a particle
+#: thick, cannot carry
+BODY = 0.06
+#: s: H3's water after the front has passed and before the water piled against the box comes back
+#: to it, over which its mean height is read against the data's and Ritter's
+H3_WINDOW = (0.3, 0.7)
 #: where the water that reaches H1 comes from, (x, z) in m: the far wall x = 0 in the stream that
-#: passes beside the box (z = 0.15 m); 1.5 cm inside the box's shadow (its side at z = 0.2985),
+#: passes beside the box (z = 0.15 m); 1.5 mm inside the box's shadow (its side at z = 0.2985),
 #: which a stream spreading sideways into the lee wets first; the centre line at the far wall and
 #: between it and H1
 LEE = ((0.05, 0.15), (0.2, 0.3), (0.35, 0.3), (0.05, 0.5), (0.2, 0.5), (0.35, 0.5))
@@ -365,6 +381,15 @@ def scene_spacing(case: str, dim: int) -> float:
     from mrsph.scene.config import load_scene
 
     return float(load_scene(SCENES[case].format(d=dim)).particles.spacing)
+
+
+def box_reservoir() -> tuple[float, float]:
+    """MARIN's reservoir as its scene sets it: where its water ends towards the box (the gate, x in
+    m) and how deep it stands."""
+    from mrsph.scene.config import load_scene
+
+    block = load_scene(SCENES["box"]).fluid.blocks[0]
+    return float(block.min[0]), float(block.max[1])
 
 
 def run_one(case: str, dim: int, solver: str, mode: str, spacing: float, sets: list[str]) -> dict:

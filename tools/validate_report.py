@@ -16,7 +16,7 @@ import textwrap
 from pathlib import Path
 
 import numpy as np
-from validate import DATA, MODES, SOLVERS, read_csv
+from validate import BODY, DATA, H3_WINDOW, MODES, PROBES, SOLVERS, first_crossing, read_csv, ritter_depth
 
 COLOURS = {"wcsph": "C0", "dfsph": "C3", "pbf": "C2"}
 STYLES = {"uniform": "-", "adaptive": "--"}
@@ -209,6 +209,57 @@ def plot_box(runs: dict, out: Path) -> Path | None:
     return path
 
 
+#: heights (m) at which the rise figure reads when each probe's water first stands so high
+LEVELS = np.round(np.arange(0.005, 0.15001, 0.005), 3)
+
+
+def rise(t, level, heights=LEVELS) -> list[float | None]:
+    """When a probe's water first stands at each of ``heights`` (None: never, to 1.5 s)."""
+    return [first_crossing(np.asarray(t), np.asarray(level), h) for h in heights]
+
+
+def h3_depth(t, level) -> float:
+    """H3's mean height over ``H3_WINDOW``, sampled every 10 ms."""
+    ts = np.arange(H3_WINDOW[0], H3_WINDOW[1] + 1e-9, 0.01)
+    return float(np.interp(ts, np.asarray(t), np.asarray(level)).mean())
+
+
+@functools.cache
+def h3_ritter() -> float:
+    """Ritter's depth at H3 (``validate.ritter_depth``) over ``H3_WINDOW`` as ``h3_depth`` reads it."""
+    from validate import box_reservoir
+
+    gate, depth = box_reservoir()
+    ts = np.arange(H3_WINDOW[0], H3_WINDOW[1] + 1e-9, 0.01)
+    return float(ritter_depth(gate - PROBES[2], ts, depth).mean())
+
+
+def plot_box_rise(runs: dict, out: Path) -> Path | None:
+    """When the water at H1-H3 first stands at each height: a thin leading film shows as a
+    flat start, a body that comes late as a curve shifted up."""
+    plt = _plt()
+    sel = _runs(runs, "box", 3)
+    if not sel:
+        return None
+    exp = read_csv(DATA / "kleefsman_2005_heights.csv")
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4.6))
+    for k, ax in enumerate(axes):
+        cm = 100 * LEVELS
+        ax.plot(cm, rise(exp["t"], exp[f"H{k + 1}"]), color="k", lw=1.2, label="MARIN (Kleefsman et al. 2005)")
+        for (solver, mode), r in sorted(sel.items()):
+            ts = [np.nan if v is None else v for v in rise(r["t"], r["level"][k])]
+            ax.plot(cm, ts, color=COLOURS[solver], ls=STYLES[mode], lw=0.9, label=_label(r))
+        ax.axvline(100 * BODY, color="0.6", lw=0.8, ls=":")
+        ax.set(xlabel="water height at the probe (cm)", ylabel="first at that height (s)")
+        ax.set_title(f"H{k + 1}, x = {PROBES[k]} m" + (", behind the box" if k == 0 else ""), fontsize=9)
+    axes[0].legend(fontsize=7)
+    _stamp(fig, runs)
+    path = out / "box_rise_3d.png"
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
 def plot_box_pressure(runs: dict, out: Path) -> Path | None:
     """The pressure at the box's sensors: P1-P4 up its face (left), P5-P8 back along its top (right)."""
     plt = _plt()
@@ -331,6 +382,16 @@ def _cell(runs: dict, case: str, dim: int, solver: str, mode: str, what: str) ->
         err = 100 * (sim["mean"] / exp["mean"] - 1)
         late = sim["arrival"] - exp["arrival"]
         return f"{sim['arrival']:.3f} s ({late:+.3f}), {sim['mean'] / 1000:.1f} kPa ({err:+.0f} %)"
+    if what == "body":
+        exp = read_csv(DATA / "kleefsman_2005_heights.csv")
+        sim = [first_crossing(np.asarray(r["t"]), np.asarray(r["level"][k]), BODY) for k in range(3)]
+        ref = [first_crossing(exp["t"], exp[f"H{k + 1}"], BODY) for k in range(3)]
+        late = " / ".join("—" if s is None else f"{s - e:+.2f}" for s, e in zip(sim, ref))
+        return " / ".join("dry" if s is None else f"{s:.2f}" for s in sim) + f" s ({late})"
+    if what == "H3_depth":
+        d = h3_depth(r["t"], r["level"][2])
+        exp = read_csv(DATA / "kleefsman_2005_heights.csv")
+        return f"{d:.3f} m ({100 * (d / h3_depth(exp['t'], exp['H3']) - 1):+.0f} %)"
     if what.startswith("H"):
         k = int(what[1]) - 1
         p = r["probes"][k]
@@ -417,6 +478,15 @@ ROWS = [
     ("box", 3, "H1", "MARIN H1, behind the box: arrival (data {H1}; ± 0.05 s)"),
     ("box", 3, "H2", "MARIN H2: arrival (data {H2})"),
     ("box", 3, "H3", "MARIN H3: arrival (data {H3})"),
+    ("box", 3, "body", "MARIN H1 / H2 / H3: first at " + f"{100 * BODY:.0f}" + " cm (data {body}; no target)"),
+    (
+        "box",
+        3,
+        "H3_depth",
+        "MARIN H3: mean height over "
+        + "{:g}–{:g} s".format(*H3_WINDOW)
+        + " (data {depth}, Ritter {ritter}; no target)",
+    ),
     (
         "box",
         3,
@@ -443,6 +513,10 @@ def table(runs: dict) -> str:
             with_p = [r for r in sel.values() if "sensors" in r]
             e = with_p[0]["sensors"][0]["exp"] if with_p else None
             fill["P1"] = "—" if e is None else f"{e['arrival']:.3f} s, {e['mean'] / 1000:.1f} kPa"
+            exp = read_csv(DATA / "kleefsman_2005_heights.csv")
+            body = [first_crossing(exp["t"], exp[f"H{k + 1}"], BODY) for k in range(3)]
+            fill["body"] = " / ".join(f"{b:.2f}" for b in body) + " s"
+            fill["depth"], fill["ritter"] = f"{h3_depth(exp['t'], exp['H3']):.3f} m", f"{h3_ritter():.3f} m"
         kinds = sorted({(_resolution(r), r["spacing"]) for r in sel.values()}, key=lambda k: k[1])
         label = text.format(**fill) + ", " + ", ".join(f"{kind} s = {sp:.4g} m" for kind, sp in kinds)
         cells = [_cell(runs, case, dim, s, m, what) for s in SOLVERS for m in MODES]
@@ -458,7 +532,8 @@ def report(runs: dict, out: Path) -> list[Path]:
     """Every figure the cached runs allow, and the table (printed, and written to table.md)."""
     out.mkdir(parents=True, exist_ok=True)
     made = [plot_tank(runs, out), plot_front(runs, out), plot_pressure(runs, out, 2)]
-    made += [plot_pressure(runs, out, 3), plot_box(runs, out), plot_box_pressure(runs, out), plot_resolution(runs, out)]
+    made += [plot_pressure(runs, out, 3), plot_box(runs, out), plot_box_pressure(runs, out)]
+    made += [plot_box_rise(runs, out), plot_resolution(runs, out)]
     text = table(runs)
     (out / "table.md").write_text(text)
     print(text)
