@@ -55,4 +55,4 @@ def test_a_lifting_gate_thins_the_stream_and_holds_it_back():
     gated = A.approach(0.55 / 14, "wcsph", [], 2.0)
     assert 0.125 < free["depth"] < 0.145, free
     assert gated["depth"] < free["depth"] - 0.005, (free, gated)
-    assert gated["first"][1] > free["first"][1] + 0.005, (free, gated)
+    assert gated["first"][1] is not None and gated["first"][1] > free["first"][1] + 0.005, (free, gated)
