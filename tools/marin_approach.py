@@ -1,7 +1,7 @@
 """MARIN's dam break before the box: the stream along the tank's centre line, in 2D.
 
     python3 tools/marin_approach.py                              # wcsph at 27, 55 and 110 layers: about 2 min
-    python3 tools/marin_approach.py --layers 220                 # about 10 min
+    python3 tools/marin_approach.py --layers 220                 # about 12 min
     python3 tools/marin_approach.py --layers 55 --gate 2,4       # the reservoir held by a gate lifted at 2 and 4 m/s
     python3 tools/marin_approach.py --solver dfsph --layers 55   # any solver
 
