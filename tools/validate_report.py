@@ -214,8 +214,19 @@ LEVELS = np.round(np.arange(0.005, 0.15001, 0.005), 3)
 
 
 def rise(t, level, heights=LEVELS) -> list[float | None]:
-    """When a probe's water first stands at each of ``heights`` (None: never, to 1.5 s)."""
+    """When a probe's water first stands at each of ``heights`` (None: never)."""
     return [first_crossing(np.asarray(t), np.asarray(level), h) for h in heights]
+
+
+def bodies(t, levels) -> list[float | None]:
+    """When the water at H1, H2 and H3 (``levels[0:3]``) first stands ``BODY`` high."""
+    return [rise(t, levels[k], (BODY,))[0] for k in range(3)]
+
+
+@functools.cache
+def marin() -> dict[str, np.ndarray]:
+    """MARIN's heights: t and H1-H4."""
+    return read_csv(DATA / "kleefsman_2005_heights.csv")
 
 
 def h3_depth(t, level) -> float:
@@ -241,7 +252,7 @@ def plot_box_rise(runs: dict, out: Path) -> Path | None:
     sel = _runs(runs, "box", 3)
     if not sel:
         return None
-    exp = read_csv(DATA / "kleefsman_2005_heights.csv")
+    exp = marin()
     fig, axes = plt.subplots(1, 3, figsize=(13, 4.6))
     for k, ax in enumerate(axes):
         cm = 100 * LEVELS
@@ -383,15 +394,12 @@ def _cell(runs: dict, case: str, dim: int, solver: str, mode: str, what: str) ->
         late = sim["arrival"] - exp["arrival"]
         return f"{sim['arrival']:.3f} s ({late:+.3f}), {sim['mean'] / 1000:.1f} kPa ({err:+.0f} %)"
     if what == "body":
-        exp = read_csv(DATA / "kleefsman_2005_heights.csv")
-        sim = [first_crossing(np.asarray(r["t"]), np.asarray(r["level"][k]), BODY) for k in range(3)]
-        ref = [first_crossing(exp["t"], exp[f"H{k + 1}"], BODY) for k in range(3)]
+        sim, ref = bodies(r["t"], r["level"]), bodies(marin()["t"], [marin()[f"H{k + 1}"] for k in range(3)])
         late = " / ".join("—" if s is None else f"{s - e:+.2f}" for s, e in zip(sim, ref))
         return " / ".join("dry" if s is None else f"{s:.2f}" for s in sim) + f" s ({late})"
     if what == "H3_depth":
         d = h3_depth(r["t"], r["level"][2])
-        exp = read_csv(DATA / "kleefsman_2005_heights.csv")
-        return f"{d:.3f} m ({100 * (d / h3_depth(exp['t'], exp['H3']) - 1):+.0f} %)"
+        return f"{d:.3f} m ({100 * (d / h3_depth(marin()['t'], marin()['H3']) - 1):+.0f} %)"
     if what.startswith("H"):
         k = int(what[1]) - 1
         p = r["probes"][k]
@@ -478,14 +486,13 @@ ROWS = [
     ("box", 3, "H1", "MARIN H1, behind the box: arrival (data {H1}; ± 0.05 s)"),
     ("box", 3, "H2", "MARIN H2: arrival (data {H2})"),
     ("box", 3, "H3", "MARIN H3: arrival (data {H3})"),
-    ("box", 3, "body", "MARIN H1 / H2 / H3: first at " + f"{100 * BODY:.0f}" + " cm (data {body}; no target)"),
+    ("box", 3, "body", f"MARIN H1 / H2 / H3: first at {100 * BODY:.0f} cm (data {{body}}; no target)"),
     (
         "box",
         3,
         "H3_depth",
-        "MARIN H3: mean height over "
-        + "{:g}–{:g} s".format(*H3_WINDOW)
-        + " (data {depth}, Ritter {ritter}; no target)",
+        f"MARIN H3: mean height over {H3_WINDOW[0]:g}–{H3_WINDOW[1]:g} s "
+        "(data {depth}, Ritter {ritter}; no target)",
     ),
     (
         "box",
@@ -513,9 +520,8 @@ def table(runs: dict) -> str:
             with_p = [r for r in sel.values() if "sensors" in r]
             e = with_p[0]["sensors"][0]["exp"] if with_p else None
             fill["P1"] = "—" if e is None else f"{e['arrival']:.3f} s, {e['mean'] / 1000:.1f} kPa"
-            exp = read_csv(DATA / "kleefsman_2005_heights.csv")
-            body = [first_crossing(exp["t"], exp[f"H{k + 1}"], BODY) for k in range(3)]
-            fill["body"] = " / ".join(f"{b:.2f}" for b in body) + " s"
+            exp = marin()
+            fill["body"] = " / ".join(f"{b:.2f}" for b in bodies(exp["t"], [exp[f"H{k + 1}"] for k in range(3)])) + " s"
             fill["depth"], fill["ritter"] = f"{h3_depth(exp['t'], exp['H3']):.3f} m", f"{h3_ritter():.3f} m"
         kinds = sorted({(_resolution(r), r["spacing"]) for r in sel.values()}, key=lambda k: k[1])
         label = text.format(**fill) + ", " + ", ".join(f"{kind} s = {sp:.4g} m" for kind, sp in kinds)
