@@ -183,6 +183,11 @@ def test_a_probe_s_rise_tells_a_leading_film_from_the_body():
     assert rise[R.LEVELS.tolist().index(0.005)] == pytest.approx(0.2, abs=0.002)
     assert rise[R.LEVELS.tolist().index(V.BODY)] == pytest.approx(0.35, abs=0.002)
     assert rise[-1] is None
+    assert R.bodies(t, [level, 0.5 * level, level]) == [
+        rise[R.LEVELS.tolist().index(V.BODY)],
+        None,
+        pytest.approx(0.35, abs=0.002),
+    ]
     assert R.h3_depth(t, np.where(t < 0.5, 0.08, 0.12)) == pytest.approx(0.1, abs=0.003)
     assert V.H3_WINDOW == (0.3, 0.7) and 0.1 < R.h3_ritter() < 0.2
 
