@@ -183,13 +183,33 @@ def test_a_probe_s_rise_tells_a_leading_film_from_the_body():
     assert rise[R.LEVELS.tolist().index(0.005)] == pytest.approx(0.2, abs=0.002)
     assert rise[R.LEVELS.tolist().index(V.BODY)] == pytest.approx(0.35, abs=0.002)
     assert rise[-1] is None
-    assert R.bodies(t, [level, 0.5 * level, level]) == [
-        rise[R.LEVELS.tolist().index(V.BODY)],
+    later = np.clip(t - 0.5, 0.0, 0.1)  # 6 cm at 0.56 s
+    assert R.bodies(t, [later, 0.5 * level, level]) == [
+        pytest.approx(0.56, abs=0.002),
         None,
         pytest.approx(0.35, abs=0.002),
     ]
     assert R.h3_depth(t, np.where(t < 0.5, 0.08, 0.12)) == pytest.approx(0.1, abs=0.003)
-    assert V.H3_WINDOW == (0.3, 0.7) and 0.1 < R.h3_ritter() < 0.2
+    # Ritter's at 0.504 m from the gate of 0.55 m of water, the mean over 0.3-0.7 s every 10 ms
+    assert V.H3_WINDOW == (0.3, 0.7) and R.h3_ritter() == pytest.approx(0.1456, abs=0.0002)
+
+
+def test_the_box_s_new_rows_read_a_run_s_heights():
+    """The body row and H3's depth row, on a made-up run: its probes late by known amounts, one
+    never reaching 6 cm."""
+    import numpy as np
+
+    exp = R.marin()
+    t = np.arange(0.0, 1.5, 0.002)
+
+    def run(solver, late, scale):
+        level = [scale[k] * np.interp(t - late[k], exp["t"], exp[f"H{k + 1}"]) for k in range(4)]
+        r = {"case": "box", "dim": 3, "solver": solver, "mode": "uniform", "sets": [], "t": t, "level": level}
+        return solver, dict(r, spacing=V.scene_spacing("box", 3))
+
+    runs = dict([run("wcsph", (0.1, 0.0, 0.02, 0.0), (1, 0.2, 1, 1)), run("dfsph", (0, 0, 0, 0), (1, 1, 1.1, 1))])
+    assert R._cell(runs, "box", 3, "wcsph", "uniform", "body") == "1.07 / dry / 0.30 s (+0.10 / — / +0.02)"
+    assert R._cell(runs, "box", 3, "dfsph", "uniform", "H3_depth") == "0.113 m (+10 %)"
 
 
 def test_the_table_reads_the_scene_s_spacing_and_leaves_studies_out():

@@ -14,7 +14,7 @@ H3 what validate.py's report reads: its mean height over ``H3_WINDOW`` and when 
 first stands 5 mm, 2 cm (the arrival) and 6 cm (the body), against MARIN's and against
 Ritter's ideal dam break; then the RMS of H3 (to 0.7 s) and of the reservoir's level H4 (to
 0.8 s) against MARIN's, as run and moved by the clock shift that fits them best. With
-``--gate`` the reservoir starts behind a plate two supports thick that lifts at that speed
+``--gate`` the reservoir starts behind a plate four spacings thick that lifts at that speed
 from t = 0, as a real gate opens from below. Uniform, one thread.
 """
 
@@ -31,12 +31,12 @@ for p in (ROOT, ROOT / "tools"):
 
 #: heights (m) at which H3's first time is printed: the leading film, the arrival, the body
 HEIGHTS = (0.005, 0.02, 0.06)
-UNTIL = 0.8  # s: past H3_WINDOW
+UNTIL = 0.9  # s: past H3_WINDOW, and H4's span by the largest clock shift searched
 
 
 def section(spacing: float, solver: str, sets: list[str], gate: float | None):
-    """The box scene cut along its centre line: a 2D scene (a dict for load_scene), without the
-    box; with ``gate`` (m/s) a plate against the reservoir's face, from the floor to the lid."""
+    """The box scene cut along its centre line, loaded as a 2D scene without the box; with
+    ``gate`` (m/s) a plate four spacings thick against the reservoir's face, floor to lid."""
     import validate as V
 
     from mrsph.scene.config import load_scene
@@ -112,7 +112,8 @@ def clock_fit(t, h3, h4) -> dict:
             lo, hi = SPANS[name]
             te = exp["t"][(exp["t"] >= lo) & (exp["t"] <= hi)]
             ref = exp[name][(exp["t"] >= lo) & (exp["t"] <= hi)]
-            out[name] = float(np.sqrt(np.mean((np.interp(te - shift, t, run) - ref) ** 2)))
+            inside = te - shift <= t[-1]  # past the run's end np.interp would hold its last value
+            out[name] = float(np.sqrt(np.mean((np.interp(te[inside] - shift, t, run) - ref[inside]) ** 2)))
         return out
 
     shifts = np.arange(SHIFTS[0], SHIFTS[1] + 1e-9, SHIFTS[2])
@@ -165,8 +166,11 @@ def main(argv: list[str] | None = None) -> int:
         layers = [int(n) for n in args.layers.split(",")]
         gates = [float(v) for v in args.gate.split(",")] if args.gate else [None]
     except ValueError:
+        layers, gates = [0], [None]
+    if min(layers) < 1 or not all(g is None or 0.0 < g < float("inf") for g in gates):
         print(
-            f"marin_approach.py: --layers {args.layers!r} / --gate {args.gate!r}: expected comma-separated numbers",
+            f"marin_approach.py: --layers {args.layers!r} --gate {args.gate!r}: "
+            "expected whole numbers >= 1 and speeds > 0 (m/s), comma-separated",
             file=sys.stderr,
         )
         return 2

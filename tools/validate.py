@@ -295,7 +295,7 @@ def run_pressure(sim, scene) -> dict:
 PROBES = (0.496, 0.992, 1.488, 2.638)
 WET = 0.02  # m: a probe is reached when its water first stands this high
 #: m: a probe's body of water has come when it first stands this high: above the thin film that
-#: leads the experiment's front (at H3 2 mm to 2 cm within 0.03 s), which a run's front, a particle
+#: leads the experiment's front (at H3 2 mm to 2 cm in about 0.03 s), which a run's front, a particle
 #: thick, cannot carry
 BODY = 0.06
 #: s: H3's water after the front has passed and before the water piled against the box comes back

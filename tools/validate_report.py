@@ -395,7 +395,8 @@ def _cell(runs: dict, case: str, dim: int, solver: str, mode: str, what: str) ->
         return f"{sim['arrival']:.3f} s ({late:+.3f}), {sim['mean'] / 1000:.1f} kPa ({err:+.0f} %)"
     if what == "body":
         sim, ref = bodies(r["t"], r["level"]), bodies(marin()["t"], [marin()[f"H{k + 1}"] for k in range(3)])
-        late = " / ".join("—" if s is None else f"{s - e:+.2f}" for s, e in zip(sim, ref))
+        # rounded first, so that a few ms early reads +0.00, not -0.00
+        late = " / ".join("—" if s is None else f"{round(s - e, 2) + 0.0:+.2f}" for s, e in zip(sim, ref))
         return " / ".join("dry" if s is None else f"{s:.2f}" for s in sim) + f" s ({late})"
     if what == "H3_depth":
         d = h3_depth(r["t"], r["level"][2])
