@@ -110,8 +110,8 @@ def clock_fit(t, h3, h4) -> dict:
         out = {}
         for name, run in (("H3", h3), ("H4", h4)):
             lo, hi = SPANS[name]
-            te = exp["t"][(exp["t"] >= lo) & (exp["t"] <= hi)]
-            ref = exp[name][(exp["t"] >= lo) & (exp["t"] <= hi)]
+            span = (exp["t"] >= lo) & (exp["t"] <= hi)
+            te, ref = exp["t"][span], exp[name][span]
             inside = te - shift <= t[-1]  # past the run's end np.interp would hold its last value
             out[name] = float(np.sqrt(np.mean((np.interp(te[inside] - shift, t, run) - ref[inside]) ** 2)))
         return out
@@ -137,17 +137,13 @@ def reference() -> list[tuple[str, float, list]]:
     import validate as V
     import validate_report as R
 
-    exp = V.read_csv(V.DATA / "kleefsman_2005_heights.csv")
+    exp = R.marin()
     gate, depth = V.box_reservoir()
     t = np.arange(0.001, UNTIL, 0.001)
     ritter = V.ritter_depth(gate - V.PROBES[2], t, depth)
     return [
-        (
-            "MARIN (Kleefsman et al. 2005)",
-            R.h3_depth(exp["t"], exp["H3"]),
-            [V.first_crossing(exp["t"], exp["H3"], h) for h in HEIGHTS],
-        ),
-        ("Ritter (ideal, shallow water)", R.h3_depth(t, ritter), [V.first_crossing(t, ritter, h) for h in HEIGHTS]),
+        ("MARIN (Kleefsman et al. 2005)", R.h3_depth(exp["t"], exp["H3"]), R.rise(exp["t"], exp["H3"], HEIGHTS)),
+        ("Ritter (ideal, shallow water)", R.h3_ritter(), R.rise(t, ritter, HEIGHTS)),
     ]
 
 

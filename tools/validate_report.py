@@ -84,6 +84,14 @@ def _label(r: dict) -> str:
     return f"{r['solver']} {r['mode']}" + (" (full)" if _resolution(r) == "full" else "")
 
 
+def _save(fig, runs: dict, path: Path) -> Path:
+    """The figure stamped (``_stamp``), written to ``path`` and closed."""
+    _stamp(fig, runs)
+    fig.savefig(path, dpi=90)
+    _plt().close(fig)
+    return path
+
+
 def _stamp(fig, runs: dict) -> None:
     """The runs' dates, commits and command at the figure's foot, and the axes laid out above it."""
     plain = [r for r in runs.values() if not r["sets"]]
@@ -118,11 +126,7 @@ def plot_tank(runs: dict, out: Path) -> Path | None:
         row[1].plot(1 - y, y, color="k", lw=2.5, alpha=0.35, label="rho0 g (H - y)")
         row[1].set(xlabel="p / (rho0 g H)", ylabel="y / H", title=f"{dim}D: pressure by depth, t = 2-2.2 s")
         row[1].legend(fontsize=7)
-    _stamp(fig, runs)
-    path = out / "tank_rest.png"
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return _save(fig, runs, out / "tank_rest.png")
 
 
 def plot_front(runs: dict, out: Path) -> Path | None:
@@ -144,11 +148,7 @@ def plot_front(runs: dict, out: Path) -> Path | None:
         axes[0, k].legend(fontsize=7)
         axes[1, k].set(xlabel="T = t sqrt(2g/a)", ylabel="height at the wall / 2a", xlim=(0, 3.2), ylim=(0, 1.05))
         axes[1, k].set_title(f"{dim}D residual column (no experimental series shipped)", fontsize=9)
-    _stamp(fig, runs)
-    path = out / "front.png"
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return _save(fig, runs, out / "front.png")
 
 
 def running_mean(T: np.ndarray, P: np.ndarray, width: float) -> np.ndarray:
@@ -179,11 +179,7 @@ def plot_pressure(runs: dict, out: Path, dim: int) -> Path | None:
         )
     axes[0].legend(fontsize=7, ncol=2)
     axes[-1].set_xlabel("T = t sqrt(g/H)")
-    _stamp(fig, runs)
-    path = out / f"pressure_{dim}d.png"
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return _save(fig, runs, out / f"pressure_{dim}d.png")
 
 
 def plot_box(runs: dict, out: Path) -> Path | None:
@@ -202,11 +198,7 @@ def plot_box(runs: dict, out: Path) -> Path | None:
         ax.set_title(f"probe H{k + 1}, {where[k]}", fontsize=9)
     axes[0].legend(fontsize=7, ncol=2)
     axes[-1].set_xlabel("t (s)")
-    _stamp(fig, runs)
-    path = out / "box_3d.png"
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return _save(fig, runs, out / "box_3d.png")
 
 
 #: heights (m) at which the rise figure reads when each probe's water first stands so high
@@ -242,7 +234,7 @@ def h3_ritter() -> float:
 
     gate, depth = box_reservoir()
     ts = np.arange(H3_WINDOW[0], H3_WINDOW[1] + 1e-9, 0.01)
-    return float(ritter_depth(gate - PROBES[2], ts, depth).mean())
+    return h3_depth(ts, ritter_depth(gate - PROBES[2], ts, depth))
 
 
 def plot_box_rise(runs: dict, out: Path) -> Path | None:
@@ -264,11 +256,7 @@ def plot_box_rise(runs: dict, out: Path) -> Path | None:
         ax.set(xlabel="water height at the probe (cm)", ylabel="first at that height (s)")
         ax.set_title(f"H{k + 1}, x = {PROBES[k]} m" + (", behind the box" if k == 0 else ""), fontsize=9)
     axes[0].legend(fontsize=7)
-    _stamp(fig, runs)
-    path = out / "box_rise_3d.png"
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return _save(fig, runs, out / "box_rise_3d.png")
 
 
 def plot_box_pressure(runs: dict, out: Path) -> Path | None:
@@ -297,11 +285,7 @@ def plot_box_pressure(runs: dict, out: Path) -> Path | None:
     axes[0, 0].legend(fontsize=7, ncol=2)
     for ax in axes[-1]:
         ax.set_xlabel("t (s)")
-    _stamp(fig, runs)
-    path = out / "box_pressure_3d.png"
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return _save(fig, runs, out / "box_pressure_3d.png")
 
 
 def _metric(r: dict) -> list[tuple[str, float | None]]:
@@ -346,11 +330,7 @@ def plot_resolution(runs: dict, out: Path) -> Path | None:
         ax.axhline(0.0, color="k", lw=0.8)
         ax.set(xlabel="finest spacing (m)", title=f"{dim}D {case}: against the spacing")
         ax.legend(fontsize=6)
-    _stamp(fig, runs)
-    path = out / "resolution.png"
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return _save(fig, runs, out / "resolution.png")
 
 
 # ================================================================== the table
