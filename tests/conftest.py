@@ -48,7 +48,7 @@ Nothing here touches Taichi at import time.
   already set; subprocesses inherit it): those passes are most of each kernel's compile,
   and even the long validation is mostly compile. ``-m "slow and not wallclock"`` took
   52.6 min with them and 17.3 min without, from an empty Taichi cache on 2 cores
-  (2026-12-07, 49cccc5; a 3D dfsph Simulation's build 140 s against 20 s). The kernels
+  (2026-12-07, 49cccc5; a 3D dfsph test's two builds 141 s against 20 s). The kernels
   compute the same sums to round-off, and every test holds either way; the one that did
   not was a measure that read the phase of dfsph's step-to-step pressure (now a mean over
   every step). The tests of the real window (``wallclock``) time frames and compiles as a

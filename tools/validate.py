@@ -208,7 +208,8 @@ def _real(sim) -> dict:
 
 
 def _each_step(sim, seconds: float):
-    """``sim.advance(seconds)`` a step at a time, yielding each step's dt."""
+    """``sim.advance(seconds)`` a step at a time, yielding each step's dt (advance has no hook
+    between its steps; its counters are collected by the next advance or stats row)."""
     end = sim.time + seconds
     while sim.time < end - 1e-12:
         yield sim.step(max_dt=end - sim.time)

@@ -397,8 +397,9 @@ def _cell(runs: dict, case: str, dim: int, solver: str, mode: str, what: str) ->
 
 
 def profile_rms(r: dict) -> float:
-    """A tank's pressure by depth (20 layers, each the mean over its particles and the samples)
-    against rho0 g (H - y), H the measured surface: the RMS over the layers, over rho0 g H."""
+    """A tank's pressure by depth (20 layers, each the mean over its particles and every step of
+    the window) against rho0 g (H - y), H the measured surface: the RMS over the layers, over
+    rho0 g H."""
     y = np.array(r["profile_y"])
     exact = np.clip(r["surface"] - y, 0.0, None) / r["H"]
     return float(np.sqrt(np.mean((np.array(r["profile_p"]) - exact) ** 2)))
