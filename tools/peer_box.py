@@ -269,19 +269,23 @@ def report() -> None:
     sys.path.insert(0, str(V.ROOT))  # the scene's spacing, through mrsph's loader
     peers = [json.loads(p.read_text()) for p in sorted(OUT.glob("box-splishsplash-*.json"))]
     spacing = V.scene_spacing("box", 3)
-    ours = {}
+    ours, finer = {}, {}  # mrsph's uniform runs at the scene's spacing (drawn) and finer (tabled)
     for solver in ("wcsph", "dfsph", "pbf"):
-        p = V.CACHE / f"{V.run_key('box', 3, solver, 'uniform', spacing)}.json"
-        if p.exists():
-            ours[f"mrsph {solver}, 27 layers"] = json.loads(p.read_text())
+        for path in sorted(V.CACHE.glob(f"box-3d-{solver}-uniform-s*.json")):
+            run = json.loads(path.read_text())
+            if run.get("sets") or run["spacing"] > spacing * 1.001:
+                continue
+            layers = round(DEPTH / run["spacing"])
+            (ours if layers == round(DEPTH / spacing) else finer)[f"mrsph {solver}, {layers} layers"] = run
     exp = V.read_csv(V.DATA / "kleefsman_2005_heights.csv")
-    print("| run | H1 2 cm / 6 cm | H2 2 cm / 6 cm | H3 2 cm / 6 cm | H3 mean 0.3-0.7 s |")
-    print("|---|---|---|---|---|")
-    print(row("MARIN's data", exp["t"], [exp[k] for k in ("H1", "H2", "H3")]))
-    for label, r in ours.items():
-        print(row(label, r["t"], r["level"]))
+    print("| run | H1 2 cm / 6 cm | H2 2 cm / 6 cm | H3 2 cm / 6 cm | H3 mean 0.3-0.7 s | run on |")
+    print("|---|---|---|---|---|---|")
+    print(row("MARIN's data", exp["t"], [exp[k] for k in ("H1", "H2", "H3")]) + " Kleefsman et al. 2005 |")
+    for label, r in {**ours, **finer}.items():
+        print(row(label, r["t"], r["level"]) + f" {r['date']}, {r['commit']} |")
     for r in peers:
-        print(row(f"SPlisHSPlasH DFSPH, {r['layers']} layers, ν = {r['viscosity']:g} m²/s", r["t"], r["level"]))
+        label = f"SPlisHSPlasH DFSPH, {r['layers']} layers, ν = {r['viscosity']:g} m²/s"
+        print(row(label, r["t"], r["level"]) + f" {r['date']}, {r['commit']} |")
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.6), sharey=True)
     for k, (ax, probe) in enumerate(zip(axes, ("H1", "H2", "H3"))):
         ax.plot(exp["t"], exp[probe], "k", lw=1.6, label="MARIN (Kleefsman et al. 2005)")
