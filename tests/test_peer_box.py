@@ -4,6 +4,10 @@ scene's, moved by what a volume map keeps between a particle and its mesh, the r
 particles as mrsph's, and the cube's faces wound outwards (a volume map's inside is where they
 point away from)."""
 
+import importlib.util
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 from toolload import load_tool
@@ -87,3 +91,19 @@ def test_a_row_reads_when_each_probe_stands_2_and_6_cm():
     levels = [np.clip((t - t0) * 1.0, 0, None) for t0 in (1.0, 0.4, 0.25)]
     row = P.row("made up", t, levels)
     assert row.startswith("| made up | 1.020 / 1.060 s | 0.420 / 0.460 s | 0.270 / 0.310 s |")
+
+
+@pytest.mark.parametrize(
+    "args, line",
+    [
+        (["--layers", "3"], "--layers 3: expected at least 8 (the box is 161 mm high, the water 550 mm deep)"),
+        (["--viscosity", "-1"], "--viscosity -1: expected a kinematic viscosity >= 0 (m²/s)"),
+        ([], "pysplishsplash is not installed here: run this tool in its own environment (see its docstring)"),
+    ],
+)
+def test_a_bad_argument_or_no_splishsplash_is_one_line(args, line):
+    if not args and importlib.util.find_spec("pysplishsplash"):  # found, not imported: its import may crash
+        pytest.skip("SPlisHSPlasH is installed here")
+    proc = subprocess.run([sys.executable, "tools/peer_box.py", *args], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2, proc.stderr
+    assert [ln for ln in proc.stderr.splitlines() if ln.strip()] == [line]

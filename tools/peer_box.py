@@ -7,7 +7,6 @@ SPlisHSPlasH (Bender et al., MIT licence; the PyPI wheel pysplishsplash 2.19.0) 
 mrsph, so a run takes a virtual environment of its own; the report runs in mrsph's:
 
     python3 -m venv /tmp/sph && /tmp/sph/bin/pip install pysplishsplash==2.19.0 numpy
-    export LD_PRELOAD=/lib/x86_64-linux-gnu/libGLdispatch.so.0   # the wheel's import crashes without it
     OMP_NUM_THREADS=2 /tmp/sph/bin/python tools/peer_box.py --layers 27   # 5 min; 40 layers: 33 min
     OMP_NUM_THREADS=2 /tmp/sph/bin/python tools/peer_box.py --layers 27 --viscosity 0.001
     python3 tools/peer_box.py --report     # the table and docs/validation/box_peer_3d.png
@@ -32,6 +31,7 @@ import datetime
 import importlib.metadata
 import json
 import math
+import os
 import sys
 import tempfile
 import textwrap
@@ -49,6 +49,8 @@ BOX = ((0.6635, 0.0, 0.2985), (0.8245, 0.161, 0.7015))
 GATE, DEPTH = 1.992, 0.55
 REST = 2.3  # a volume map's particle at rest sits this many radii from its mesh
 SETTLE_S, END_S, SAMPLE_S = 0.6, 1.3, 0.002
+MIN_LAYERS = 8  # the box then stands 2 spacings high
+GL_DISPATCH = Path("/lib/x86_64-linux-gnu/libGLdispatch.so.0")
 
 
 def cube_obj(path: Path) -> None:
@@ -312,6 +314,20 @@ def report() -> None:
     print(f"wrote {V.FIGURES / 'box_peer_3d.png'}")
 
 
+def fail(message: str) -> None:
+    """A bad argument or a missing SPlisHSPlasH: one line, exit status 2."""
+    print(message, file=sys.stderr)
+    sys.exit(2)
+
+
+def preload() -> None:
+    """Run again with the system's libGLdispatch preloaded: the wheel bundles half of libglvnd,
+    and its import crashes in the other half's initialiser unless one copy serves both."""
+    if GL_DISPATCH.exists() and str(GL_DISPATCH) not in os.environ.get("LD_PRELOAD", ""):
+        env = {**os.environ, "LD_PRELOAD": f"{GL_DISPATCH} {os.environ.get('LD_PRELOAD', '')}".strip()}
+        os.execve(sys.executable, [sys.executable, *sys.argv], env)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--layers", type=int, default=27, help="particles over the water's depth (27: the scene's)")
@@ -322,6 +338,15 @@ def main() -> None:
     if args.report:
         report()
         return
+    if args.layers < MIN_LAYERS:
+        fail(f"--layers {args.layers}: expected at least {MIN_LAYERS} (the box is 161 mm high, the water 550 mm deep)")
+    if not args.viscosity >= 0:
+        fail(f"--viscosity {args.viscosity:g}: expected a kinematic viscosity >= 0 (m²/s)")
+    preload()
+    try:
+        import pysplishsplash  # noqa: F401
+    except ImportError:
+        fail("pysplishsplash is not installed here: run this tool in its own environment (see its docstring)")
     work = args.work or Path(tempfile.gettempdir()) / f"peer_box_{args.layers}"
     out = run(args.layers, args.viscosity, work)
     OUT.mkdir(parents=True, exist_ok=True)
