@@ -36,6 +36,7 @@ import sys
 import tempfile
 import textwrap
 import time
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -44,9 +45,18 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import validate as V  # noqa: E402  (the gauge, the probes and the data: numpy only)
 
 OUT = V.FIGURES / "peer"
-TANK = (3.22, 1.0, 1.0)
-BOX = ((0.6635, 0.0, 0.2985), (0.8245, 0.161, 0.7015))
-GATE, DEPTH = 1.992, 0.55
+
+
+def _box_scene() -> tuple[tuple, tuple, float, float]:
+    """The box scene's tank, box, gate (where the reservoir's water ends, x) and depth, read from
+    its file with the standard library: SPlisHSPlasH's environment has no mrsph to load it."""
+    with open(V.ROOT / "scenes" / f"{V.SCENES['box']}.toml", "rb") as f:
+        data = tomllib.load(f)
+    block, box = data["fluid"]["blocks"][0], data["obstacles"][0]
+    return tuple(data["domain"]["max"]), (tuple(box["min"]), tuple(box["max"])), block["min"][0], block["max"][1]
+
+
+TANK, BOX, GATE, DEPTH = _box_scene()
 REST = 2.3  # a volume map's particle at rest sits this many radii from its mesh
 SETTLE_S, END_S, SAMPLE_S = 0.6, 1.3, 0.002
 MIN_LAYERS = 8  # the box then stands 2 spacings high
@@ -209,7 +219,7 @@ def run(layers: int, viscosity: float, work: Path) -> dict:
 
     def gauge(now, x):
         t.append(now)
-        levels.append([V.water_level(x, vol, h, (px, 0.5), 0.8) for px in V.PROBES[:3]])
+        levels.append([V.water_level(x, vol, h, (px, TANK[2] / 2), 0.8) for px in V.PROBES[:3]])
         lee.append([V.water_level(x, vol, h, at, 1.0) for at in V.LEE])
 
     (work / "release.json").write_text(json.dumps(scene(s, viscosity, gate=False), indent=1))
