@@ -280,6 +280,7 @@ def report() -> None:
 
     sys.path.insert(0, str(V.ROOT))  # the scene's spacing, through mrsph's loader
     peers = [json.loads(p.read_text()) for p in sorted(OUT.glob("box-splishsplash-*.json"))]
+    vofs = sorted((json.loads(p.read_text()) for p in OUT.glob("box-openfoam-*.json")), key=lambda r: r["layers"])
     spacing = V.scene_spacing("box", 3)
     ours, finer = {}, {}  # mrsph's uniform runs at the scene's spacing (drawn) and finer (tabled)
     for solver in ("wcsph", "dfsph", "pbf"):
@@ -298,6 +299,9 @@ def report() -> None:
     for r in peers:
         label = f"SPlisHSPlasH DFSPH, {r['layers']} layers, ν = {r['viscosity']:g} m²/s"
         print(row(label, r["t"], r["level"]) + f" {r['date']}, {r['commit']} |")
+    for r in vofs:
+        label = f"OpenFOAM interFoam (VOF), {r['layers']} cells deep"
+        print(row(label, r["t"], r["level"]) + f" {r['date']}, {r['commit']} |")
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.6), sharey=True)
     for k, (ax, probe) in enumerate(zip(axes, ("H1", "H2", "H3"))):
         ax.plot(exp["t"], exp[probe], "k", lw=1.6, label="MARIN (Kleefsman et al. 2005)")
@@ -306,18 +310,22 @@ def report() -> None:
         for r, ls in zip(peers, ("--", ":", "-.")):
             label = f"SPlisHSPlasH, {r['layers']} layers, ν {r['viscosity']:g}"
             ax.plot(r["t"], r["level"][k], "m", ls=ls, lw=1.2, label=label)
+        for r, c in zip(vofs[::-1], ("0.2", "0.45", "0.65", "0.8")):  # the finest darkest
+            ax.plot(r["t"], r["level"][k], color=c, ls="--", lw=1.1, label=f"OpenFOAM VOF, {r['layers']} cells deep")
         ax.set_title(f"{probe} (x = {V.PROBES[k]} m)")
         ax.set_xlim(0, 1.3)
         ax.set_xlabel("t (s)")
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("water height (m)")
     axes[0].legend(fontsize=7, loc="upper left")
-    title = "MARIN's box: mrsph and a second SPH code at the same spacing (tools/peer_box.py --report)"
+    title = "MARIN's box: mrsph, a second SPH code at the same spacing and a VOF code (tools/peer_box.py --report)"
     fig.suptitle(title, fontsize=10)
     stamps = sorted({f"{r['date']}, {r['commit']}" for r in ours.values()})
     theirs = [f"{r['date']}, {r['commit']} (--layers {r['layers']} --viscosity {r['viscosity']:g})" for r in peers]
     foot = f"mrsph: {'; '.join(stamps)} (python3 tools/validate.py --case box). "
-    foot += f"SPlisHSPlasH: {'; '.join(theirs)} (tools/peer_box.py)"
+    foot += f"SPlisHSPlasH: {'; '.join(theirs)} (tools/peer_box.py). "
+    vof_stamps = sorted({f"{r['date']}, {r['commit']}" for r in vofs})
+    foot += f"OpenFOAM: {'; '.join(vof_stamps)} (tools/peer_vof.py --layers N)"
     fig.text(0.99, 0.005, "\n".join(textwrap.wrap(foot, 200)), ha="right", va="bottom", fontsize=7, color="0.4")
     fig.tight_layout(rect=(0, 0.06, 1, 1))
     fig.savefig(V.FIGURES / "box_peer_3d.png", dpi=110)

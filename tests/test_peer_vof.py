@@ -1,0 +1,121 @@
+"""tools/peer_vof.py: MARIN's box in OpenFOAM's interFoam (docs/validation.md, MARIN's H1). What it
+sets up and how it reads the water is checked here without OpenFOAM, which mrsph does not depend
+on: the mesh must be the box scene's tank less its box, with the box, the gate and the water's
+surface on cell faces; the water the reservoir's; the gauge mrsph's rule."""
+
+import os
+import re
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from toolload import load_tool
+
+F = load_tool("peer_vof")
+P = load_tool("peer_box")
+V = load_tool("validate")
+
+
+def _blocks(layers):
+    """Each hex block of the blockMeshDict as (lower corner, upper corner, cells), and the top faces."""
+    text = F.block_mesh(layers)
+    verts = np.array(
+        [[float(c) for c in v.split()] for v in re.findall(r"^\(([-\d.e ]+)\)$", text.split("blocks")[0], re.M)]
+    )
+    blocks = []
+    for ids, cells in re.findall(r"hex \(([\d ]+)\) \(([\d ]+)\)", text):
+        corners = verts[[int(i) for i in ids.split()]]
+        blocks.append((corners.min(axis=0), corners.max(axis=0), [int(c) for c in cells.split()], corners))
+    top = text.split("atmosphere")[1].split(");")[0]
+    faces = [verts[[int(i) for i in f.split()]] for f in re.findall(r"\(([\d ]+)\)", top)]
+    return blocks, faces
+
+
+@pytest.mark.parametrize("layers", [14, 27])
+def test_the_mesh_is_the_tank_less_the_box_in_near_cubes(layers):
+    blocks, _ = _blocks(layers)
+    lo_box, hi_box = np.array(P.BOX[0]), np.array(P.BOX[1])
+    assert len(blocks) == 4 * 3 * 3 - 1
+    volume = 0.0
+    h = P.DEPTH / layers
+    for lo, hi, cells, corners in blocks:
+        assert not ((lo < hi_box - 1e-9) & (hi > lo_box + 1e-9)).all()  # no block inside the box
+        volume += np.prod(hi - lo)
+        assert (hi - lo) / cells == pytest.approx(np.full(3, h), rel=0.3)
+        # blockMesh's order: the lower face anticlockwise seen from above the block's z, then the upper
+        assert (corners[:4, 2] == lo[2]).all() and (corners[4:, 2] == hi[2]).all()
+        assert np.cross(corners[1] - corners[0], corners[3] - corners[0])[2] > 0
+    assert volume == pytest.approx(np.prod(P.TANK) - np.prod(hi_box - lo_box))
+
+
+def test_the_box_the_gate_and_the_surface_lie_on_cell_faces():
+    (xs, _), (ys, _), (zs, _) = F.edges(27)
+    assert {P.BOX[0][0], P.BOX[1][0], P.GATE} <= set(xs)
+    assert {P.BOX[1][1], P.DEPTH} <= set(ys)
+    assert {P.BOX[0][2], P.BOX[1][2]} <= set(zs)
+    text = F.set_fields()
+    box = [float(v) for v in re.search(r"box \(([^)]*)\) \(([^)]*)\)", text).group(1, 2)[0].split()]
+    top = [float(v) for v in re.search(r"box \(([^)]*)\) \(([^)]*)\)", text).group(1, 2)[1].split()]
+    assert box[0] == P.GATE and top[1] == P.DEPTH and top[0] > P.TANK[0] and box[1] < 0
+
+
+def test_the_top_is_open_and_its_faces_point_out():
+    _, faces = _blocks(27)
+    assert len(faces) == 4 * 3
+    for f in faces:
+        assert (f[:, 1] == P.TANK[1]).all()
+        assert np.cross(f[1] - f[0], f[2] - f[0])[1] > 0  # blockMesh wants a boundary face's normal outwards
+
+
+def test_the_gauge_reads_from_the_floor_up_to_where_the_fraction_falls_below_a_half():
+    y = (np.arange(20) + 0.5) * 0.05  # cells 5 cm high
+    wet = np.where(y < 0.3, 1.0, 0.0)
+    assert F.level(wet, y) == pytest.approx(0.3)  # the crossing between centres 0.275 and 0.325
+    assert F.level(np.where(y > 0.5, 1.0, 0.0), y) == 0.0  # spray over a dry floor
+    spray = wet.copy()
+    spray[15] = 1.0
+    assert F.level(spray, y) == pytest.approx(0.3)  # spray above the water does not count
+    assert F.level(np.ones(20), y) == pytest.approx(y[-1])
+    half = wet.copy()
+    half[6] = 0.75  # the cell 0.30-0.35 m three quarters full: the half crossed a quarter of the way up
+    assert F.level(half, y) == pytest.approx(0.325 + 0.25 / 0.75 * 0.05)
+
+
+def test_the_probes_file_becomes_each_gauge_s_height(tmp_path):
+    """A made-up probes file: every gauge's two columns full to its own height, which the gauge
+    must read back in the order H1-H4, then validate.LEE."""
+    pts, y = F.probe_columns(14)
+    gauges = 4 + len(V.LEE)
+    assert len(pts) == gauges * 2 * len(y)
+    centre = P.TANK[2] / 2
+    assert pts[0][0] == V.PROBES[0] and pts[0][2] < centre < pts[len(y)][2]
+    heights = 0.05 + 0.03 * np.arange(gauges)
+    rows = []
+    for t in (0.1, 0.2):
+        alpha = [float(yy < hh) for hh in heights for _ in (0, 1) for yy in y]
+        rows.append(f"{t} " + " ".join(map(str, alpha)))
+    out = tmp_path / "postProcessing" / "gauges" / "0"
+    out.mkdir(parents=True)
+    (out / "alpha.water").write_text("# Probe 0 (0 0 0)\n# Time\n" + "\n".join(rows) + "\n")
+    t, levels = F.gauge(tmp_path, 14)
+    assert t.tolist() == [0.1, 0.2]
+    step = np.diff(y).max()
+    assert np.abs(levels - heights).max() <= step / 2 + 1e-9
+
+
+@pytest.mark.parametrize(
+    "args, path, line",
+    [
+        (["--layers", "3"], None, "--layers 3: expected at least 8 (the box is 161 mm high, the water 550 mm deep)"),
+        (["--ranks", "0"], None, "--ranks 0: expected at least 1"),
+        ([], "", "OpenFOAM's interFoam is not on PATH: apt-get install -y openfoam (see this tool's docstring)"),
+    ],
+)
+def test_a_bad_argument_or_no_openfoam_is_one_line(args, path, line):
+    env = dict(os.environ) if path is None else {**os.environ, "PATH": path}
+    proc = subprocess.run(
+        [sys.executable, "tools/peer_vof.py", *args], capture_output=True, text=True, timeout=60, env=env
+    )
+    assert proc.returncode == 2, proc.stderr
+    assert [ln for ln in proc.stderr.splitlines() if ln.strip()] == [line]
