@@ -89,7 +89,9 @@ def test_the_probes_file_becomes_each_gauge_s_height(tmp_path):
     gauges = 4 + len(V.LEE)
     assert len(pts) == gauges * 2 * len(y)
     centre = P.TANK[2] / 2
-    assert pts[0][0] == V.PROBES[0] and pts[0][2] < centre < pts[len(y)][2]
+    assert pts[0][0] == V.PROBES[0] and pts[0][2] < centre < pts[len(y)][2]  # the centre line is a face
+    lee = pts[2 * len(y) * 5 :][: 2 * len(y)]  # validate.LEE's second, 1.5 mm inside the box's shadow
+    assert {(p[0], p[2]) for p in lee} == {tuple(V.LEE[1])}
     heights = 0.05 + 0.03 * np.arange(gauges)
     rows = []
     for t in (0.1, 0.2):

@@ -102,13 +102,20 @@ def block_mesh(layers: int) -> str:
 
 def probe_columns(layers: int) -> tuple[list, np.ndarray]:
     """Where the probes sample: for each gauge (H1-H4 on the centre line, then ``validate.LEE``),
-    two columns a quarter cell either side of it across the tank, at every cell centre up to the
-    top; and those centres' heights."""
-    (_, _), (ys, ny), (_, nz) = edges(layers)[0], edges(layers)[1], edges(layers)[2]
+    two columns at every cell centre up to the top, both through the gauge's cell, or a quarter
+    cell either side of it where it lies on a cell face (the centre line does); and those centres'
+    heights."""
+    (xs, nx), (ys, ny), (zs, nz) = edges(layers)
     y = centres(ys, ny)
-    dz = P.TANK[2] / sum(nz) / 4
+    faces = [
+        np.concatenate([np.linspace(a, b, k + 1) for a, b, k in zip(c, c[1:], n)]) for c, n in ((xs, nx), (zs, nz))
+    ]
+    quarter = P.DEPTH / layers / 4
     gauges = [(px, P.TANK[2] / 2) for px in V.PROBES] + list(V.LEE)
-    pts = [(x, yy, z + side * dz) for x, z in gauges for side in (-1, 1) for yy in y]
+    pts = []
+    for x, z in gauges:
+        dx, dz = (quarter if np.isclose(f, c, atol=1e-9).any() else 0.0 for f, c in zip(faces, (x, z)))
+        pts += [(x + side * dx, yy, z + side * dz) for side in (-1, 1) for yy in y]
     return pts, y
 
 
