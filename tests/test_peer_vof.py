@@ -106,11 +106,47 @@ def test_the_probes_file_becomes_each_gauge_s_height(tmp_path):
     assert np.abs(levels - heights).max() <= step / 2 + 1e-9
 
 
+def test_the_zones_are_where_box_overtop_counts_mrsph_s_water(tmp_path):
+    """Above the box's top over its footprint; its shadow from x = 0.3 m to its back face, 5 cm
+    inside its width (tools/box_overtop.py); and their files read back in litres."""
+    (x0, _, z0), (x1, top, z1) = P.BOX
+    above, shadow = F.zones()["above"], F.zones()["shadow"]
+    assert above[0] == (x0, top, z0) and above[1][0] == x1 and above[1][2] == z1 and above[1][1] > P.TANK[1]
+    assert shadow[0][0] == 0.3 and shadow[1][0] == x0
+    assert (shadow[0][2], shadow[1][2]) == pytest.approx((z0 + 0.05, z1 - 0.05))
+    assert shadow[0][1] < 0 and shadow[1][1] > P.TANK[1]
+    text = F.topo_set()
+    for name, (lo, hi) in F.zones().items():
+        box = f"box ({' '.join(map(str, lo))}) ({' '.join(map(str, hi))})"
+        assert f"name {name}; type cellSet; action new; source boxToCell; {box}" in text
+        assert f"name {name}; type cellZoneSet; action new; source setToCellZone; set {name};" in text
+    for k, name in enumerate(F.ZONES):
+        out = tmp_path / "postProcessing" / name / "0"
+        out.mkdir(parents=True)
+        (out / "volFieldValue.dat").write_text(f"# Time volIntegrate({name},alpha.water)\n0.1 {k + 1}e-3\n0.2 0.01\n")
+    water = F.zone_water(tmp_path)
+    assert water["above"] == {"t": [0.1, 0.2], "litres": [1.0, 10.0]} and water["shadow"]["litres"] == [2.0, 10.0]
+
+
+def test_the_water_s_viscosity_and_the_walls_are_what_the_run_asks(tmp_path):
+    F.write_case(tmp_path / "a", 10, 2, nu=0.01, slip=True)
+    assert (
+        "water { transportModel Newtonian; nu 0.01; rho 1000; }"
+        in (tmp_path / "a/constant/transportProperties").read_text()
+    )
+    assert "walls { type slip; }" in (tmp_path / "a/0/U").read_text()
+    F.write_case(tmp_path / "b", 10, 2)
+    assert "nu 1e-06; rho 1000" in (tmp_path / "b/constant/transportProperties").read_text()
+    assert "walls { type noSlip; }" in (tmp_path / "b/0/U").read_text()
+    assert [F.name(27), F.name(27, 0.01, True)] == ["box-openfoam-27", "box-openfoam-27-nu0.01-slip"]
+
+
 @pytest.mark.parametrize(
     "args, path, line",
     [
         (["--layers", "3"], None, "--layers 3: expected at least 8 (the box is 161 mm high, the water 550 mm deep)"),
         (["--ranks", "0"], None, "--ranks 0: expected at least 1"),
+        (["--viscosity", "0"], None, "--viscosity 0: expected a kinematic viscosity > 0 (m²/s)"),
         ([], "", "OpenFOAM's interFoam is not on PATH: apt-get install -y openfoam (see this tool's docstring)"),
     ],
 )

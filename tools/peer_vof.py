@@ -42,6 +42,7 @@ import validate as V  # noqa: E402  (the probes, the data and the crossings: num
 
 END_S = P.END_S
 MIN_LAYERS = 8  # the box is then 2 cells high
+ZONES = ("above", "shadow")
 HEADER = "FoamFile {{ version 2.0; format ascii; class {cls}; object {obj}; }}\n"
 # Debian's OpenFOAM finds its etc/ through WM_PROJECT_DIR; Open MPI runs as root only when told to
 FOAM_ENV = {
@@ -131,16 +132,17 @@ def level(alpha: np.ndarray, y: np.ndarray) -> float:
     return float(y[k - 1] + (alpha[k - 1] - 0.5) / (alpha[k - 1] - alpha[k]) * (y[k] - y[k - 1]))
 
 
-def write_case(case: Path, layers: int, ranks: int) -> None:
+def write_case(case: Path, layers: int, ranks: int, nu: float = 1e-6, slip: bool = False) -> None:
     files = {
         "system/blockMeshDict": block_mesh(layers),
         "system/controlDict": controldict(layers),
         "system/fvSchemes": FV_SCHEMES,
         "system/fvSolution": FV_SOLUTION,
         "system/setFieldsDict": set_fields(),
+        "system/topoSetDict": topo_set(),
         "system/decomposeParDict": HEADER.format(cls="dictionary", obj="decomposeParDict")
         + f"numberOfSubdomains {ranks};\nmethod simple;\nsimpleCoeffs {{ n ({ranks} 1 1); delta 0.001; }}\n",
-        "constant/transportProperties": TRANSPORT,
+        "constant/transportProperties": transport(nu),
         "constant/turbulenceProperties": HEADER.format(cls="dictionary", obj="turbulenceProperties")
         + "simulationType laminar;\n",
         "constant/g": HEADER.format(cls="uniformDimensionedVectorField", obj="g")
@@ -151,7 +153,7 @@ def write_case(case: Path, layers: int, ranks: int) -> None:
         ),
         "0/U": FIELD.format(
             cls="volVectorField", obj="U", dim="[0 1 -1 0 0 0 0]", value="(0 0 0)",
-            walls="noSlip;", atmosphere="pressureInletOutletVelocity; value uniform (0 0 0);",
+            walls="slip;" if slip else "noSlip;", atmosphere="pressureInletOutletVelocity; value uniform (0 0 0);",
         ),
         "0/p_rgh": FIELD.format(
             cls="volScalarField", obj="p_rgh", dim="[1 -1 -2 0 0 0 0]", value="0",
@@ -163,6 +165,16 @@ def write_case(case: Path, layers: int, ranks: int) -> None:
         (case / name).write_text(text)
 
 
+def transport(nu: float) -> str:
+    """transportProperties: water of kinematic viscosity ``nu`` and air."""
+    return HEADER.format(cls="dictionary", obj="transportProperties") + (
+        "phases (water air);\n"
+        f"water {{ transportModel Newtonian; nu {nu:g}; rho 1000; }}\n"
+        "air { transportModel Newtonian; nu 1.48e-05; rho 1; }\n"
+        "sigma 0.07;\n"
+    )
+
+
 def set_fields() -> str:
     """setFieldsDict: water in the reservoir's cells, from the gate to the end wall, to its depth."""
     box = f"({P.GATE} -1 -1) ({P.TANK[0] + 1} {P.DEPTH} {P.TANK[2] + 1})"
@@ -170,6 +182,28 @@ def set_fields() -> str:
         "defaultFieldValues ( volScalarFieldValue alpha.water 0 );\n"
         f"regions ( boxToCell {{ box {box}; fieldValues ( volScalarFieldValue alpha.water 1 ); }} );\n"
     )
+
+
+def zones() -> dict:
+    """The regions whose water each run records, as tools/box_overtop.py counts mrsph's: above the
+    box's top over its footprint, and its shadow between x = 0.3 m and its back face, 5 cm inside
+    its width."""
+    (x0, _, z0), (x1, y1, z1) = P.BOX
+    return {
+        "above": ((x0, y1, z0), (x1, P.TANK[1] + 1, z1)),
+        "shadow": ((0.3, -1, z0 + 0.05), (x0, P.TANK[1] + 1, z1 - 0.05)),
+    }
+
+
+def topo_set() -> str:
+    """topoSetDict: each of ``zones()`` a cell zone of the cells whose centres lie in it."""
+    actions = "".join(
+        f"{{ name {z}; type cellSet; action new; source boxToCell; box ({' '.join(map(str, lo))}) "
+        f"({' '.join(map(str, hi))}); }}\n{{ name {z}; type cellZoneSet; action new; source setToCellZone; "
+        f"set {z}; }}\n"
+        for z, (lo, hi) in zones().items()
+    )
+    return HEADER.format(cls="dictionary", obj="topoSetDict") + f"actions (\n{actions});\n"
 
 
 def controldict(layers: int) -> str:
@@ -181,7 +215,14 @@ def controldict(layers: int) -> str:
         "writePrecision 6;\nwriteCompression off;\ntimeFormat general;\ntimePrecision 6;\n"
         "runTimeModifiable no;\nadjustTimeStep yes;\nmaxCo 0.5;\nmaxAlphaCo 0.5;\nmaxDeltaT 0.002;\n"
         "functions { gauges { type probes; libs (\"libsampling.so\"); writeControl timeStep; writeInterval 1;\n"
-        f"fields (alpha.water); probeLocations (\n{locations}\n); }} }}\n"
+        f"fields (alpha.water); probeLocations (\n{locations}\n); }}\n"
+        + "".join(
+            f"{zone} {{ type volFieldValue; libs (\"libfieldFunctionObjects.so\"); writeControl timeStep; "
+            f"writeInterval 1; log false; writeFields false; regionType cellZone; name {zone}; "
+            "operation volIntegrate; fields (alpha.water); }\n"
+            for zone in ZONES
+        )
+        + "}\n"
     )
 
 
@@ -189,12 +230,6 @@ FIELD = (
     HEADER
     + "dimensions {dim};\ninternalField uniform {value};\n"
     + "boundaryField {{ walls {{ type {walls} }} atmosphere {{ type {atmosphere} }} }}\n"
-)
-TRANSPORT = HEADER.format(cls="dictionary", obj="transportProperties") + (
-    "phases (water air);\n"
-    "water { transportModel Newtonian; nu 1e-06; rho 1000; }\n"
-    "air { transportModel Newtonian; nu 1.48e-05; rho 1; }\n"
-    "sigma 0.07;\n"
 )
 FV_SCHEMES = HEADER.format(cls="dictionary", obj="fvSchemes") + (
     "ddtSchemes { default Euler; }\ngradSchemes { default Gauss linear; }\n"
@@ -230,6 +265,16 @@ def read_probes(case: Path, layers: int) -> tuple[np.ndarray, np.ndarray]:
     return np.array(t), np.array(rows)
 
 
+def zone_water(case: Path) -> dict:
+    """Each zone's water (litres) against time, every step, from OpenFOAM's volFieldValue files."""
+    out = {}
+    for z in ZONES:
+        rows = [ln.split() for ln in (case / "postProcessing" / z / "0" / "volFieldValue.dat").read_text().splitlines()]
+        data = np.array([[float(v) for v in r] for r in rows if r and not r[0].startswith("#")])
+        out[z] = {"t": data[:, 0].round(5).tolist(), "litres": (data[:, 1] * 1000).round(3).tolist()}
+    return out
+
+
 def gauge(case: Path, layers: int) -> tuple[np.ndarray, np.ndarray]:
     """Time and each gauge's height (H1-H4, then ``validate.LEE``) by mrsph's rule."""
     t, alpha = read_probes(case, layers)
@@ -252,12 +297,13 @@ def foam(case: Path, log: str, *cmd: str) -> None:
         fail(f"{' '.join(cmd)} failed in {case} (exit {done.returncode}): {' '.join(tail)}")
 
 
-def run(layers: int, ranks: int, work: Path) -> dict:
+def run(layers: int, ranks: int, work: Path, nu: float = 1e-6, slip: bool = False) -> dict:
     if work.exists():
         shutil.rmtree(work)
-    write_case(work, layers, ranks)
+    write_case(work, layers, ranks, nu, slip)
     wall = time.perf_counter()
     foam(work, "blockMesh", "blockMesh")
+    foam(work, "topoSet", "topoSet")
     foam(work, "setFields", "setFields")
     if ranks > 1:
         foam(work, "decomposePar", "decomposePar")
@@ -275,12 +321,15 @@ def run(layers: int, ranks: int, work: Path) -> dict:
         "commit": V._commit(),
         "layers": layers,
         "cell": P.DEPTH / layers,
+        "viscosity": nu,
+        "walls": "slip" if slip else "no slip",
         "cells": int(cells.group(1)) if cells else None,
         "ranks": ranks,
         "wall_s": round(time.perf_counter() - wall, 1),
         "t": t.round(5).tolist(),
         "level": levels[:, :4].T.round(5).tolist(),
         "h3_mean": float(levels[window, 2].mean()),
+        "water": zone_water(work),
         "lee": [{"at": at, "arrival": V.first_crossing(t, levels[:, 4 + k], V.WET)} for k, at in enumerate(V.LEE)],
         "probes": [
             {
@@ -295,8 +344,8 @@ def run(layers: int, ranks: int, work: Path) -> dict:
     }
 
 
-def name(layers: int) -> str:
-    return f"box-openfoam-{layers}"
+def name(layers: int, nu: float = 1e-6, slip: bool = False) -> str:
+    return f"box-openfoam-{layers}" + (f"-nu{nu:g}" if nu != 1e-6 else "") + ("-slip" if slip else "")
 
 
 def fail(message: str) -> None:
@@ -308,19 +357,23 @@ def fail(message: str) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--layers", type=int, default=27, help="cells over the water's depth (27: mrsph's spacing)")
+    ap.add_argument("--viscosity", type=float, default=1e-6, help="the water's kinematic viscosity, m²/s (water's)")
+    ap.add_argument("--slip", action="store_true", help="free-slip walls, as SPH's mirror images (else no slip)")
     ap.add_argument("--ranks", type=int, default=2, help="MPI ranks (1: no MPI)")
     ap.add_argument("--work", type=Path, default=None, help="scratch folder for the case")
     args = ap.parse_args()
     if args.layers < MIN_LAYERS:
         fail(f"--layers {args.layers}: expected at least {MIN_LAYERS} (the box is 161 mm high, the water 550 mm deep)")
+    if not args.viscosity > 0:
+        fail(f"--viscosity {args.viscosity:g}: expected a kinematic viscosity > 0 (m²/s)")
     if args.ranks < 1:
         fail(f"--ranks {args.ranks}: expected at least 1")
     if shutil.which("interFoam") is None:
         fail("OpenFOAM's interFoam is not on PATH: apt-get install -y openfoam (see this tool's docstring)")
     work = args.work or Path(tempfile.gettempdir()) / f"peer_vof_{args.layers}"
-    out = run(args.layers, args.ranks, work)
+    out = run(args.layers, args.ranks, work, args.viscosity, args.slip)
     P.OUT.mkdir(parents=True, exist_ok=True)
-    (P.OUT / f"{name(args.layers)}.json").write_text(json.dumps(out))
+    (P.OUT / f"{name(args.layers, args.viscosity, args.slip)}.json").write_text(json.dumps(out))
     for p in out["probes"]:
         print(f"{p['name']}: 2 cm at {p['arrival']:.3f} s (data {p['arrival_exp']:.3f}), ", end="")
         print(f"6 cm at {p['body']:.3f} s (data {p['body_exp']:.3f})")
