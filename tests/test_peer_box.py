@@ -90,7 +90,19 @@ def test_a_row_reads_when_each_probe_stands_2_and_6_cm():
     t = np.arange(0, 1.3, 0.002)
     levels = [np.clip((t - t0) * 1.0, 0, None) for t0 in (1.0, 0.4, 0.25)]
     row = P.row("made up", t, levels)
-    assert row.startswith("| made up | 1.020 / 1.060 s | 0.420 / 0.460 s | 0.270 / 0.310 s |")
+    assert row.startswith("| made up | 1.020 / 1.060 s | 1.020 / 1.060 s | 0.420 / 0.460 s | 0.270 / 0.310 s |")
+
+
+def test_a_level_held_is_the_water_s_not_a_splash_passing():
+    """A spike to 10 cm at 0.9 s for 20 ms, then water rising from 1.0 s: the first crossing reads
+    the spike, the held one the water; a level reached in the last 30 ms is not held."""
+    t = np.arange(0, 1.3, 0.002)
+    f = np.clip(t - 1.0, 0, None) + np.where((t >= 0.9) & (t < 0.92), 0.1, 0.0)
+    assert V.first_crossing(t, f, 0.02) < 0.91
+    assert P.held_crossing(t, f, 0.02) == pytest.approx(1.02)
+    assert P.held_crossing(t, f, 0.06) == pytest.approx(1.06)
+    assert P.held_crossing(t, f, 0.29) is None  # reached at 1.29 s, 10 ms before the record ends
+    assert P.held_crossing(t, f, 0.02, hold=0.01) == pytest.approx(0.9)
 
 
 @pytest.mark.parametrize(
