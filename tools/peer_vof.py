@@ -6,18 +6,23 @@ puts the water at H1, behind the box, where the data does.
 OpenFOAM is no dependency of mrsph; Debian packages it (v1912):
 
     apt-get install -y openfoam
-    python3 tools/peer_vof.py --layers 27     # cells 0.55 m / 27 = mrsph's spacing; 2 MPI ranks
+    python3 tools/peer_vof.py --layers 27     # cells 0.55 m / 27 = mrsph's spacing: 27 min on 2 MPI ranks
+    python3 tools/peer_vof.py --layers 20 --slip   # 5 min; free-slip walls, as SPH's mirror images
     python3 tools/peer_box.py --report        # the table and figure, beside SPlisHSPlasH and mrsph
 
 The set-up is mrsph's scene (scenes/dam_break_box_3d.toml), its tank, box and reservoir read from
 its file, on a mesh of cubes about ``0.55 / layers`` m whose block edges lie on the box's faces,
 the gate and the water's surface, so that the box and the reservoir are exact:
 - water (1000 kg/m³, 1e-6 m²/s) and air (1 kg/m³, 1.48e-5 m²/s), surface tension 0.07 N/m,
-  laminar (no model of turbulence), no slip at every wall, the tank's top open to the air;
+  laminar (no model of turbulence), no slip at every wall (``--slip``: free slip), the tank's top
+  open to the air; ``--viscosity`` sets the water's;
 - the reservoir released at t = 0 from rest, as mrsph's;
 - the height at a probe as mrsph's gauge reads it (``validate.water_level``): from the floor up,
   the first height where the water's fraction falls below 1/2, here interpolated between cell
-  centres and averaged over the two columns either side of the centre line (it is a face).
+  centres, in the gauge's cell's column (averaged over the two either side where the gauge lies on
+  a cell face, as the centre line may);
+- the water above the box and in its shadow, as tools/box_overtop.py counts mrsph's.
+The run's heights and those volumes go to docs/validation/peer/box-openfoam-*.json.
 """
 
 from __future__ import annotations
@@ -133,6 +138,7 @@ def level(alpha: np.ndarray, y: np.ndarray) -> float:
 
 
 def write_case(case: Path, layers: int, ranks: int, nu: float = 1e-6, slip: bool = False) -> None:
+    """Every file of the case: the mesh, the water, the fields' boundaries, the solver's settings."""
     files = {
         "system/blockMeshDict": block_mesh(layers),
         "system/controlDict": controldict(layers),
@@ -207,6 +213,8 @@ def topo_set() -> str:
 
 
 def controldict(layers: int) -> str:
+    """controlDict: the run to ``END_S`` at a Courant number of 0.5, the gauges' columns sampled
+    every step and each zone's water integrated every step."""
     pts, _ = probe_columns(layers)
     locations = "\n".join(f"({x:.6g} {y:.6g} {z:.6g})" for x, y, z in pts)
     return HEADER.format(cls="dictionary", obj="controlDict") + (
@@ -251,7 +259,7 @@ FV_SOLUTION = HEADER.format(cls="dictionary", obj="fvSolution") + (
 )
 
 
-def read_probes(case: Path, layers: int) -> tuple[np.ndarray, np.ndarray]:
+def read_probes(case: Path) -> tuple[np.ndarray, np.ndarray]:
     """The probes' water fractions (every time step, every sampled point), from OpenFOAM's file."""
     files = sorted((case / "postProcessing" / "gauges").glob("*/alpha.water"), key=lambda p: float(p.parent.name))
     t, rows = [], []
@@ -277,7 +285,7 @@ def zone_water(case: Path) -> dict:
 
 def gauge(case: Path, layers: int) -> tuple[np.ndarray, np.ndarray]:
     """Time and each gauge's height (H1-H4, then ``validate.LEE``) by mrsph's rule."""
-    t, alpha = read_probes(case, layers)
+    t, alpha = read_probes(case)
     _, y = probe_columns(layers)
     n = len(y)
     gauges = alpha.shape[1] // (2 * n)
@@ -300,6 +308,7 @@ def foam(case: Path, log: str, *cmd: str) -> None:
 def run(layers: int, ranks: int, work: Path, nu: float = 1e-6, slip: bool = False) -> dict:
     if work.exists():
         shutil.rmtree(work)
+    commit = V._commit()  # the code this run loads, read now: HEAD may move while it runs
     write_case(work, layers, ranks, nu, slip)
     wall = time.perf_counter()
     foam(work, "blockMesh", "blockMesh")
@@ -318,7 +327,7 @@ def run(layers: int, ranks: int, work: Path, nu: float = 1e-6, slip: bool = Fals
     return {
         "code": f"OpenFOAM {version.stdout.strip() or '?'} interFoam (VOF, water and air)",
         "date": datetime.date.today().isoformat(),
-        "commit": V._commit(),
+        "commit": commit,
         "layers": layers,
         "cell": P.DEPTH / layers,
         "viscosity": nu,
