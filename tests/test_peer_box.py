@@ -119,3 +119,21 @@ def test_a_bad_argument_or_no_splishsplash_is_one_line(args, line):
     proc = subprocess.run([sys.executable, "tools/peer_box.py", *args], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2, proc.stderr
     assert [ln for ln in proc.stderr.splitlines() if ln.strip()] == [line]
+
+
+def test_a_peer_run_stores_its_arrivals_beside_the_data_s():
+    """Both peers store what ``measured`` reads: H1-H3 reached at 2 and 6 cm, each lee point at 2 cm,
+    H3's mean over its window, and the data's arrivals from the shipped CSV."""
+    t = np.arange(0, 1.3, 0.002)
+    levels = np.stack([np.clip(t - t0, 0, None) for t0 in (1.0, 0.4, 0.25)], axis=1)
+    lee = np.stack([np.clip(t - 0.5 - 0.1 * k, 0, None) for k in range(len(V.LEE))], axis=1)
+    out = P.measured(t, levels, lee)
+    assert [(p["name"], round(p["arrival"], 3), round(p["body"], 3)) for p in out["probes"]] == [
+        ("H1", 1.02, 1.06),
+        ("H2", 0.42, 0.46),
+        ("H3", 0.27, 0.31),
+    ]
+    assert [round(p["arrival_exp"], 3) for p in out["probes"]] == [0.92, 0.367, 0.218]
+    assert [round(entry["arrival"], 3) for entry in out["lee"]] == [round(0.52 + 0.1 * k, 3) for k in range(len(V.LEE))]
+    assert out["h3_mean"] == pytest.approx(np.mean(t[(t >= 0.3) & (t <= 0.7)] - 0.25))
+    assert np.array(out["level"]).shape == (3, len(t))

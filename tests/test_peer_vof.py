@@ -71,15 +71,15 @@ def test_the_top_is_open_and_its_faces_point_out():
 def test_the_gauge_reads_from_the_floor_up_to_where_the_fraction_falls_below_a_half():
     y = (np.arange(20) + 0.5) * 0.05  # cells 5 cm high
     wet = np.where(y < 0.3, 1.0, 0.0)
-    assert F.level(wet, y) == pytest.approx(0.3)  # the crossing between centres 0.275 and 0.325
-    assert F.level(np.where(y > 0.5, 1.0, 0.0), y) == 0.0  # spray over a dry floor
+    assert V.surface_height(y, wet) == pytest.approx(0.3)  # the crossing between centres 0.275 and 0.325
+    assert V.surface_height(y, np.where(y > 0.5, 1.0, 0.0)) == 0.0  # spray over a dry floor
     spray = wet.copy()
     spray[15] = 1.0
-    assert F.level(spray, y) == pytest.approx(0.3)  # spray above the water does not count
-    assert F.level(np.ones(20), y) == pytest.approx(y[-1])
+    assert V.surface_height(y, spray) == pytest.approx(0.3)  # spray above the water does not count
+    assert V.surface_height(y, np.ones(20)) == pytest.approx(y[-1])
     half = wet.copy()
     half[6] = 0.75  # the cell 0.30-0.35 m three quarters full: the half crossed a quarter of the way up
-    assert F.level(half, y) == pytest.approx(0.325 + 0.25 / 0.75 * 0.05)
+    assert V.surface_height(y, half) == pytest.approx(0.325 + 0.25 / 0.75 * 0.05)
 
 
 def test_the_probes_file_becomes_each_gauge_s_height(tmp_path):

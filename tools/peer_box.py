@@ -224,9 +224,6 @@ def run(layers: int, viscosity: float, work: Path) -> dict:
 
     (work / "release.json").write_text(json.dumps(scene(s, viscosity, gate=False), indent=1))
     simulate(sph, work / "release.json", END_S, start=settled, sample=gauge)
-    t, levels, lee = np.array(t), np.array(levels), np.array(lee)
-    exp = V.read_csv(V.DATA / "kleefsman_2005_heights.csv")
-    window = (t >= V.H3_WINDOW[0]) & (t <= V.H3_WINDOW[1])
     return {
         "code": f"SPlisHSPlasH {importlib.metadata.version('pysplishsplash')} DFSPH, volume maps",
         "date": datetime.date.today().isoformat(),
@@ -238,6 +235,17 @@ def run(layers: int, viscosity: float, work: Path) -> dict:
         "mrsph_particles": lattice(s)[2],
         "settle_vmax": settle_vmax,
         "wall_s": round(time.perf_counter() - wall, 1),
+        **measured(np.array(t), np.array(levels), np.array(lee)),
+    }
+
+
+def measured(t: np.ndarray, levels: np.ndarray, lee: np.ndarray) -> dict:
+    """What a peer run stores of its gauges (``levels``: H1-H3 and more by column, ``lee``:
+    ``validate.LEE``'s, against ``t``): the heights, H3's mean over its window, when each lee
+    point is reached and when H1-H3 stand 2 and 6 cm, beside the data's."""
+    exp = V.read_csv(V.DATA / "kleefsman_2005_heights.csv")
+    window = (t >= V.H3_WINDOW[0]) & (t <= V.H3_WINDOW[1])
+    return {
         "t": t.round(5).tolist(),
         "level": levels.T.round(5).tolist(),
         "h3_mean": float(levels[window, 2].mean()),
@@ -253,6 +261,14 @@ def run(layers: int, viscosity: float, work: Path) -> dict:
             for k, name in enumerate(("H1", "H2", "H3"))
         ],
     }
+
+
+def summary(out: dict, cost: str) -> None:
+    """A stored run in four lines: H1-H3's arrivals against the data's, H3's mean and ``cost``."""
+    for p in out["probes"]:
+        print(f"{p['name']}: 2 cm at {p['arrival']:.3f} s (data {p['arrival_exp']:.3f}), ", end="")
+        print(f"6 cm at {p['body']:.3f} s (data {p['body_exp']:.3f})")
+    print(f"H3 mean over 0.3-0.7 s: {out['h3_mean']:.3f} m; {cost}")
 
 
 def name(layers: int, viscosity: float) -> str:
@@ -356,7 +372,7 @@ def report() -> None:
 
 
 def fail(message: str) -> None:
-    """A bad argument or a missing SPlisHSPlasH: one line, exit status 2."""
+    """A bad argument, a missing peer code or its failed run: one line, exit status 2."""
     print(message, file=sys.stderr)
     sys.exit(2)
 
@@ -392,10 +408,7 @@ def main() -> None:
     out = run(args.layers, args.viscosity, work)
     OUT.mkdir(parents=True, exist_ok=True)
     (OUT / f"{name(args.layers, args.viscosity)}.json").write_text(json.dumps(out))
-    for p in out["probes"]:
-        print(f"{p['name']}: 2 cm at {p['arrival']:.3f} s (data {p['arrival_exp']:.3f}), ", end="")
-        print(f"6 cm at {p['body']:.3f} s (data {p['body_exp']:.3f})")
-    print(f"H3 mean over 0.3-0.7 s: {out['h3_mean']:.3f} m; {out['wall_s']} s")
+    summary(out, f"{out['wall_s']} s")
 
 
 if __name__ == "__main__":

@@ -125,18 +125,6 @@ def probe_columns(layers: int) -> tuple[list, np.ndarray]:
     return pts, y
 
 
-def level(alpha: np.ndarray, y: np.ndarray) -> float:
-    """The gauge rule on one column of the water's fraction at cell centres ``y``: from the floor
-    up, the first height where it falls below 1/2 (the floor mirrors the lowest cell)."""
-    dry = np.flatnonzero(alpha < 0.5)
-    if not len(dry):
-        return float(y[-1])
-    k = int(dry[0])
-    if k == 0:
-        return 0.0
-    return float(y[k - 1] + (alpha[k - 1] - 0.5) / (alpha[k - 1] - alpha[k]) * (y[k] - y[k - 1]))
-
-
 def write_case(case: Path, layers: int, ranks: int, nu: float = 1e-6, slip: bool = False) -> None:
     """Every file of the case: the mesh, the water, the fields' boundaries, the solver's settings."""
     files = {
@@ -292,7 +280,7 @@ def gauge(case: Path, layers: int) -> tuple[np.ndarray, np.ndarray]:
     out = np.zeros((len(t), gauges))
     for g in range(gauges):
         cols = alpha[:, 2 * g * n : 2 * (g + 1) * n].reshape(len(t), 2, n).mean(axis=1)
-        out[:, g] = [level(c, y) for c in cols]
+        out[:, g] = [V.surface_height(y, c) for c in cols]  # below the lowest centre, the lowest cell's
     return t, out
 
 
@@ -302,7 +290,7 @@ def foam(case: Path, log: str, *cmd: str) -> None:
         done = subprocess.run(cmd, cwd=case, stdout=f, stderr=subprocess.STDOUT, env={**FOAM_ENV, **os.environ})
     if done.returncode:
         tail = (case / f"log.{log}").read_text().strip().splitlines()[-3:]
-        fail(f"{' '.join(cmd)} failed in {case} (exit {done.returncode}): {' '.join(tail)}")
+        P.fail(f"{' '.join(cmd)} failed in {case} (exit {done.returncode}): {' '.join(tail)}")
 
 
 def run(layers: int, ranks: int, work: Path, nu: float = 1e-6, slip: bool = False) -> dict:
@@ -321,8 +309,6 @@ def run(layers: int, ranks: int, work: Path, nu: float = 1e-6, slip: bool = Fals
         foam(work, "interFoam", "interFoam")
     cells = re.search(r"nCells:\s*(\d+)", (work / "log.blockMesh").read_text())
     t, levels = gauge(work, layers)
-    exp = V.read_csv(V.DATA / "kleefsman_2005_heights.csv")
-    window = (t >= V.H3_WINDOW[0]) & (t <= V.H3_WINDOW[1])
     version = subprocess.run(["dpkg-query", "-W", "-f=${Version}", "openfoam"], capture_output=True, text=True)
     return {
         "code": f"OpenFOAM {version.stdout.strip() or '?'} interFoam (VOF, water and air)",
@@ -335,32 +321,13 @@ def run(layers: int, ranks: int, work: Path, nu: float = 1e-6, slip: bool = Fals
         "cells": int(cells.group(1)) if cells else None,
         "ranks": ranks,
         "wall_s": round(time.perf_counter() - wall, 1),
-        "t": t.round(5).tolist(),
-        "level": levels[:, :4].T.round(5).tolist(),
-        "h3_mean": float(levels[window, 2].mean()),
         "water": zone_water(work),
-        "lee": [{"at": at, "arrival": V.first_crossing(t, levels[:, 4 + k], V.WET)} for k, at in enumerate(V.LEE)],
-        "probes": [
-            {
-                "name": name,
-                "arrival": V.first_crossing(t, levels[:, k], V.WET),
-                "body": V.first_crossing(t, levels[:, k], V.BODY),
-                "arrival_exp": V.first_crossing(exp["t"], exp[name], V.WET),
-                "body_exp": V.first_crossing(exp["t"], exp[name], V.BODY),
-            }
-            for k, name in enumerate(("H1", "H2", "H3"))
-        ],
+        **P.measured(t, levels[:, :4], levels[:, 4:]),
     }
 
 
 def name(layers: int, nu: float = 1e-6, slip: bool = False) -> str:
     return f"box-openfoam-{layers}" + (f"-nu{nu:g}" if nu != 1e-6 else "") + ("-slip" if slip else "")
-
-
-def fail(message: str) -> None:
-    """A bad argument, no OpenFOAM or a failed run: one line, exit status 2."""
-    print(message, file=sys.stderr)
-    sys.exit(2)
 
 
 def main() -> None:
@@ -372,21 +339,20 @@ def main() -> None:
     ap.add_argument("--work", type=Path, default=None, help="scratch folder for the case")
     args = ap.parse_args()
     if args.layers < MIN_LAYERS:
-        fail(f"--layers {args.layers}: expected at least {MIN_LAYERS} (the box is 161 mm high, the water 550 mm deep)")
+        P.fail(
+            f"--layers {args.layers}: expected at least {MIN_LAYERS} (the box is 161 mm high, the water 550 mm deep)"
+        )
     if not args.viscosity > 0:
-        fail(f"--viscosity {args.viscosity:g}: expected a kinematic viscosity > 0 (m²/s)")
+        P.fail(f"--viscosity {args.viscosity:g}: expected a kinematic viscosity > 0 (m²/s)")
     if args.ranks < 1:
-        fail(f"--ranks {args.ranks}: expected at least 1")
+        P.fail(f"--ranks {args.ranks}: expected at least 1")
     if shutil.which("interFoam") is None:
-        fail("OpenFOAM's interFoam is not on PATH: apt-get install -y openfoam (see this tool's docstring)")
+        P.fail("OpenFOAM's interFoam is not on PATH: apt-get install -y openfoam (see this tool's docstring)")
     work = args.work or Path(tempfile.gettempdir()) / f"peer_vof_{args.layers}"
     out = run(args.layers, args.ranks, work, args.viscosity, args.slip)
     P.OUT.mkdir(parents=True, exist_ok=True)
     (P.OUT / f"{name(args.layers, args.viscosity, args.slip)}.json").write_text(json.dumps(out))
-    for p in out["probes"]:
-        print(f"{p['name']}: 2 cm at {p['arrival']:.3f} s (data {p['arrival_exp']:.3f}), ", end="")
-        print(f"6 cm at {p['body']:.3f} s (data {p['body_exp']:.3f})")
-    print(f"H3 mean over 0.3-0.7 s: {out['h3_mean']:.3f} m; {out['cells']} cells, {out['wall_s']} s")
+    P.summary(out, f"{out['cells']} cells, {out['wall_s']} s")
 
 
 if __name__ == "__main__":

@@ -135,14 +135,20 @@ def water_level(x: np.ndarray, vol: np.ndarray, h: np.ndarray, at: tuple, top: f
     for k, c in zip(horizontal, at):
         pts[:, k] = c
     pts[:, 1] = ys
-    vf = volume_fraction(pts, xs, vs, hs)
+    return surface_height(ys, volume_fraction(pts, xs, vs, hs))
+
+
+def surface_height(ys: np.ndarray, vf: np.ndarray) -> float:
+    """The gauge's rule on the water's fraction ``vf`` at heights ``ys`` (rising from the floor):
+    the first height where it falls below 1/2, interpolated between samples; 0 where the lowest
+    is dry, the top where none is. Spray above the first dry sample does not count."""
     dry = np.flatnonzero(vf < 0.5)
     if not len(dry):
         return float(ys[-1])
     k = int(dry[0])
     if k == 0:
         return 0.0
-    return float(ys[k - 1] + (vf[k - 1] - 0.5) / (vf[k - 1] - vf[k]) * step)  # where it crosses 1/2
+    return float(ys[k - 1] + (vf[k - 1] - 0.5) / (vf[k - 1] - vf[k]) * (ys[k] - ys[k - 1]))
 
 
 def front_position(x: np.ndarray, s: np.ndarray) -> float:
