@@ -22,6 +22,7 @@ import taichi as ti
 
 from . import pressure as pressure_solvers
 from . import runtime
+from . import state as saved_state
 from .io.snapshot import Snapshot
 from .multires import Multires, SplitFade, make_coupling
 from .report import StatsReport
@@ -37,7 +38,7 @@ from .sph.grid import CELLS_PER_SUPPORT, LevelGrids, PoolSort
 from .sph.integrator import Integrator, SimulationError
 from .sph.levels import Levels
 from .sph.neighbours import Neighbours
-from .sph.particles import ATTRIBUTES, DEAD, VIRTUAL_CHILD, ParticlePool
+from .sph.particles import DEAD, VIRTUAL_CHILD, ParticlePool
 from .sph.step import Pass, Stepper, StepState
 
 __all__ = ["Simulation", "SimulationError"]
@@ -392,41 +393,12 @@ class Simulation:
         into a Simulation of the same scene, here or in another Taichi program; the scene's
         parameters, live-tuned ones included, and the mouse's disturbance are not part of
         it. ``bench`` uses it to time an adaptive run and its uniform twin turn about
-        from the same warm state."""
-        p = self.pool.p
-        return {
-            "attributes": {a.name: getattr(p, a.name).to_numpy() for a in ATTRIBUTES},
-            "children": self.pool.children.to_numpy(),
-            "n": self.pool.count(),
-            "refused": int(self.pool.refused[None]),
-            "clock": (self.time, self.frame, self.steps, self.dt, self.integrator.chosen_dt()),
-            "emitters": list(self.emitters.progress),
-            "capacity": self.capacity,
-            "dim": self.dim,
-        }
+        from the same warm state (``state.py``)."""
+        return saved_state.save(self)
 
     def restore_state(self, state: dict) -> None:
         """Put back a :meth:`save_state` of a Simulation of the same scene."""
-        if (state["dim"], state["capacity"]) != (self.dim, self.capacity):
-            raise ValueError(
-                f"restore_state: a {state['dim']}D state of capacity {state['capacity']} "
-                f"does not fit this {self.dim}D pool of capacity {self.capacity}"
-            )
-        for name, values in state["attributes"].items():
-            getattr(self.pool.p, name).from_numpy(values)
-        self.pool.children.from_numpy(state["children"])
-        self.pool.n[None] = state["n"]
-        self.pool.refused[None] = state["refused"]
-        self.time, self.frame, self.steps, self.dt, chosen_dt = state["clock"]
-        self.report.restored(state["refused"], self.steps)
-        self.grids.take_rebuilds()
-        self.state.set_dt(self.dt)
-        self.integrator.set_chosen_dt(chosen_dt)
-        self.emitters.progress = list(state["emitters"])
-        self.grids.invalidate()  # the pool's slots are not those the lists were built for
-        self.pressure.forget_step()
-        self.coupling.reset()
-        self._stirrers(self.time)
+        saved_state.restore(self, state)
 
     # ================================================================== interaction
     def set_disturbance(self, d: Disturbance | None) -> None:
