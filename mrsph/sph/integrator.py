@@ -19,15 +19,12 @@ speed past ``physics.max_speed``) or dt is below ``physics.dt_min``: the host re
 
 import math
 
-import numpy as np
 import taichi as ti
 
+from . import refusal
 from .particles import is_real, is_virtual
+from .refusal import ACCEL_OVERFLOW
 from .step import Pass
-
-# An acceleration this large (m/s²) is a blow-up: a step refuses it as it refuses NaN.
-# (In f32, |a| overflows already from 1.8e19 m/s², as its square passes the float range.)
-ACCEL_OVERFLOW = 1e30
 
 REDUCTION_BLOCKS = 256  # blocks of the time-step reduction (see ``accelerations``)
 
@@ -374,75 +371,22 @@ class Integrator:
         _, viscous_dt = self.bounds()
         stable_dt, force_lim, bad, first_bad, own_lim = self.step_report.to_numpy().tolist()
         if bad > 0:
-            self.report_bad(int(first_bad), int(bad), where)
-        mu = self.viscosity()
+            x, v, a = self.bad_xua.to_numpy()
+            level, kind = self.bad_lk.to_numpy().tolist()
+            raise SimulationError(
+                f"{where}: {refusal.bad_particles(ph, int(first_bad), int(bad), x, v, a, level, kind)}"
+            )
         if not stable_dt >= ph.dt_min:  # as the kernel decided (NaN included)
             if viscous_dt < ph.dt_min:
                 raise SimulationError(
                     f"{where}: the viscous time-step bound "
                     f"{viscous_dt:.3g} s is below physics.dt_min = {ph.dt_min:g} s: "
-                    f"fluid.viscosity = {mu:g} Pa s is too high for this resolution"
+                    f"fluid.viscosity = {self.viscosity():g} Pa s is too high for this resolution"
                 )
+            cause = refusal.dt_cause(
+                ph, self.pressure, self.disturbances.max_strength(), self.lev, stable_dt, force_lim, own_lim
+            )
             raise SimulationError(
-                f"{where}: time step {stable_dt:.3g} s is below "
-                f"physics.dt_min = {ph.dt_min:g} s: {self.dt_cause(stable_dt, force_lim, own_lim)}"
+                f"{where}: time step {stable_dt:.3g} s is below physics.dt_min = {ph.dt_min:g} s: {cause}"
             )
         raise AssertionError("a step that did not go left no reason in step_report")
-
-    def dt_cause(self, dt: float, force_lim: float, own_lim: float = 0.0) -> str:
-        """Which bound made ``dt``: the disturbance cap, read from the disturbances, or one
-        of the reduced rates: the force rate |a|/h is reported, and the CFL rate of the
-        solver's bound (``TimeStepBound``, its λ, length and signal speed) is λ / dt.
-        Which level the fastest particle is at is not reported, so a speed is given as at
-        the finest one."""
-        ph, bound = self.physics, self.pressure.bound()
-        c = bound.signal_speed
-        strength = self.disturbances.max_strength()
-        if strength > 0 and dt >= 0.999 * 0.5 / strength:
-            return (
-                f"the disturbance bound 0.5/strength sets it (strength {strength:.3g} 1/s, "
-                "the mouse's or a stirrer's): lower that strength or physics.dt_min"
-            )
-        force_dt = ph.force_factor / math.sqrt(force_lim) if force_lim > 0 else math.inf
-        if dt >= 0.999 * force_dt:
-            return (
-                f"the force bound sets it (largest |a|/h = {force_lim:.3g} 1/s^2): the fluid "
-                f"is blowing up; lower the disturbance strength or {bound.key}"
-            )
-        if own_lim > 0 and dt >= 0.999 / own_lim:
-            return f"{self.pressure.step_rate_says(own_lim)}: the fluid is blowing up; lower physics.dt_min"
-        if bound.number == 0.0:  # no CFL bound: the solver's own step
-            return f"{bound.says} sets it; lower physics.dt_min"
-        rate = bound.number / dt
-        speed = bound.speed_at(dt, self.lev.h0, self.lev.s0)  # |u| if the fastest is at level 0
-        if c > 0 and speed <= 0.01 * c:
-            return (
-                f"{bound.says} sets it ({bound.key} {bound.length} / c, h0 = {self.lev.h0:.3g} m); "
-                "lower fluid.stiffness or physics.dt_min"
-            )
-        form = f"(c + |u|)/{bound.length}" if c > 0 else f"|u|/{bound.length}"
-        return (
-            f"the CFL bound sets it ({bound.key}: {form} = {rate:.3g} 1/s with c = {c:.3g} m/s: a "
-            f"particle at about {speed:.3g} m/s if at the finest level): the fluid is blowing up; "
-            f"lower the disturbance strength or {bound.key}"
-        )
-
-    def report_bad(self, i: int, count: int, where: str):
-        """The ``SimulationError`` for ``count`` bad particles, the first (slot ``i`` when
-        the time-step pass found it) as that pass read it (``bad_xua``, ``bad_lk``)."""
-        x, v, a = self.bad_xua.to_numpy()
-        level, kind = self.bad_lk.to_numpy().tolist()
-        limit = self.physics.max_speed
-        speed = np.linalg.norm(v)
-        if not (np.isfinite(v).all() and np.isfinite(a).all()):
-            what = "NaN/Inf velocity or acceleration"
-        elif speed > limit:
-            what = f"speed {speed:.4g} m/s above physics.max_speed = {limit:g} m/s"
-        else:  # |a| >= ACCEL_OVERFLOW, or |a|² past the float's range (f32: |a| > 1.8e19)
-            what = f"acceleration {np.linalg.norm(a):.4g} m/s^2, past what the step can take"
-        raise SimulationError(
-            f"{where}: {count} particle(s) with NaN/Inf velocity "
-            f"or acceleration, an acceleration of {ACCEL_OVERFLOW:g} m/s^2 or more, or a speed "
-            f"above physics.max_speed; first: particle {i}, "
-            f"level {level}, kind {kind}, x = {np.round(x, 4).tolist()}: {what}"
-        )
