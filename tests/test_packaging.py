@@ -19,7 +19,7 @@ LAYERS = [
     ("multires",),
     ("scene",),
     ("io",),
-    ("simulation", "report"),
+    ("simulation", "report", "state"),
     ("app",),
     ("cli",),
 ]
