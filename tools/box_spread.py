@@ -115,13 +115,10 @@ def table(got: dict) -> str:
 def figure(got: dict, stamp: str, path: Path) -> Path:
     """Each member's H1 arrival (2 cm, 6 cm) by solver and mode, the data's and its ± 0.05 s;
     ``stamp`` at its foot."""
-    import matplotlib
+    import validate_report as R  # the solvers' colours and the plotting back end of every validation figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    exp = V.read_csv(V.DATA / "kleefsman_2005_heights.csv")
-    colours = {"wcsph": "C0", "dfsph": "C3", "pbf": "C2"}
+    plt = R._plt()
+    exp = R.marin()
     keys = ordered(got)
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.6), sharey=False)
     for ax, (col, level) in zip(axes, ((0, V.WET), (1, V.BODY))):
@@ -132,7 +129,7 @@ def figure(got: dict, stamp: str, path: Path) -> Path:
             ys = got[key][:, col]
             marker = "o" if key[1] == "uniform" else "s"
             ax.plot(
-                np.full(len(ys), x), ys, marker, color=colours[key[0]], mfc="none" if key[1] == "adaptive" else None
+                np.full(len(ys), x), ys, marker, color=R.COLOURS[key[0]], mfc="none" if key[1] == "adaptive" else None
             )
         ax.set_xticks(range(len(keys)), [f"{s}\n{m}" for s, m in keys], fontsize=8)
         ax.set_ylabel(f"H1 first at {level * 100:.0f} cm (s)")
