@@ -66,3 +66,25 @@ def test_bad_members_get_one_line(count):
         text=True,
     )
     assert out.returncode == 2 and out.stderr.strip().count("\n") == 0 and f"--members {count}" in out.stderr
+
+
+def test_the_validation_table_reads_the_adaptive_offset_over_the_members():
+    """validate.py's table gives an adaptive box run's arrival off uniform over the cached
+    members, each probe from its own column; with fewer than two members, the one pair's."""
+    R = load_tool("validate_report")
+    runs = dict(
+        [_run("wcsph", "uniform", k, h) for k, h in enumerate((1.00, 1.02, 1.04))]
+        + [_run("wcsph", "adaptive", k, h) for k, h in enumerate((1.05, 1.07, 1.09))]
+    )
+    for r in runs.values():
+        r.update(spacing=round(V.scene_spacing("box", 3), 5), probes=[{"arrival": 0.5}] * 3)
+    keys = {m: V.run_key(**V._key_args(B.jobs(["wcsph"], [m], 1)[0])) for m in ("uniform", "adaptive")}
+    ada, uni = runs[keys["adaptive"]], runs[keys["uniform"]]
+    gap, two_se, over = R._arrival_gap(runs, ada, uni, 0)
+    assert gap == pytest.approx(0.05, abs=0.002) and two_se > 0.01 and over == "3 runs each"
+    assert R._arrival_gap(runs, ada, uni, 1)[0] == pytest.approx(0.0, abs=0.002)  # H2, not H1's body
+    for key in [k for k in runs if "adaptive" in k and k != keys["adaptive"]]:
+        del runs[key]
+    ada["probes"] = [{"arrival": 0.61}] * 3
+    gap, two_se, over = R._arrival_gap(runs, ada, uni, 0)
+    assert gap == pytest.approx(0.11) and np.isnan(two_se) and over == ""
