@@ -395,7 +395,7 @@ def _cell(runs: dict, case: str, dim: int, solver: str, mode: str, what: str) ->
             if math.isnan(two_se):
                 text += f", {gap:+.2f} off uniform{ok}"
             else:
-                text += f", {gap:+.3f} ± {two_se:.3f} off uniform ({over}){ok}"
+                text += f", {round(gap, 3) + 0.0:+.3f} ± {two_se:.3f} off uniform ({over}){ok}"  # no -0.000
         return text
     raise ValueError(what)
 
