@@ -30,19 +30,24 @@ def test_the_section_is_the_box_scene_s_tank_and_reservoir_without_the_box():
 
 def test_the_gate_lifts_off_the_floor():
     """``lift`` moves the plate's lower edge and opens its foot, so that a particle under it is
-    not held against the floor (sph/boundary.py: a foot on the floor is shut)."""
+    not held against the floor (sph/boundary.py: a foot on the floor is shut); the faces on
+    other walls stay shut."""
 
     class Fields:
-        def __init__(self):
-            self.box_c, self.box_half, self.box_shut_lo = {}, {}, {0: [0, 1]}
+        def __init__(self, shut):
+            self.box_c, self.box_half, self.box_shut_lo = {}, {}, {0: shut}
 
-    scene = A.section(0.02, "wcsph", [], 2.0)
-    f = Fields()
-    A.lift(f, scene, 0.0)
+    plate = A.section(0.02, "wcsph", [], 2.0).data["obstacles"][0]
+    f = Fields([0, 1])
+    A.lift(f, plate, 0, 0.0)
     assert f.box_c[0][1] == pytest.approx(0.5) and f.box_half[0][1] == pytest.approx(0.5) and f.box_shut_lo[0] == [0, 1]
-    A.lift(f, scene, 0.3)
+    A.lift(f, plate, 0, 0.3)
     assert f.box_c[0] == pytest.approx([1.952, 0.65]) and f.box_half[0] == pytest.approx([0.04, 0.35])
     assert f.box_shut_lo[0] == [0, 0]
+    f = Fields([0, 1, 1])  # 3D: a plate across the tank, its sides on the side walls
+    A.lift(f, {"min": [1.9, 0.0, 0.0], "max": [2.0, 1.0, 1.0]}, 0, 0.25)
+    assert f.box_c[0] == pytest.approx([1.95, 0.625, 0.5]) and f.box_half[0] == pytest.approx([0.05, 0.375, 0.5])
+    assert f.box_shut_lo[0] == [0, 0, 1]
 
 
 @pytest.mark.slow

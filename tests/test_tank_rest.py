@@ -1,7 +1,7 @@
 """The resting tanks' tools: tools/tank_rest.py, the resting tank's harness (docs/validation.md,
 "Resting tank"), whose runs are judged by hand, so only what it runs is tested here; and
 tools/column_heave.py, the deep column step by step, whose measures are held on a column
-that rests; and that each of these, tools/box_overtop.py and tools/marin_approach.py answers a
+that rests; and that each of these, tools/box_overtop.py, tools/marin_approach.py and tools/box_gate.py answers a
 bad key with one line."""
 
 import subprocess
@@ -27,7 +27,7 @@ def test_nudges_move_one_key_each_by_about_round_off(dim):
     assert all(r[0] == "dfsph.correction_time=0.003" for r in runs[1:]), runs
 
 
-@pytest.mark.parametrize("tool", ["tank_rest", "column_heave", "box_overtop", "marin_approach"])
+@pytest.mark.parametrize("tool", ["tank_rest", "column_heave", "box_overtop", "marin_approach", "box_gate"])
 def test_a_bad_key_is_one_line_naming_it(tool):
     proc = subprocess.run(
         [sys.executable, f"tools/{tool}.py", "--set", "dfsph.correction_time=true"],

@@ -73,10 +73,11 @@ def approach(spacing: float, solver: str, sets: list[str], gate: float | None) -
     sim = Simulation(scene, arch="cpu", threads=1)
     block = scene.data["fluid"]["blocks"][0]
     t, h3, h4 = [0.0], [0.0], [float(block["max"][1])]
+    lid = float(scene.data["domain"]["max"][1])
     while sim.time < UNTIL - 1e-9:
         for _ in range(2):  # the gate moves every 1 ms: 4 mm a move at 4 m/s, under a 10 mm spacing
             if gate is not None:
-                lift(sim.boundary, scene, min(gate * sim.time, 0.99 * scene.data["domain"]["max"][1]))
+                lift(sim.boundary, scene.data["obstacles"][0], 0, min(gate * sim.time, 0.99 * lid))
             sim.advance(0.001)
         r = V._real(sim)
         t.append(sim.time)
@@ -121,14 +122,20 @@ def clock_fit(t, h3, h4) -> dict:
     return {"as_run": rms(0.0), "shift": float(best), "shifted": rms(best)}
 
 
-def lift(boundary, scene, bottom: float) -> None:
-    """The gate (the scene's one obstacle) with its lower edge at ``bottom`` m: its foot no longer
-    on the floor, so a particle under it is pushed out downwards as through any other face."""
-    (x0, _), (x1, top) = scene.data["obstacles"][0]["min"], scene.data["obstacles"][0]["max"]
-    boundary.box_c[0] = [0.5 * (x0 + x1), 0.5 * (bottom + top)]
-    boundary.box_half[0] = [0.5 * (x1 - x0), 0.5 * (top - bottom)]
+def lift(boundary, plate: dict, k: int, bottom: float) -> None:
+    """Obstacle ``k``, ``plate`` as its scene gives it (a box from floor to lid), with its lower
+    edge at ``bottom`` m: its foot no longer on the floor, so a particle under it is pushed out
+    downwards as through any other face. Any dimension."""
+    import numpy as np
+
+    lo, hi = np.array(plate["min"], dtype=float), np.array(plate["max"], dtype=float)
+    lo[1] = bottom
+    boundary.box_c[k] = ((lo + hi) / 2).tolist()
+    boundary.box_half[k] = ((hi - lo) / 2).tolist()
     if bottom > 0.0:
-        boundary.box_shut_lo[0] = [0, 0]
+        shut = [int(v) for v in boundary.box_shut_lo[k]]
+        shut[1] = 0
+        boundary.box_shut_lo[k] = shut
 
 
 def reference() -> list[tuple[str, float, list]]:
