@@ -98,10 +98,11 @@ SHIFTS = (-0.1, 0.1, 0.0025)
 SPANS = {"H3": (0.0, 0.7), "H4": (0.0, 0.8)}
 
 
-def clock_fit(t, h3, h4) -> dict:
+def clock_fit(t, h3, h4, search: tuple = SHIFTS) -> dict:
     """The RMS (m) of H3 and H4 against the data's over ``SPANS``, as run and with the run moved
     by the one shift (s; negative: earlier) that makes their sum least: a gate that opens over
-    a time, with the experiment's clock started during it, would show as a better fit shifted."""
+    a time, with the experiment's clock started during it, would show as a better fit shifted.
+    ``search``: the first and last shifts tried and the step between them."""
     import numpy as np
     import validate as V
 
@@ -117,7 +118,7 @@ def clock_fit(t, h3, h4) -> dict:
             out[name] = float(np.sqrt(np.mean((np.interp(te[inside] - shift, t, run) - ref[inside]) ** 2)))
         return out
 
-    shifts = np.arange(SHIFTS[0], SHIFTS[1] + 1e-9, SHIFTS[2])
+    shifts = np.arange(search[0], search[1] + 1e-9, search[2])
     best = min(shifts, key=lambda s: sum(rms(s).values()))
     return {"as_run": rms(0.0), "shift": float(best), "shifted": rms(best)}
 
