@@ -2,7 +2,7 @@
 released at once: does the way the reservoir opens move the water's arrival behind the box?
 
     python3 tools/box_gate.py --quick --gate 2            # 14 layers: about 3 min
-    python3 tools/box_gate.py --gate 1.5,3 --jobs 2       # 27 layers (the scene): about 25 min
+    python3 tools/box_gate.py --gate 1,2,3 --jobs 2       # 27 layers (the scene), wcsph: about 12 min
 
 The experiment lifted a gate; tools/validate.py's box (scenes/dam_break_box_3d) releases its
 reservoir at once. In 2D (tools/marin_approach.py) a gate thins the stream before the box as
