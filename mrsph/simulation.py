@@ -406,7 +406,9 @@ class Simulation:
 
     def _live(self):
         """Live-tunable keys and the part that owns each."""
-        owners = (self.viscosity, self.pressure, self.integrator, self.coupling)
+        # a solver without a force pass owns the viscosity, if it takes it at all
+        forces = (self.viscosity,) if self.pressure.uses_forces else ()
+        owners = (*forces, self.pressure, self.integrator, self.coupling)
         return {k: part for part in owners for k in part.live_keys}
 
     @property

@@ -65,7 +65,7 @@ class FakeSimulation:
         self.scene = {"name": f"fake_{dim}d", "run": {"fps": fps}}
         self.gravity = np.zeros(dim)
         self.gravity[1] = -9.81
-        self.params = {"fluid.viscosity": 0.01, "fluid.stiffness": 50.0, "adaptivity.enabled": True}
+        self.params = {"fluid.viscosity": 0.01, "fluid.stiffness": 50.0, "pbf.xsph": 0.1, "adaptivity.enabled": True}
         self.disturbance = None
         self.steps_per_frame = 4
         self.reset()

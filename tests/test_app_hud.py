@@ -130,7 +130,8 @@ def test_the_hud_fits_its_window_at_1280x720(dim):
     from mrsph.app import hud
 
     snap = FakeSimulation(dim=dim).snapshot()
-    for solver, live in (("wcsph", None), ("dfsph", ("fluid.viscosity",)), (None, None)):
+    lives = {"wcsph": ("fluid.viscosity", "fluid.stiffness"), "dfsph": ("fluid.viscosity",), "pbf": ("pbf.xsph",)}
+    for solver, live in (*lives.items(), (None, None)):
         app = _fake_app(snap, solver, live)
         rows = hud.hud_rows(app, snap)
         height = hud.panel_height(rows)
@@ -161,8 +162,8 @@ def _fake_app(snap, solver, live):
         next_ready=lambda: True,  # the longest solver line
         message=Message(),
         rates=Rates(),
-        params={"fluid.viscosity": 4.0, "fluid.stiffness": 400.0, "gravity_y": -9.81},
-        slider_max={"fluid.viscosity": 20.0, "fluid.stiffness": 1600.0},
+        params={"fluid.viscosity": 4.0, "fluid.stiffness": 400.0, "pbf.xsph": 0.1, "gravity_y": -9.81},
+        slider_max={"fluid.viscosity": 20.0, "fluid.stiffness": 1600.0, "pbf.xsph": 1.0},
         mouse=MouseDisturbance.for_domain(snap.domain_min, snap.domain_max, 400.0),
         refinement=True,
         show_virtual=False,

@@ -157,3 +157,46 @@ def test_dumps_show_the_tensile_corrections_pressure_with_the_multipliers():
     sim.pressure.knobs[AP] = 0.0  # pbf.artificial_pressure = 0
     sim.step()
     assert np.array_equal(*parts()[1:])
+
+
+def test_pbf_tunes_its_smoothing_live_and_the_viscosity_only_where_it_acts():
+    """pbf has no force pass, so ``fluid.viscosity`` acts only with ``pbf.viscosity =
+    "scene"``, in the projection: there it is live, and raised so far that its explicit
+    bound is a fifth of the frame's share, the step follows that bound. With the default
+    ("xsph") it is not offered: the window's slider once moved nothing but the step.
+    ``pbf.xsph`` is live either way, validated as in a scene file, and changes the flow."""
+    from mrsph.pressure.pbf.solver import VISC
+    from mrsph.scene.config import SceneError, load_scene
+    from mrsph.simulation import Simulation
+
+    scene = _scene(2)
+    scene["pbf"] = {}  # the default smoothing, pbf.viscosity = "xsph"
+    sim = Simulation(load_scene(scene), arch="cpu")
+    assert "pbf.xsph" in sim.LIVE_KEYS and "fluid.viscosity" not in sim.LIVE_KEYS, sim.LIVE_KEYS
+    with pytest.raises(ValueError, match="fluid.viscosity: not live-tunable"):
+        sim.set_param("fluid.viscosity", 2.0)
+    with pytest.raises(SceneError, match=r"pbf.xsph: out of range \(got 2.0"):
+        sim.set_param("pbf.xsph", 2.0)  # past the key's [0, 1]
+    sim.advance(0.05)
+    state = sim.save_state()
+    speeds = []
+    for c in (0.0, 1.0):
+        sim.restore_state(state)
+        sim.set_param("pbf.xsph", c)
+        sim.step()
+        speeds.append(sim.particles(virtual=False)["v"])
+    assert not np.array_equal(*speeds), "pbf.xsph set live did not change the step"
+
+    scene["pbf"] = {"viscosity": "scene"}
+    sim = Simulation(load_scene(scene), arch="cpu")
+    assert "fluid.viscosity" in sim.LIVE_KEYS, sim.LIVE_KEYS
+    frame = sim.pressure.bound().dt_max
+    ph = sim.scene.data["physics"]
+    factor, h = float(ph["viscous_factor"]), float(sim.h0)
+    mu = factor * h * h * sim.rest_density / (0.2 * frame)
+    sim.set_param("fluid.viscosity", mu)
+    assert float(sim.pressure.knobs[VISC]) == pytest.approx(mu, rel=1e-6)
+    bound = factor * h * h * sim.rest_density / mu
+    dt = sim.step()
+    assert dt == pytest.approx(bound, rel=1e-6), f"dt = {dt:.4e} s, the viscous bound {bound:.4e} s"
+    assert "viscous bound" in sim.pressure.bound().says

@@ -245,9 +245,9 @@ def hud_rows(self, snap) -> list:
     rows.append(("button", "Next scene (tab)", lambda: self.later(self.step_scene)))
     rows.append(("button", "Scenes and keys (h)", self.toggle_help))
     rows.append(_text("fluid", DIM_COLOUR))
-    for key, label in (("fluid.viscosity", "viscosity"), ("fluid.stiffness", "stiffness")):
-        if self.takes(key):  # dfsph has no stiffness
-            lo = 0.0 if key == "fluid.viscosity" else 0.1 * self.slider_max[key] / 4.0
+    for key, label in (("fluid.viscosity", "viscosity"), ("pbf.xsph", "smoothing"), ("fluid.stiffness", "stiffness")):
+        if self.takes(key):  # dfsph has no stiffness; pbf its smoothing, the viscosity where it acts
+            lo = 0.1 * self.slider_max[key] / 4.0 if key == "fluid.stiffness" else 0.0
             rows.append(("slider", label, self.params[key], lo, self.slider_max[key], _setter(self, key)))
     rows.append(("slider", "gravity y", self.params["gravity_y"], -20.0, 5.0, self._set_gravity_y))
     rows.append(_text(f"mouse (q / e: radius), cap {self.mouse.max_speed:.2g} m/s", DIM_COLOUR))

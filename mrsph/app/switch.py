@@ -231,7 +231,7 @@ class Switching:
         kept = dict(self.params)
 
         def carry_over():
-            for key in ("fluid.viscosity", "fluid.stiffness"):
+            for key in ("fluid.viscosity", "fluid.stiffness", "pbf.xsph"):
                 if self.takes(key):
                     self._set_param(key, kept[key])
                 else:

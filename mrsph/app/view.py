@@ -282,9 +282,9 @@ _SCHEMA = object()  # scene_setting's default: the schema's
 def scene_setting(scene, dotted: str, default=_SCHEMA):
     """``scene.get(dotted)`` for an ``mrsph.scene.config.Scene``, a nested dict lookup for a
     plain dict, ``default`` when the key or the scene is missing: by default the schema's
-    (``schema.default_of``), so that the app writes none of its own. The app reads only
-    optional presentation keys (render.*, run.fps) this way, so a missing key is never
-    an error here."""
+    (``schema.default_of``), so that the app writes none of its own. A ``Scene`` holds
+    every key resolved; a plain dict (a stand-in's) may lack any, which is never an
+    error here."""
     if default is _SCHEMA:
         dim = scene_setting(scene, "dim", 2) if scene is not None and dotted != "dim" else 2
         default = default_of(dotted, int(dim))

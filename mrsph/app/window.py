@@ -165,26 +165,28 @@ class _App(Switching):
         self.snap, self.dirty = snap, False
         stiffness = float(scene_setting(scene, "fluid.stiffness"))
         self.mouse = MouseDisturbance.for_domain(snap.domain_min, snap.domain_max, stiffness)
-        g = scene_setting(scene, "physics.gravity", None)
+        g = scene_setting(scene, "physics.gravity")
         self.params = {
-            "fluid.viscosity": float(scene_setting(scene, "fluid.viscosity", 0.05)),
+            "fluid.viscosity": float(scene_setting(scene, "fluid.viscosity")),
             "fluid.stiffness": float(scene_setting(scene, "fluid.stiffness")),
-            "gravity_y": float(g[1]) if g is not None else -9.81,
+            "pbf.xsph": float(scene_setting(scene, "pbf.xsph")),
+            "gravity_y": float(g[1]),
         }
-        self.gravity = list(map(float, g)) if g is not None else [0.0, -9.81, 0.0][: snap.dim]
+        self.gravity = list(map(float, g))
         self.slider_max = {
             "fluid.viscosity": max(1.0, 5.0 * self.params["fluid.viscosity"]),
             "fluid.stiffness": 4.0 * self.params["fluid.stiffness"],
+            "pbf.xsph": 1.0,  # the key's range
         }
         self.refinement = bool(scene_setting(scene, "adaptivity.enabled", self.sim.levels > 1))
         self.solver = running_solver(scene)  # None: the stand-in, no solver to switch
         self.tolerance = scene_setting(scene, "dfsph.density_tolerance", None) if self.solver == "dfsph" else None
         # the keys this simulation tunes live (None: the stand-in, which takes them all)
         self.live = getattr(self.sim, "LIVE_KEYS", None)
-        self.frame_dt = 1.0 / float(scene_setting(scene, "run.fps", 30.0))
+        self.frame_dt = 1.0 / float(scene_setting(scene, "run.fps"))
         self.frame_sim = self.frame_dt  # simulated time the last frame advanced
         self.renderer.reset_view(scene, palette.Style.from_scene(scene))
-        self.surface = bool(scene_setting(scene, "render.surface", False))
+        self.surface = bool(scene_setting(scene, "render.surface"))
         self.rates, self.speed, self.solver_seen = Rates(), Speed(), set()
         self.pointer.reset()
 

@@ -22,6 +22,7 @@ import math
 import taichi as ti
 
 from . import refusal
+from .forces import viscous_dt
 from .particles import is_real, is_virtual
 from .refusal import ACCEL_OVERFLOW
 from .step import Pass
@@ -328,25 +329,13 @@ class Integrator:
 
     def bounds(self):
         """(cap, viscous bound) of dt from the solver's bound, the disturbances and the
-        viscosity (host side).
-
-        The viscous bound: Eq. 19 relaxes a particle's velocity towards its neighbours' at
-        a rate μ/ρ Σ_j V_j ∇²W ≈ 15 μ/(ρ h²) (3D; 13.3 in 2D), and the shortest mode, a
-        particle against its neighbours, twice as fast; explicit Euler on that mode needs
-        dt < h²ρ/(15 μ) ≈ 0.067 h²ρ/μ, so ``viscous_factor`` 0.03 keeps half of it in
-        hand (as Morris et al. 1997's 0.125 h²/ν with their h, half our support). At the
-        scenes' viscosities it is far above the CFL bound; it binds when the viscosity
-        is raised live, which would otherwise blow up."""
+        viscosity (host side; ``forces.viscous_dt``)."""
         cap = self.pressure.bound().dt_max
         strength = self.disturbances.max_strength()
         if strength > 0:
-            cap = min(cap, 0.5 / strength)  # the disturbance relaxation stays stable
-        mu = self.viscosity()
-        viscous_dt = math.inf
-        if mu > 0:
-            viscous_dt = self.physics.viscous_factor * self.lev.h0**2 * self.rest_density / mu
-            cap = min(cap, viscous_dt)
-        return cap, viscous_dt
+            cap = min(cap, refusal.DISTURBANCE_DT / strength)
+        viscous = viscous_dt(self.physics.viscous_factor, self.lev.h0, self.rest_density, self.viscosity())
+        return min(cap, viscous), viscous
 
     def step_args(self, max_dt: float | None, stirred: int, t: float) -> tuple:
         """``StepState``'s inputs: (c, stirred, cfl, force factor, cap, dt_min, max_dt, t),

@@ -9,6 +9,9 @@ import numpy as np
 # An acceleration this large (m/s²) is a blow-up: a step refuses it as it refuses NaN.
 # (In f32, |a| overflows already from 1.8e19 m/s², as its square passes the float range.)
 ACCEL_OVERFLOW = 1e30
+# A disturbance relaxes a particle's velocity at ``strength`` per second; explicit Euler
+# keeps that stable with room to spare while dt <= DISTURBANCE_DT / strength.
+DISTURBANCE_DT = 0.5
 
 
 def bad_particles(physics, i: int, count: int, x, v, a, level: int, kind: int) -> str:
@@ -37,9 +40,9 @@ def dt_cause(physics, pressure, strength: float, lev, dt: float, force_lim: floa
     the fastest particle is at is not reported, so a speed is given as at the finest one."""
     bound = pressure.bound()
     c = bound.signal_speed
-    if strength > 0 and dt >= 0.999 * 0.5 / strength:
+    if strength > 0 and dt >= 0.999 * DISTURBANCE_DT / strength:
         return (
-            f"the disturbance bound 0.5/strength sets it (strength {strength:.3g} 1/s, "
+            f"the disturbance bound {DISTURBANCE_DT:g}/strength sets it (strength {strength:.3g} 1/s, "
             "the mouse's or a stirrer's): lower that strength or physics.dt_min"
         )
     force_dt = physics.force_factor / math.sqrt(force_lim) if force_lim > 0 else math.inf

@@ -37,6 +37,7 @@ iterations alone and a column H deep compresses by about g H D_0 dt² / (ρ0 ite
 import numpy as np
 import taichi as ti
 
+from mrsph.sph.forces import viscous_dt
 from mrsph.sph.kernels import poly6
 from mrsph.sph.neighbours import ImageNeighbours
 from mrsph.sph.particles import is_real, is_virtual
@@ -81,15 +82,16 @@ class PBF(PressureSolver):
         self.pool, self.lev, self.nb, self.boundary = core.pool, core.lev, core.nb, core.boundary
         self.coupling, self.fade, self.state = coupling, fade, state
         self.rest_density = core.lev.rest_density
-        self.step_dt = cfg.dt if cfg.dt > 0.0 else 1.0 / (params.run.fps * cfg.substeps)
+        self.frame_dt = cfg.dt if cfg.dt > 0.0 else 1.0 / (params.run.fps * cfg.substeps)
         self.iterations = cfg.iterations
         self.scene_viscosity = cfg.viscosity == "scene"
+        # the smoothing, and the scene's viscosity where it acts (in the projection), live
+        self.live_keys = ("pbf.xsph", "fluid.viscosity") if self.scene_viscosity else ("pbf.xsph",)
         fl = params.fluid
         self._damping_c = sound_speed(fl.stiffness, fl.eos)
+        self._viscous = lambda mu: viscous_dt(params.physics.viscous_factor, core.lev.h0, self.rest_density, mu)
         self.mu = fl.viscosity if self.scene_viscosity else 0.0
-        if self.mu > 0.0:  # the explicit viscosity's bound (integrator.Integrator.bounds)
-            viscous = params.physics.viscous_factor * core.lev.h0**2 * core.lev.rest_density / self.mu
-            self.step_dt = min(self.step_dt, viscous)
+        self.step_dt = min(self.frame_dt, self._viscous(self.mu))
         self.pairs = PairGradients(core, coupling)
         cap = core.pool.capacity
         self.q = ti.field(float, shape=cap)  # the step's accumulated multiplier
@@ -129,10 +131,10 @@ class PBF(PressureSolver):
     def bound(self) -> TimeStepBound:
         """dt = the frame's share (``pbf.substeps``) or ``pbf.dt``: no CFL and no force bound."""
         key = "pbf.dt" if self.cfg.dt > 0.0 else "pbf.substeps"
-        return TimeStepBound(
-            key, 0.0, 0.0, "s", self.step_dt, f"the frame ({key}: dt = {self.step_dt:.3g} s)",
-            even_last_steps=True, force_limited=False,
-        )  # fmt: skip
+        says = f"the frame ({key}: dt = {self.step_dt:.3g} s)"
+        if self.step_dt < self.frame_dt:
+            says = f"the viscous bound (fluid.viscosity = {self.mu:g} Pa s: dt = {self.step_dt:.3g} s)"
+        return TimeStepBound(key, 0.0, 0.0, "s", self.step_dt, says, even_last_steps=True, force_limited=False)
 
     def damping_speed(self) -> float:
         """The sound speed ``fluid.stiffness`` gives the scene: the mouse's cap (no force
@@ -142,6 +144,18 @@ class PBF(PressureSolver):
     def force_viscosity(self, fluid) -> float:
         """No force pass: the viscosity (``pbf.viscosity``) acts in the projection."""
         return 0.0
+
+    def set_param(self, key: str, value) -> None:
+        """``pbf.xsph``, the smoothing's c; ``fluid.viscosity`` with ``pbf.viscosity =
+        "scene"``: μ in the projection, and the step its explicit bound allows."""
+        if key not in self.live_keys:
+            super().set_param(key, value)
+        elif key == "pbf.xsph":
+            self.knobs[XSPH] = float(value)
+        else:
+            self.mu = float(value)
+            self.knobs[VISC] = self.mu
+            self.step_dt = min(self.frame_dt, self._viscous(self.mu))
 
     def reset_counters(self) -> None:
         self.stats.fill(0.0)
