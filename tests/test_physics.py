@@ -706,6 +706,42 @@ def test_nan_velocity_raises_simulation_error_naming_step_particle_level(dim, ad
     assert re.search(why, msg), f"message does not say why the particle is bad ({why}): {msg}"
 
 
+@pytest.mark.parametrize("by_pass", [False, True], ids=["fused", "by-pass"])
+def test_a_refused_pbf_step_leaves_every_particle_where_it_was(dim, by_pass):
+    """pbf's step predicts, then sorts and projects after the time-step pass. When that
+    pass refuses the step, the pass-by-pass step stops there and the fused launch runs the
+    rest over no particle (``step.Segment``'s gate): either way each particle keeps its
+    place and velocity (the fused one may have sorted them), and the refused step is not
+    counted in the solver's stats."""
+    from mrsph.pressure.pbf.solver import STEPS
+    from mrsph.simulation import SimulationError
+
+    scene = tank_scene(dim)
+    scene["fluid"]["solver"] = "pbf"
+    sim = make_sim(scene)
+    sim.profile = by_pass
+    for _ in range(3):
+        sim.step()
+    v = alive_slots(sim, "v")
+    v[len(v) // 2, 1] = 1.5 * float(sim.scene.data["physics"]["max_speed"])
+    set_alive_slots(sim, "v", v)
+
+    def rows():
+        xv = np.hstack([alive_slots(sim, "x"), alive_slots(sim, "v")])
+        return xv[np.lexsort(xv.T[::-1])]
+
+    before, steps = rows(), float(sim.pressure.stats[STEPS])
+    with pytest.raises(SimulationError, match="above physics.max_speed"):
+        sim.step()
+    after = rows()
+    moved = np.flatnonzero(np.any(after != before, axis=1))
+    assert moved.size == 0, (
+        f"{dim}D: {moved.size} of {len(before)} particles moved in a refused step, e.g. "
+        f"x, v {before[moved[0]].tolist()} -> {after[moved[0]].tolist()}"
+    )
+    assert float(sim.pressure.stats[STEPS]) == steps, f"{dim}D: the refused step was counted in pbf's stats"
+
+
 @pytest.mark.parametrize("g", [1e20, 1e31])
 def test_overflowing_acceleration_is_named(dim, g):
     """Gravity of 1e31 m/s² (past the 1e30 bound) or 1e20 (finite, but its square is past

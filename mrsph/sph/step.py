@@ -9,7 +9,7 @@ passes in the method's order:
       → forces → [virtual reactions] → time step → kick → [solver] → drift and collide
       → [solver] → virtual advection → stirrers → nozzles
 
-and ``docs/ARCHITECTURE.md``'s step table is checked against it (``tests/test_step.py``).
+and ``docs/ARCHITECTURE.md``'s step table is checked against it (``tests/test_passes.py``).
 
 A step of a few thousand particles is launch-bound: each call from Python into Taichi
 costs 15-30 µs on the CPU (its arguments, its result, the pool's wake-up), and the
@@ -129,10 +129,13 @@ class StepState:
 class Segment:
     """Device passes run as one kernel launch: the step's inputs stored, n counted (the
     sort's, or the pool's own count after it), each pass's device function in order; it
-    returns the step's outcome (dt, or -1), which the last launch of a step passes back."""
+    returns the step's outcome (dt, or -1), which the last launch of a step passes back.
+    A pass after the time-step pass (``gated``) runs over no particle when the step does
+    not go, as the pass-by-pass step, which stops there, leaves them."""
 
-    def __init__(self, passes: tuple, state: StepState, count: Callable):
+    def __init__(self, passes: tuple, state: StepState, count: Callable, gated: tuple):
         self.passes, self.state, self.count = passes, state, count
+        self.gated = gated
 
     @ti.kernel
     def run(
@@ -150,9 +153,12 @@ class Segment:
         n = 0
         if ti.static(not self.passes[0].counts):
             n = self.count()
-        for p in ti.static(self.passes):
+        for k in ti.static(range(len(self.passes))):
+            p = ti.static(self.passes[k])
             if ti.static(p.counts):
                 n = p.func()
+            elif ti.static(self.gated[k]):
+                p.func(ti.select(self.state.go[None] != 0, n, 0))
             else:
                 p.func(n)
         return self.state.outcome()
@@ -193,17 +199,23 @@ class Stepper:
         self._inner = tuple(inner)
         self._tail = self.passes[device[-1] + 1 :] if device else ()
         self.launches = []  # (Segment, the pass it repeats or None) of a fused step
+        deciding = [k for k, p in enumerate(self._inner) if p.decides]
+        after = [bool(deciding) and k > deciding[0] for k in range(len(self._inner))]
         run = []
-        for p in self._inner if self.fused else ():
+
+        def segment(ks):
+            return Segment(tuple(self._inner[k] for k in ks), self.state, self.count, tuple(after[k] for k in ks))
+
+        for k, p in enumerate(self._inner if self.fused else ()):
             if p.repeat > 1 or p.again is not None or p.alone:
                 if run:
-                    self.launches.append((Segment(tuple(run), self.state, self.count), None))
+                    self.launches.append((segment(run), None))
                     run = []
-                self.launches.append((Segment((p,), self.state, self.count), p))
+                self.launches.append((segment([k]), p))
             else:
-                run.append(p)
+                run.append(k)
         if run:
-            self.launches.append((Segment(tuple(run), self.state, self.count), None))
+            self.launches.append((segment(run), None))
 
     # ------------------------------------------------------------------ host
     def wrap(self, name: str, wrapper: Callable) -> None:
@@ -218,9 +230,8 @@ class Stepper:
     def run(self, args: tuple) -> float:
         """One step; ``args`` are ``StepState``'s inputs (c_sound, stirred, cfl,
         force_factor, cap, dt_min, max_dt, t). Returns dt, or -1 when the step did not go
-        (the time-step pass left why, and what it found; no particle was integrated, but
-        a fused launch runs the passes after it too: a solver that predicts first has
-        sorted and projected by then)."""
+        (the time-step pass left why, and what it found; no particle moved, though a
+        fused step whose solver predicts first has sorted them by then)."""
         for p in self._head:
             if p.when():
                 self._timed(p.timer, p.kernel, None)

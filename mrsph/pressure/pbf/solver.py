@@ -433,14 +433,15 @@ class PBF(PressureSolver):
             if is_real(p[i].kind):
                 rho = self.rho[i]
                 p[i].p = self.q[i] * rho * rho / (dt * dt)
-        avg = self.avg[None]
-        self.stats[ERR_SUM] += avg
-        self.stats[ERR_WORST] = ti.max(self.stats[ERR_WORST], avg)
-        self.stats[ERR_PEAK] = ti.max(self.stats[ERR_PEAK], ti.cast(self.peak[None], ti.f64))
-        self.stats[STEPS] += 1.0
-        self.stats[ITERS] += ti.cast(self.iteration[None], ti.f64)
-        if avg > self.tolerance[None] or self.peak[None] > self.max_error[None]:
-            self.stats[UNCONVERGED] += 1.0
+        if self.state.go[None]:  # a refused step is not one of the stats' (fused, n = 0 here)
+            avg = self.avg[None]
+            self.stats[ERR_SUM] += avg
+            self.stats[ERR_WORST] = ti.max(self.stats[ERR_WORST], avg)
+            self.stats[ERR_PEAK] = ti.max(self.stats[ERR_PEAK], ti.cast(self.peak[None], ti.f64))
+            self.stats[STEPS] += 1.0
+            self.stats[ITERS] += ti.cast(self.iteration[None], ti.f64)
+            if avg > self.tolerance[None] or self.peak[None] > self.max_error[None]:
+                self.stats[UNCONVERGED] += 1.0
 
     @ti.kernel
     def clamp(self, n: ti.i32):
