@@ -14,7 +14,9 @@ import taichi as ti
 from . import kernel_build
 
 ARCHES = ("auto", "cpu", "gpu")
-_state: dict = {"key": None, "arch_name": None, "notice": None, "affinity": None}
+# generation: Taichi programs started (or reset) so far; a Simulation built in an earlier
+# one has lost its fields (``Simulation`` checks it)
+_state: dict = {"key": None, "arch_name": None, "notice": None, "affinity": None, "generation": 0}
 
 # ``threads="auto"``: scenes that start with fewer real particles than this (by
 # dimension: a 3D particle has ~6x the candidates of a 2D one) run on one thread pinned to
@@ -100,7 +102,14 @@ def ensure(arch: str = "cpu", precision: str = "f32", threads: int | None = None
         ti.init(**kwargs)
     _state["key"] = key
     _state["arch_name"] = _arch_name()
+    _state["generation"] += 1
     return _state["arch_name"]
+
+
+def generation() -> int:
+    """How many Taichi programs :func:`ensure` and :func:`reset` have started or ended: a
+    field made when it read otherwise is gone."""
+    return _state["generation"]
 
 
 def _pin(one_core: bool) -> None:
@@ -165,5 +174,6 @@ def reset() -> None:
     """Forget the current initialisation (tests call this between modules)."""
     if _state["key"] is not None:
         ti.reset()
+        _state["generation"] += 1
     _state["key"] = None
     _pin(False)

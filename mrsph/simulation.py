@@ -59,6 +59,7 @@ class Simulation:
         self.scene = _as_scene(scene)
         prm = self.scene.params
         self.arch_name = runtime.ensure(arch, prm.particles.precision, threads)
+        self._program = runtime.generation()  # the Taichi program that holds this one's fields
         self.threads = threads  # None: all cores (see runtime.auto_threads)
         self.dim = prm.dim
         self.adaptive = prm.adaptivity.enabled
@@ -188,6 +189,7 @@ class Simulation:
     # ================================================================== state
     def reset(self) -> None:
         """Back to t = 0: seed the fluid blocks, refine where the criteria ask."""
+        self._alive()
         prm = self.scene.params
         self.pool.clear()
         self.pressure.forget_step()
@@ -234,6 +236,7 @@ class Simulation:
     def step(self, max_dt: float | None = None) -> float:
         """Advance by one time step (METHOD.md §1), the passes of ``_passes`` in order;
         returns the dt taken. ``max_dt``: cut the step to end there (the end of a frame)."""
+        self._alive()
         stirred = int(self.disturbances.any_active())
         dt = self.stepper.run(self.integrator.step_args(max_dt, stirred, self.time))
         if dt < 0.0:
@@ -248,6 +251,17 @@ class Simulation:
         iterative solver's (from ``stats``, a stats row: its iterations a step)."""
         return sum(p.loops * p.repeat for p in self.stepper.passes) + self.pressure.solve_loops(stats)
 
+    def _alive(self) -> None:
+        """Raise if Taichi was started again since this Simulation was built (another
+        arch, precision or thread count, or a reset), which freed its fields: using them
+        would fail deep in Taichi, or crash."""
+        if runtime.generation() != self._program:
+            raise SimulationError(
+                f"{self.scene.path}: this Simulation's Taichi fields were freed when Taichi was "
+                "initialised again (a Simulation with another arch, precision or thread count, or "
+                "mrsph.runtime.reset()); build it again"
+            )
+
     def _where(self) -> str:
         """The step and time, for a refused step's message (built only then)."""
         return f"step {self.steps} (t = {self.time:.6g} s)"
@@ -259,6 +273,7 @@ class Simulation:
         and the solver's passes around it), ``"forces"`` (pair forces, left in each
         particle's ``a``), up to the last one named. Returns the particle count n of the
         sorted pool."""
+        self._alive()
         known = ("grid", "density", "forces")
         bad = [x for x in names if x not in known]
         if bad:
@@ -346,6 +361,7 @@ class Simulation:
     # ================================================================== reading out
     def particles(self, virtual: bool = True) -> dict:
         """Alive particles as numpy arrays: x, v, m, rho, p, level, kind, parent, drho, ..."""
+        self._alive()
         n = self.pool.count()
         p = ti.static(self.pool.p)
         out = {
@@ -394,14 +410,17 @@ class Simulation:
         parameters, live-tuned ones included, and the mouse's disturbance are not part of
         it. ``bench`` uses it to time an adaptive run and its uniform twin turn about
         from the same warm state (``state.py``)."""
+        self._alive()
         return saved_state.save(self)
 
     def restore_state(self, state: dict) -> None:
         """Put back a :meth:`save_state` of a Simulation of the same scene."""
+        self._alive()
         saved_state.restore(self, state)
 
     # ================================================================== interaction
     def set_disturbance(self, d: Disturbance | None) -> None:
+        self._alive()
         self.disturbances.set(MOUSE_SLOT, d)
 
     def _live(self):
@@ -417,6 +436,7 @@ class Simulation:
 
     def set_param(self, key: str, value) -> None:
         """Change a parameter while running (validated like the scene file)."""
+        self._alive()
         if key == "adaptivity.enabled":
             raise ValueError(
                 "adaptivity.enabled: changes the particle levels; rebuild the "

@@ -37,6 +37,34 @@ def test_one_thread_is_pinned_and_released():
     assert os.sched_getaffinity(0) == before
 
 
+def test_a_simulation_whose_fields_were_freed_says_so():
+    """Taichi frees every field when it starts again (here for another thread count): the
+    first Simulation's next call says so in one line, where its step failed deep in Taichi
+    (TaichiIndexError) and a read of its particles crashed the process."""
+    from mrsph.simulation import Simulation, SimulationError
+
+    scene = load_scene(
+        {
+            "description": "a small tank",
+            "dim": 2,
+            "domain": {"min": [0.0, 0.0], "max": [0.2, 0.2]},
+            "particles": {"spacing": 0.02},
+            "fluid": {"blocks": [{"min": [0.0, 0.0], "max": [0.2, 0.1]}]},
+        }
+    )
+    runtime.reset()
+    try:
+        first = Simulation(scene, threads=1)
+        first.step()
+        second = Simulation(scene, threads=2)
+        for call in (first.step, first.particles, first.save_state, first.reset, lambda: first.set_disturbance(None)):
+            with pytest.raises(SimulationError, match="fields were freed when Taichi was initialised again"):
+                call()
+        assert second.step() > 0.0
+    finally:
+        runtime.reset()
+
+
 def _loops_hidden_in_kernel_ifs(source: str) -> list[str]:
     """Every ``@ti.kernel``, and every ``ti.func`` named ``*_func`` (a pass's body, which its
     kernel and the fused step call at their top level: fused.py), whose body has a loop
