@@ -383,7 +383,7 @@ def test_window_switches_to_a_scene_that_auto_runs_on_more_threads(xdisplay, tmp
     assert (runtime.auto_threads(load_scene("pool_2d")), runtime.auto_threads(load_scene("pool_3d"))) == (1, None), (
         "the two scenes no longer differ in their automatic thread count"
     )
-    # --frames and --dump, which the window does not honour, are said to be ignored (and
+    # --frames, --fps and --dump, which the window does not honour, are said to be ignored (and
     # still are: no dump folder is made)
     no_dump = tmp_path / "no_dump"
     app = App(
@@ -396,6 +396,8 @@ def test_window_switches_to_a_scene_that_auto_runs_on_more_threads(xdisplay, tmp
             HEIGHT,
             "--frames",
             "2",
+            "--fps",
+            "24",
             "--dump",
             str(no_dump),
         ],
@@ -407,6 +409,7 @@ def test_window_switches_to_a_scene_that_auto_runs_on_more_threads(xdisplay, tmp
         app.wait_frames(3, FIRST_FRAMES_TIMEOUT_S)
         assert "--frames applies to headless runs and recordings" in app.output(), app.output()
         assert "the window does not dump" in app.output(), app.output()
+        assert "--fps applies to recordings" in app.output(), app.output()
         assert not no_dump.exists(), f"the window made the --dump folder {no_dump}, which it never fills"
         before = len(app.stats())
         app.xdo("key", "Tab")

@@ -208,6 +208,14 @@ def test_a_set_that_breaks_another_key_is_named(tmp_path):
     assert_usage_error(proc, "tiny.toml with --set particles.spacing: fluid.blocks.0: holds no particle")
 
 
+def test_a_headless_run_says_the_recording_options_do_nothing_there(tmp_path):
+    """--width, --height and --fps shape a recording; a headless run without --out renders
+    nothing, and says so rather than take them in silence."""
+    proc = run(scene_file(tmp_path), "--headless", "--frames", 1, "--width", 320, "--fps", 60, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert "mrsph: --width, --fps apply to recordings (--out); a headless run renders nothing" in proc.stderr
+
+
 def test_frame_budget_is_read_in_milliseconds_and_zero_means_whole_frames():
     from mrsph.cli.commands import build_parser
 

@@ -139,7 +139,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--fps",
         type=fps_arg,
         default=None,
-        help="frames per second of the recorded video (default: the scene's run.fps)",
+        help="frames per second of the recorded video; a frame still simulates 1/run.fps, so another "
+        "rate plays the fluid faster or slower (--set run.fps=N changes both) (default: the scene's run.fps)",
     )
     parser.add_argument(
         "--frame-budget",
@@ -387,6 +388,8 @@ def _run_window_or_video(scene, args) -> int:
             "mrsph: --frames applies to headless runs and recordings; the window runs "
             "until it is closed (add --headless to run N frames)"
         )
+    if args.fps is not None:
+        notes.append("mrsph: --fps applies to recordings; the window simulates 1/run.fps a frame (--set run.fps=N)")
     names = [name for name, _ in list_scenes()]
     # the window offers the scenes of scenes/ by name; a scene from elsewhere by path
     own = Path(scene.path).resolve() == (SCENES_DIR / f"{scene.name}.toml").resolve()
@@ -460,6 +463,10 @@ def _run(args) -> int:
         if frames < 1:
             _err(NO_END)
             return EXIT_USAGE
+        unused = [f"--{k}" for k in ("width", "height", "fps") if getattr(args, k) is not None]
+        if unused and not args.out:
+            verb = "applies" if len(unused) == 1 else "apply"
+            _err(f"mrsph: {', '.join(unused)} {verb} to recordings (--out); a headless run renders nothing")
         sim = _make_sim(scene, args)
         if args.out:
             print(_record(sim, args.out, frames, args))
