@@ -1,5 +1,5 @@
 """The command line (``python3 main.py``, the ``mrsph`` command): the commands and their
-options (``commands.py``, ``options.py``) and the benchmark (``bench.py``). ``main`` is
+options (``commands.py``, ``options.py``) and the benchmark (``bench/``). ``main`` is
 resolved on first use, so that importing ``mrsph.cli.options`` stays light."""
 
 __all__ = ["main"]

@@ -1,7 +1,7 @@
 """What the application layer reads of a simulation: one frame, as numpy arrays.
 
 Kept free of Taichi so that the window, the renderers and their tests can use it
-without a simulation (see ``mrsph/app/fake.py``).
+without a simulation (as ``tests/fake_app.py`` does).
 """
 
 from dataclasses import dataclass, field

@@ -50,7 +50,8 @@ CELL_SPACINGS = {2: 1.0, 3: 1.5}
 MAX_NODES = {2: 400_000, 3: 400_000}
 #: Colour step, out of 255, within which the cells of a row are drawn as one strip.
 MERGE_STEP = 4
-#: Kind codes of real particles (docs/CONTRACTS.md: virtual = kind >= 4).
+#: Kind codes of real particles: virtual = kind >= 4 (``sph.particles.VIRTUAL_CHILD``, kept
+#: apart so that this module needs no Taichi).
 _VIRTUAL_KIND = 4
 
 

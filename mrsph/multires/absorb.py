@@ -13,7 +13,7 @@ The receiver may be of any real kind. The coarse particles round a remnant are t
 parents, made so by the remnant itself, so with regular receivers only, a lone fine
 particle stayed fine for good: demo_2d after a drag, where its level's density read above
 ρ0 at the centre of a coarse particle's virtual children and the DFSPH density solve
-pumped it to megapascals (docs/performance.md, "A remnant no one could take").
+pumped it to megapascals (docs/METHOD.md §15).
 
 A light group caged inside a real coarse particle (``caged``) is given away whatever the
 criteria want: a fine particle at the centre of a coarse particle's virtual children is
@@ -35,7 +35,7 @@ ABSORB_CAP = 2.0
 # whole support, a film's light groups fed the coarse particles at its tip, which ran
 # ahead as a carpet of single particles. The 3D dam-break front at 1 s over seven CFL
 # numbers (tools/dam_front.py): +8.6 % on average, up to +19.9 %, at a whole support;
-# +0.2 %, -0.4 .. +0.8 % at half (docs/dam-front.md, "The absorption's reach").
+# +0.2 %, -0.4 .. +0.8 % at half (docs/METHOD.md §15).
 ABSORB_REACH = 0.5
 # A light group's virtual parent within this many fine spacings of a real coarse particle
 # is caged in it: that particle's virtual children stand sqrt(d)/2 fine spacings from it.

@@ -258,10 +258,10 @@ class Variational(Adaptive):
     thus meets twice, once with each particle's own pressure, and its pressure acts once.
     Its viscous and artificial-viscosity terms are whole pair terms in both meetings, so
     the shear across a level interface is coupled twice over: halving them for virtual
-    partners let the fine fluid run further ahead (docs/dam-front.md), so the interface
+    partners let the fine fluid run further ahead (docs/METHOD.md §13), so the interface
     keeps the extra damping. In a resting pool with a refined box it moves less than the
     symmetric form, whose virtual pressures come from virtual densities that reach 1.3 ρ0
-    where virtual children overlap each other and the walls (docs/dam-front.md)."""
+    where virtual children overlap each other and the walls (docs/METHOD.md §13)."""
 
     mode = "variational"
     variational = True

@@ -60,7 +60,7 @@ fastest at 6.5 m/s, with the splits' offset only; 23, and 4.0 m/s, with the merg
 let go (``--strength 20``), the children still carried their splits' offsets, and
 against their raw density the merged particles took that in full: the kinetic energy
 peaked at 44-52 J within 20 ms, at four places and times; against ρ − drho at 19-44 J,
-21 J on the median (docs/performance.md, "The release of the cursor").
+21 J on the median (docs/validation.md, "A cursor in resting water").
 
 The particles around a change of level see it too: a merge puts the group's mass at
 its centre where the coarse neighbours saw a virtual parent (whose mass the limiter may
@@ -84,7 +84,7 @@ raw, a coarse particle with a large offset (1.17 ρ0, 0.17 ρ0 of it offset) let
 virtual children carry their whole mass onto a fine particle between them, which read
 1.20 ρ0 with no offset of its own, and the density solve pushed it at 1 MPa. demo_2d,
 the cursor's refinement dragged through the resting pool along twelve paths
-(docs/performance.md, "A cursor dragged through resting water"): the kinetic energy's
+(docs/validation.md, "A cursor in resting water"): the kinetic energy's
 peak 36 J on the median, up to 5979 J, before; 13 J, up to 40 J, with this and the
 placement's kept centre of mass (``placement.py``), each of which alone left peaks of
 176-267 J.

@@ -26,8 +26,8 @@ parent, so mass and momentum are kept. Why the tolerance and the floor: with ρ_
 parents' density alone the limiter ratchets in a resting pool (a cut virtual mass lowers
 the fine pressure beside it, fine particles move in, which cuts more), and it would cut in
 a sheet where the fine density is below ρ0 and no pressure comes of it anyway. The target
-must not be i's own density times (1 + τ): that lets it grow by τ each step. The
-measurements behind each choice are in docs/dam-front.md.
+must not be i's own density times (1 + τ): that lets it grow by τ each step
+(docs/METHOD.md §12).
 """
 
 import taichi as ti

@@ -24,8 +24,9 @@ FRESH = 32  # scratch flag of a real child made by a split in this pass (one of 
 
 # The longest move of a new child in one iteration of ``_settle_fresh``, in fine spacings:
 # a Newton step on a density that is not linear over a spacing overshoots. Measured on the
-# first splits of the two-level dam break (docs/dam-front.md): at 0.1 the energy rose by
-# 1.2 % in 2D and 0.25 % in 3D, at 0.25 by 0.2 % and not at all.
+# first splits of the two-level dam break (docs/validation.md, "The first splits of a dam
+# break"): at 0.1 the energy rose by 1.2 % in 2D and 0.25 % in 3D, at 0.25 by 0.2 % and not
+# at all.
 SETTLE_STEP = 0.25
 
 
@@ -200,8 +201,8 @@ class Placement:
         of each other's and their neighbours' and their pressure throws them off: the
         split injected energy where METHOD.md §5 wants the flow undisturbed. Measured
         with two levels (1 and 2 cm) in the dam break of tests/test_adaptive_flow.py,
-        refined within 0.1 m of the block, across the first splits (docs/dam-front.md,
-        "How it came right"): with ``"spacing"`` the fluid's mechanical energy rose by
+        refined within 0.1 m of the block, across the first splits (docs/validation.md,
+        "The first splits of a dam break"): with ``"spacing"`` the fluid's mechanical energy rose by
         2.7 % (2D) and 4.2 % (3D) and particles left at 5.3 and 7.2 m/s from a 2.9 m/s
         sheet; with ``"density"`` by 0.2 % and not at all. The thrown fluid flattened
         the jet off the block (2D: 45-50° against the uniform runs' 70-78°; 68-74° with
@@ -214,7 +215,7 @@ class Placement:
         with it, against -0.2 % and +1.7 % with "spacing", and the 3D front at 1 s read
         -1.0..+48.9 % over seven CFL numbers (+2.0..+3.8 % with "spacing"). A step of
         0.1 spacings (``SETTLE_STEP``) brought those splits to +0.7 and +1.1 % but the
-        two-level ones from +0.2 to +1.2 % in 2D; not explained yet (docs/dam-front.md).
+        two-level ones from +0.2 to +1.2 % in 2D; not explained yet.
 
         Why the parent's density as the target: in the bulk of the fluid, compressed by
         its own weight, ρ0 cannot be reached by moving one particle, and a gradient near

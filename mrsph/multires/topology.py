@@ -53,9 +53,9 @@ coarsest down (§5.4), rebuilding the grids between pairs, and for the coarse le
    particle next to a group split in this pass gets its virtual children at the next
    pass, ``interval`` steps later, and so does a fine particle next to a group merged in
    it; until then the two levels there do not see each other. Rerunning steps 1, 4 and 5
-   after each level pair made the 2D dam-break front worse and the 3D one no better
-   (docs/dam-front.md, "Couplings of this pass's splits"): the 2D fluid split at the block
-   is thrown further when its coarse neighbours take part at once.
+   after each level pair made the 2D dam-break front worse and the 3D one no better:
+   the 2D fluid split at the block is thrown further when its coarse neighbours take
+   part at once.
 6. ``gather.py`` (a few rounds): neighbouring virtual parents whose groups fit
    in 2^d children and span at most ``gather_span`` of the release distance gather
    under one (mutual nearest pairs, so the parallel pass has no races) — merging is

@@ -30,8 +30,11 @@ class Boundary:
         self.friction = domain.friction
         boxes = [o for o in obstacles if o.shape == "box"]
         spheres = [o for o in obstacles if o.shape == "sphere"]
-        # the scene check (config.py) refuses more; a caller building one by hand gets this
-        assert len(boxes) <= MAX_OBSTACLES and len(spheres) <= MAX_OBSTACLES, "too many obstacles"
+        # the scene check (scene/config/rules.py) refuses more; one built by hand gets this
+        if max(len(boxes), len(spheres)) > MAX_OBSTACLES:
+            raise ValueError(
+                f"obstacles: {len(boxes)} boxes and {len(spheres)} spheres (expected at most {MAX_OBSTACLES} of each)"
+            )
         self.n_boxes, self.n_spheres = len(boxes), len(spheres)
         self.box_c = ti.Vector.field(dim, float, shape=max(1, len(boxes)))
         self.box_half = ti.Vector.field(dim, float, shape=max(1, len(boxes)))

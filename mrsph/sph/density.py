@@ -22,7 +22,7 @@ from .particles import is_real
 
 # Density loop without a branch per candidate, in both dimensions: once the fluid flows,
 # which candidates are neighbours is unpredictable and the mispredictions cost more than
-# computing W for every candidate (measurements: docs/performance.md, "The density pass").
+# computing W for every candidate (measurements: docs/performance.md, "The levers").
 BRANCH_FREE = True
 
 # The density pass takes particles DENSITY_CLUSTER at a time: consecutive particles of a
@@ -30,7 +30,7 @@ BRANCH_FREE = True
 # their spans) serves them all, each candidate loaded once and its distance to each of
 # them computed side by side (``_scan_cluster``). The row set-up, the loop-exit
 # mispredictions and the loads are shared, and the K distances vectorise. K was chosen
-# by timing the pass (docs/performance.md, "The density pass").
+# by timing the pass (docs/performance.md, "The levers" and "Tried and dropped").
 DENSITY_CLUSTER = {2: 8, 3: 4}
 
 

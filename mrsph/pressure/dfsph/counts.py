@@ -1,4 +1,4 @@
-"""What the DFSPH solves (``dfsph.py``) did, for the stats row: each solve's iterations a
+"""What the DFSPH solves (``solver.py``) did, for the stats row: each solve's iterations a
 step, the last density error, and the solves that stopped at their maximum iterations
 beyond the scene's tolerance, counted and warned about once a run, never silent."""
 

@@ -1,7 +1,8 @@
 """Weakly compressible SPH: pressure from an equation of state, time step tied to the
 sound speed. Its keys are the fluid's own (``fluid.stiffness``, ``fluid.eos``,
-``fluid.gamma``, ``fluid.clamp_negative_pressure``), which the other solvers read too
-(the artificial viscosity's speed, the mouse's cap); the solver is ``solver.py``."""
+``fluid.gamma``, ``fluid.clamp_negative_pressure``); the other solvers read the sound speed
+that ``fluid.stiffness`` gives (the artificial viscosity's speed, the mouse's cap), the rest
+is this solver's alone. The solver is ``solver.py``."""
 
 NAME = "wcsph"
 DOC = (

@@ -143,14 +143,16 @@ SCHEMA = Table(
                     "choice",
                     "linear",
                     choices=("linear", "tait"),
-                    doc="equation of state: "
+                    doc="equation of state (wcsph; with every solver the hydrostatic start's density): "
                     "linear p = k (rho - rho0); tait p = rho0 k / gamma ((rho/rho0)^gamma - 1); "
                     "both have sound speed sqrt(k) at rest",
                 ),
                 "stiffness": Key("float", 1000.0, "> 0", "m^2/s^2", "k, the squared sound speed"),
-                "gamma": Key("float", 7.0, "[1, 10]", doc="exponent of the Tait equation"),
+                "gamma": Key(
+                    "float", 7.0, "[1, 10]", doc="exponent of the Tait equation (wcsph, and the hydrostatic start)"
+                ),
                 "clamp_negative_pressure": Key(
-                    "bool", True, doc="clamp pressure at 0 (no clumping at the free surface)"
+                    "bool", True, doc="wcsph: clamp pressure at 0 (no clumping at the free surface)"
                 ),
                 "artificial_viscosity": Key(
                     "float",
@@ -299,7 +301,7 @@ SCHEMA = Table(
                     "(each particle's pressure acts once, on its own level; energy-"
                     "consistent); symmetric = the thesis's same-level symmetric pair "
                     "force with virtual particles' own summed density and interpolated "
-                    "velocity (see docs/research-log.md)",
+                    "velocity (docs/METHOD.md §13)",
                 ),
                 "spring_rate": Key(
                     "float",
@@ -404,8 +406,8 @@ SCHEMA = Table(
                     "each moves down the gradient of its level's density until it "
                     "reads no more than its parent's (rho0 at least). With two "
                     "levels density stops the splits of a thin sheet from throwing "
-                    "fluid; with a third, coarser level it threw more (see the "
-                    "table of choices in docs/research-log.md)",
+                    "fluid; with a third, coarser level it threw more (docs/METHOD.md "
+                    "§12, and docs/validation.md, \"The first splits of a dam break\")",
                 ),
                 "split_density_tolerance": Key(
                     "float",
@@ -417,7 +419,7 @@ SCHEMA = Table(
                     "is moved; 0 = not at all, which also moves the "
                     "children of splits in a resting pool and stirs it; "
                     "larger lets more of the split's compression through "
-                    "(see docs/research-log.md)",
+                    "(docs/validation.md, \"The first splits of a dam break\")",
                 ),
                 "split_relax_iterations": Key(
                     "int", 8, ">= 0", doc="iterations of split_relax; 0 = children stay on the lattice"
