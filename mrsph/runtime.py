@@ -8,6 +8,7 @@ test fixtures call it too.
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import taichi as ti
 
@@ -177,3 +178,25 @@ def reset() -> None:
         _state["generation"] += 1
     _state["key"] = None
     _pin(False)
+
+
+def finish() -> None:
+    """End this process's Taichi program, which writes the kernels it compiled into the
+    offline cache, one process at a time. Taichi's own lock on the cache gives up when
+    another process holds it ("Lock ... ticache.lock failed") and those kernels are lost;
+    the window and its simulations' processes end together. The lock file sits beside
+    the cache, where ``ti cache clean`` leaves it."""
+    if _state["key"] is None:
+        return
+    try:
+        import fcntl
+
+        lock = Path(ti.lang.impl.current_cfg().offline_cache_file_path).parent / "mrsph-finish.lock"
+        lock.parent.mkdir(parents=True, exist_ok=True)
+        handle = open(lock, "w")  # noqa: SIM115  (held across the reset below)
+    except (ImportError, OSError, AttributeError):
+        reset()  # no fcntl (Windows) or no place for the lock: Taichi's lock alone
+        return
+    with handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)  # released when the file closes
+        reset()

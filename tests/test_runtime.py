@@ -1,7 +1,9 @@
-"""Taichi start-up (mrsph/runtime.py): the automatic thread count and the core pinning
-that goes with one thread."""
+"""Taichi start-up and end (mrsph/runtime.py): the automatic thread count and the core
+pinning that goes with one thread, a Simulation outliving its program, and the programs'
+ends one at a time."""
 
 import os
+from pathlib import Path
 
 import pytest
 
@@ -63,6 +65,44 @@ def test_a_simulation_whose_fields_were_freed_says_so():
         assert second.step() > 0.0
     finally:
         runtime.reset()
+
+
+@pytest.mark.skipif(os.name != "posix", reason="the lock is POSIX's flock")
+def test_processes_end_their_taichi_programs_one_at_a_time(tmp_path):
+    """The window and its simulations' processes end together, and each writes its
+    kernels into the offline cache as it ends; Taichi's own lock gives up when another
+    holds it ("Lock ... failed"), losing them. ``runtime.finish`` takes a lock beside the
+    cache first: a process that ends while another holds it waits."""
+    import fcntl
+    import subprocess
+    import sys
+    import time
+
+    cache = tmp_path / "ticache"
+    code = (
+        "from mrsph import runtime\n"
+        "runtime.ensure('cpu')\n"
+        "print('started', flush=True)\n"
+        "runtime.finish()\n"
+        "print('finished', flush=True)\n"
+    )
+    env = {**os.environ, "TI_OFFLINE_CACHE_FILE_PATH": str(cache)}
+    cache.parent.mkdir(parents=True, exist_ok=True)
+    with open(tmp_path / "mrsph-finish.lock", "w") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)
+        proc = subprocess.Popen(
+            [sys.executable, "-c", code], env=env, cwd=Path(__file__).resolve().parent.parent,
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        )  # fmt: skip
+        seen = []
+        while not seen or seen[-1] != "started":  # Taichi's banner comes first
+            seen.append(proc.stdout.readline().strip())
+            assert seen[-1] or proc.poll() is None, seen
+        time.sleep(2.0)
+        assert proc.poll() is None, f"finish() did not wait for the lock: {proc.stdout.read()}"
+    out, _ = proc.communicate(timeout=60)
+    assert proc.returncode == 0 and "finished" in out, out
+    assert "Lock" not in out, out
 
 
 def _loops_hidden_in_kernel_ifs(source: str) -> list[str]:

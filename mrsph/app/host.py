@@ -182,11 +182,9 @@ def _finish() -> None:
     """End this process's Taichi program: Taichi writes the kernels it compiled into its
     offline cache only then (a worker killed before keeps nothing for the next run)."""
     try:
-        import taichi as ti
-        from taichi.lang import impl
+        from mrsph import runtime
 
-        if impl.get_runtime().prog is not None:
-            ti.reset()
+        runtime.finish()
     except Exception:
         pass
 

@@ -248,8 +248,11 @@ class _App(Switching):
             if self.opening is not None:
                 self.opening.handle.close()
             self.sims.put_back(self.sim)
-            self.sims.close()  # each ends its program, which writes Taichi's kernel cache
             self.window.destroy()
+            from mrsph import runtime
+
+            runtime.finish()  # the window's kernels into Taichi's cache, before its workers'
+            self.sims.close()  # each ends its program, which writes Taichi's kernel cache
             self.ini.cleanup()
 
     def _frame(self) -> bool:
