@@ -290,3 +290,25 @@ def test_depth_is_measured_to_the_interpolated_surface():
     assert abs(surface_y.mean() - crossing) < 0.05 * grid.cell, (surface_y.mean(), crossing)
     assert abs(crossing - y[np.searchsorted(y, crossing)]) > 0.2 * grid.cell, "the surface is on a node"
     assert np.all(col[y > 0.32] == 0.0)
+
+
+def test_a_stirrer_parked_out_of_the_water_is_not_marked():
+    """A stirrer is marked where it acts: on its path, and after its path ends while water
+    is within its radius; parked above the water (demo_2d's, lifted over the post at the
+    end of its path), it acts on nothing and its circle is left out."""
+    from mrsph.app.geometry import stirrer_marks
+
+    snap = _snap(2)
+    top = float(np.asarray(snap.x)[:, 1].max())
+    inside = [0.3, 0.5 * top]
+    above = [0.3, top + 0.3]
+    path = [[0.0, *inside], [1.0, *above]]
+    scene = {"dim": 2, "stirrers": [{"radius": 0.05, "path": path, "loop": False}]}
+    assert len(stirrer_marks(scene, 0.5, snap)) == 1, "on its path"
+    assert stirrer_marks(scene, 2.0, snap) == [], "parked above the water"
+    assert len(stirrer_marks(scene, 2.0)) == 1, "no frame given: every stirrer"
+    scene["stirrers"][0]["path"] = [[0.0, *above], [1.0, *inside]]
+    assert len(stirrer_marks(scene, 2.0, snap)) == 1, "parked in the water"
+    scene["stirrers"][0]["path"] = [[0.0, *above], [1.0, *above]]
+    scene["stirrers"][0]["loop"] = True
+    assert len(stirrer_marks(scene, 2.0, snap)) == 1, "a looping path never ends, in the air or not"

@@ -13,6 +13,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from . import palette
 from .view import box_edges, circle_loop, scene_setting
 
 #: Segments of a circle outline: smooth at 1080p for a circle half the window high.
@@ -119,18 +120,27 @@ class Mark(NamedTuple):
     kind: str
 
 
-def stirrer_marks(scene, t: float) -> list[Mark]:
+def stirrer_marks(scene, t: float, snap=None) -> list[Mark]:
     """The scene's stirrers at simulated time ``t``: where the solver puts them, from
-    the same scene data and the same ``mrsph.scene.interaction.path_sample``."""
+    the same scene data and the same ``mrsph.scene.interaction.path_sample``. Given the
+    frame's ``snap``, a stirrer whose path has ended with no real particle within its
+    radius is left out: parked out of the water (demo_2d's, lifted above the post), it
+    acts on nothing."""
     stirrers = scene_setting(scene, "stirrers", None) or []
     if not stirrers:
         return []
     from mrsph.scene.interaction import path_sample  # imports Taichi (not initialised): lazily
 
+    real = None if snap is None else np.asarray(snap.x)[~palette.is_virtual(snap.kind)]
     out = []
     for st in stirrers:
-        pos, _vel = path_sample(st["path"], t, bool(st.get("loop", True)))
-        out.append(Mark(np.asarray(pos, float), float(st["radius"]), "stirrer"))
+        loop = bool(st.get("loop", True))
+        pos, _vel = path_sample(st["path"], t, loop)
+        centre, radius = np.asarray(pos, float), float(st["radius"])
+        ended = not loop and t >= float(st["path"][-1][0])
+        if ended and real is not None and not (np.linalg.norm(real - centre[: real.shape[1]], axis=1) < radius).any():
+            continue
+        out.append(Mark(centre, radius, "stirrer"))
     return out
 
 

@@ -22,7 +22,7 @@ def frame_marks(scene, snap, mouse, cursor, renderer, hovering: bool) -> list[Ma
     y up; ``renderer``: the frame's renderer (its 2D view or camera maps the cursor);
     ``hovering``: the cursor may show the reach (no drag owned elsewhere, not over the
     HUD)."""
-    marks = stirrer_marks(scene, float(snap.time))
+    marks = stirrer_marks(scene, float(snap.time), snap)
     d = mouse.current
     if d is not None:
         marks.append(Mark(np.asarray(d.center, float), float(d.radius), "mouse"))

@@ -283,7 +283,7 @@ def record(
         for i in range(frames):
             snap = sim.snapshot()
             img = source.render(
-                snap, color_mode, show_virtual, rest_density, stirrer_marks(scene, float(snap.time)), surface
+                snap, color_mode, show_virtual, rest_density, stirrer_marks(scene, float(snap.time), snap), surface
             )
             sink.append(img)
             bar.update(1)
