@@ -249,7 +249,8 @@ def hud_rows(self, snap) -> list:
         if self.takes(key):  # dfsph has no stiffness; pbf its smoothing, the viscosity where it acts
             lo = 0.1 * self.slider_max[key] / 4.0 if key == "fluid.stiffness" else 0.0
             rows.append(("slider", label, self.params[key], lo, self.slider_max[key], _setter(self, key)))
-    rows.append(("slider", "gravity y", self.params["gravity_y"], -20.0, 5.0, self._set_gravity_y))
+    # symmetric, so that the handle at Earth's -9.81 stands clear of the value's minus sign
+    rows.append(("slider", "gravity y", self.params["gravity_y"], -20.0, 20.0, self._set_gravity_y))
     rows.append(_text(f"mouse (q / e: radius), cap {self.mouse.max_speed:.2g} m/s", DIM_COLOUR))
     m = self.mouse
     rows.append(("slider", "radius", m.radius, m.radius_min, m.radius_max, lambda v: setattr(m, "radius", v)))
