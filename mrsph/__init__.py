@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import importlib
 
+__version__ = "0.4.0"  # pyproject.toml's (tests/test_packaging.py holds them together)
+
 # public name -> submodule it lives in; resolved on first access (PEP 562)
 _LAZY = {
     "load_scene": "scene.config",

@@ -354,6 +354,18 @@ def test_bench_rejects_an_unknown_case():
     assert proc.returncode == 2 and "no case matches" in proc.stderr and "Traceback" not in proc.stderr
 
 
+def test_bench_lists_the_cases_case_chooses():
+    proc = subprocess.run(
+        [sys.executable, "main.py", "bench", "--case", "pbf", "--list"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=TIMEOUT_S,
+    )
+    lines = proc.stdout.strip().splitlines()
+    assert proc.returncode == 0 and lines and all("pbf" in line for line in lines), proc.stdout + proc.stderr
+
+
 def test_bench_refuses_a_bad_override_before_running():
     """A bad --set is one line per problem and exit 2 before any case compiles, said once
     even though it is wrong in both chosen cases."""

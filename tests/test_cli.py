@@ -214,6 +214,7 @@ def test_a_headless_run_says_the_recording_options_do_nothing_there(tmp_path):
     proc = run(scene_file(tmp_path), "--headless", "--frames", 1, "--width", 320, "--fps", 60, cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     assert "mrsph: --width, --fps apply to recordings (--out); a headless run renders nothing" in proc.stderr
+    assert "nothing written (--dump DIR keeps the frames, --out FILE a video)" in proc.stdout, proc.stdout
 
 
 def test_frame_budget_is_read_in_milliseconds_and_zero_means_whole_frames():
@@ -232,6 +233,7 @@ def test_help_lists_every_option_and_its_default():
     options = [
         "--arch",
         "--threads",
+        "--version",
         "--headless",
         "--frames",
         "--out",
@@ -263,9 +265,28 @@ def test_help_lists_every_option_and_its_default():
         "(default: dam_break_2d)" if not (REPO / "scenes/demo_2d.toml").exists() else "(default: demo_2d)",
     ]:
         assert default in out, default
-    assert out.count("(default:") >= len(options) - 1  # --help itself has none
+    assert out.count("(default:") >= len(options) - 2  # --help and --version have none
     assert "python3 main.py list" in out and "python3 main.py bench" in out and "python3 main.py keys" in out
     assert "the window's keys and mouse:" in out and "next / previous scene" in out
+
+
+def test_version_and_help_as_a_command():
+    """--version names the package's version; "help" reads as --help, "help bench" as
+    bench --help."""
+    import tomllib
+
+    version = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["version"]
+    proc = run("--version")
+    assert proc.returncode == 0 and proc.stdout.strip() == f"mrsph {version}", proc.stdout + proc.stderr
+    proc = run("help")
+    assert proc.returncode == 0 and proc.stdout.startswith("usage: python3 main.py [-h]"), proc.stdout + proc.stderr
+    proc = run("help", "bench")
+    assert proc.returncode == 0 and proc.stdout.startswith("usage: python3 main.py bench"), proc.stdout + proc.stderr
+    assert "``" not in proc.stdout, "the bench's help shows the docstring's markup"
+
+
+def test_a_directory_for_a_scene_is_named_as_one(tmp_path):
+    assert_usage_error(run(tmp_path, "--headless", "--frames", 1), f"{tmp_path}: a directory (expected a scene name")
 
 
 def test_list_takes_no_arguments_and_commands_come_first():

@@ -86,6 +86,13 @@ def test_pyproject_lists_every_package():
     assert callable(main)
 
 
+def test_the_package_version_is_pyproject_s():
+    import mrsph
+
+    version = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["version"]
+    assert mrsph.__version__ == version, f"mrsph.__version__ {mrsph.__version__}, pyproject.toml {version}"
+
+
 def test_imports_run_downwards_only():
     upward = []
     for path in _sources():

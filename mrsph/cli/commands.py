@@ -18,6 +18,7 @@ import time
 import warnings
 from pathlib import Path
 
+from .. import __version__
 from .options import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,
@@ -100,6 +101,7 @@ def build_parser() -> argparse.ArgumentParser:
         "3D (Taichi's per-loop thread wake-up costs more than it saves "
         "there), else all cores (default: auto)",
     )
+    parser.add_argument("--version", action="version", version=f"mrsph {__version__}")
     parser.add_argument(
         "--headless", action="store_true", help="no window: run --frames frames (or run.frames), then stop"
     )
@@ -345,7 +347,11 @@ def _run_headless(sim, frames: int, args) -> int:
     wall = time.perf_counter() - t0
     row = dumper.last_row if dumper else sim.stats()
     if not args.quiet:
-        where = f"; dumped to {args.dump}" if args.dump else ""
+        where = (
+            f"; dumped to {args.dump}"
+            if args.dump
+            else "; nothing written (--dump DIR keeps the frames, --out FILE a video)"
+        )
         print(
             f"{sim.scene.name}: {frames} frame{'s' if frames != 1 else ''}, {sim.time:.4g} s simulated in {wall:.3g} s "
             f"wall ({steps} steps); {row['n_real']} real / {row['n_virtual']} virtual "
@@ -478,6 +484,8 @@ def _run(args) -> int:
 def main(argv=None) -> int:
     """Run the command line; returns the exit status (see the module docstring)."""
     argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] == "help":  # "help" and "help bench" read as --help and bench --help
+        argv = [*argv[1:2], "--help"]
     if argv and argv[0] == "list":
         return _cmd_list(argv[1:])
     if argv and argv[0] == "keys":

@@ -95,7 +95,11 @@ def run_cases(cases, repeats, arch, threads="auto", log=None) -> tuple[list, lis
 def main(argv=None) -> int:
     from ..options import HelpFormatter, Parser, file_problem, positive_float, positive_int, threads_arg
 
-    ap = Parser(prog="python3 main.py bench", description=__doc__.splitlines()[0], formatter_class=HelpFormatter)
+    ap = Parser(
+        prog="python3 main.py bench",
+        description=__doc__.splitlines()[0].replace("``", ""),
+        formatter_class=HelpFormatter,
+    )
     ap.add_argument(
         "--full", action="store_true", help="the long set: adds 50k 2D and 100k 3D dam breaks and finer pairs"
     )
@@ -131,11 +135,11 @@ def main(argv=None) -> int:
         help="a scene override added to every chosen case, after the case's own "
         "(repeatable), e.g. --set 'fluid.solver=\"dfsph\"' (default: none)",
     )
-    ap.add_argument("--list", action="store_true", help="list the cases and exit")
+    ap.add_argument("--list", action="store_true", help="list the cases (those --case chooses) and exit")
     args = ap.parse_args(argv)
     cases = [c for c in _cases(args.full) if not args.case or any(t in c.name for t in args.case)]
-    if args.list:
-        for c in _cases(args.full):
+    if args.list and cases:
+        for c in cases:
             print(f"{c.name:40s} {c.kind:5s} {c.scene} {' '.join(c.overrides)}")
         return 0
     if not cases:

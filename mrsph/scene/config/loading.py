@@ -207,6 +207,8 @@ def resolve_scene_path(name_or_path: str | Path) -> Path:
     for path in (Path(text), SCENES_DIR / text, SCENES_DIR / f"{text}.toml"):
         if path.is_file():
             return path
+    if Path(text).is_dir():
+        raise SceneError(f"{text}: a directory (expected a scene name or a path to a .toml file)")
     names = [name for name, _ in list_scenes()]
     close = difflib.get_close_matches(Path(text).stem, names, 1)
     why = f", did you mean '{close[0]}'?" if close else ""
