@@ -376,3 +376,18 @@ def test_the_3d_camera_keeps_the_box_clear_of_the_legend(given):
     assert (depth > 0).all()
     assert px[:, 0].min() >= box[2] or px[:, 1].max() <= box[1], f"box corners {np.round(px).tolist()} under {box}"
     assert px[:, 0].max() <= 0.73 * w, "the box reaches under the HUD"
+
+
+def test_virtual_particles_shown_are_drawn_over_the_real_ones():
+    """``v``: each virtual particle sits on real matter of another level, so it is drawn
+    last, at half its size, where its own colour shows at its centre; drawn under the
+    real ones it showed only at the surface."""
+    snap = fake_snapshot(2, frames=0)
+    virt = np.flatnonzero(palette.is_virtual(snap.kind))
+    rgb = palette.colours(snap, "level")
+    r = Rasterizer(960, 540)
+    img = r.render(snap, show_virtual=True, legend=False)
+    px = np.round(r.view2d(snap).world_to_px(np.asarray(snap.x)[virt, :2]) - 0.5).astype(int)
+    seen = img[img.shape[0] - 1 - px[:, 1], px[:, 0]].astype(np.float32)  # pixel rows run down
+    own = np.abs(seen - rgb[virt] * 255.0).max(axis=1) <= 3.0
+    assert own.mean() > 0.9, f"{own.mean():.0%} of {len(virt)} virtual particles show their own colour"

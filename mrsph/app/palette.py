@@ -128,6 +128,11 @@ _G_FOR_SPEED_SCALE = 9.81
 #: stirred: 30 background pixels of 139 200 in the water at 1/sqrt(2), 1-30 at 0.8; at
 #: 0.5, touching discs, a square lattice leaves 1 - pi/4 = 21 % of it uncovered).
 DISC_SCALE = 1.6
+#: Shown (``v``), a virtual particle is drawn over the real ones at this share of its
+#: size: it sits on real matter of another level (a coarse particle's virtual children,
+#: a fine group's virtual parent), so drawn under it, at full size, it showed only at the
+#: surface; smaller and on top, both levels show.
+VIRTUAL_SCALE = 0.5
 
 
 @dataclass(frozen=True)

@@ -3,8 +3,8 @@
 It draws the same picture as :mod:`mrsph.app.render` from the same inputs (palette,
 letterboxed :class:`~mrsph.app.view.View2D`, :class:`~mrsph.app.view.OrbitCamera`):
 
-* 2D: flat discs, painter's order (virtual under real, coarse under fine, as GGUI
-  draws them), filled obstacles, domain and obstacle outlines on top.
+* 2D: flat discs, painter's order (coarse under fine, virtual ones smaller on top, as
+  GGUI draws them), filled obstacles, domain and obstacle outlines on top.
 * 3D: sphere splats with headlight shading resolved by a z-buffer; obstacle shells
   and wireframes go through the same z-buffer so depth is right everywhere.
 
@@ -148,12 +148,13 @@ class Rasterizer:
         px = view.world_to_px(np.asarray(snap.x)[:, :2])
         scale = palette.DISC_SCALE * self.style.point_scale
         radius_px = view.radius_px(np.asarray(snap.radius, dtype=np.float64)) * scale
-        # Painter's order: virtual below real, coarse below fine (fine detail on top).
-        for want_virtual in (True, False):
+        # Painter's order: coarse below fine (fine detail on top), virtual ones last, smaller.
+        for want_virtual in (False, True):
+            share = palette.VIRTUAL_SCALE if want_virtual else 1.0
             for lvl in range(int(snap.levels) - 1, -1, -1):
                 sel = keep & (level == lvl) & (virt == want_virtual)
                 if sel.any():
-                    self._stamp_flat(px[sel], _quantise(radius_px[lvl]), rgb[sel])
+                    self._stamp_flat(px[sel], _quantise(share * radius_px[lvl]), rgb[sel])
         # outside the domain is background (the discs and the body stop at the walls),
         # and the obstacles cover what reached into them
         (x0, y0), (x1, y1) = view.world_to_px(np.array([snap.domain_min[:2], snap.domain_max[:2]], np.float64))
@@ -266,6 +267,7 @@ class Rasterizer:
         self._zbuf = np.full(w * h, np.inf, dtype=np.float64)
         frags = []  # (idx, depth, colour) of every fragment, resolved by the z-buffer
         radius = np.asarray(snap.radius, dtype=np.float64)[np.asarray(snap.level)] * self.style.point_scale
+        radius = np.where(palette.is_virtual(snap.kind), palette.VIRTUAL_SCALE * radius, radius)
         if self.surface:
             frags += self._mesh_splats(cam, snap, rgb, f)
             keep = keep & palette.is_virtual(snap.kind)

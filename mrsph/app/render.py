@@ -6,7 +6,7 @@ It reads a snapshot (numpy, host side), packs GGUI's vertex buffers with numpy
 draws
 
 * 2D: ``canvas.circles`` with per-vertex colour and radius, in painter's order
-  (virtual under real, coarse under fine), obstacles filled with ``canvas.triangles``,
+  (coarse under fine, virtual ones shown smaller on top), obstacles filled with ``canvas.triangles``,
   domain and obstacle outlines with ``canvas.lines``, letterboxed by
   :class:`~mrsph.app.view.View2D`;
 * 3D: ``scene.particles`` with per-vertex colour and radius, obstacle shells as small
@@ -187,12 +187,13 @@ class Renderer:
             keep = keep & virt  # the body stands for the real particles
             self._water_edge = water.surface
         idx = np.nonzero(keep)[0]
-        # Painter's order: virtual first, then coarse to fine, so fine detail is on top.
-        idx = idx[np.lexsort((-level[idx], ~virt[idx]))]
+        # Painter's order: coarse to fine, so fine detail is on top; virtual ones last, smaller
+        idx = idx[np.lexsort((-level[idx], virt[idx]))]
         if len(idx):
             pos = view.world_to_canvas(np.asarray(snap.x)[idx, :2])
             # per_vertex_radius is a fraction of the window height in GGUI's canvas.
             rad = view.radius_px(np.asarray(snap.radius)[level[idx]]) * palette.DISC_SCALE * self.style.point_scale / h
+            rad = np.where(virt[idx], palette.VIRTUAL_SCALE * rad, rad)
             self.gpu.circles(self.canvas, pack(pos, radius=rad, colour=rgb[idx]), per_colour=True, per_radius=True)
         if water is not None and len(water.drops):
             r = view.radius_px(water.drop_radius) / h
@@ -276,6 +277,7 @@ class Renderer:
             keep = keep & palette.is_virtual(snap.kind)
         if keep.any():
             rad = np.asarray(snap.radius, np.float64)[np.asarray(snap.level)[keep]] * self.style.point_scale
+            rad = np.where(palette.is_virtual(snap.kind)[keep], palette.VIRTUAL_SCALE * rad, rad)
             fluid = pack(np.asarray(snap.x)[keep], radius=rad, colour=rgb[keep])
             self.gpu.particles(scene, fluid, per_colour=True, per_radius=True, radius=float(rad.max()))
         self._draw_shells(scene, snap)
