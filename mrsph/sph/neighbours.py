@@ -1,7 +1,10 @@
 """The one neighbour visitor: same-level candidates and the wall and obstacle images.
 
-Every pass that sums over a particle's neighbourhood (density, forces, the level
-coupling, the placement of split children) visits it through this object:
+Every pass that sums over a particle's neighbourhood (forces, the level coupling, the
+pressure solvers) visits it through this object; the density pass writes the lists it
+reads (below), and the adaptivity's searches for particles of a kind near a point (a
+split child's push, the fade's re-measure, the limiter's and the merge's scans) walk the
+grid block (``Grids.around`` and ``row``) as ``grid_candidates`` does, without images:
 
 - ``candidates(i, xq, …, l, listed, with_self, visit, acc)`` calls ``visit(i, j, …, ctx, acc)`` for each
   candidate j near the point xq at level l: i's neighbour list (``listed``; i itself first
