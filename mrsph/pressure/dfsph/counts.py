@@ -65,7 +65,7 @@ class SolveCounts:
         halved = f", its step halved {shortened} time(s) first (dfsph.shorten_steps)" if shortened else ""
         return (
             f"dfsph: the {name} solve stopped at {key} = {self.max_iterations[which]}{when} ({why}{halved}): "
-            f"raise {key}, or loosen the tolerance named; counted in the stats row (unconverged), warned once"
+            f"raise {key}, or loosen the tolerance named; counted in the stats row (unconverged), warned once a run"
         )
 
     def take(self) -> dict:

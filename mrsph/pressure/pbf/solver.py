@@ -178,7 +178,7 @@ class PBF(PressureSolver):
                 f"pbf: {int(unconverged)} of {int(steps)} steps stopped at pbf.iterations = {self.iterations} "
                 f"with an average density error above pbf.tolerance = {self.cfg.tolerance:g} (worst {worst:.3g})"
                 + largest
-                + ": raise pbf.iterations or pbf.substeps (counted in stats as unconverged; warned once)"
+                + ": raise pbf.iterations or pbf.substeps (counted in stats as unconverged; warned once a run)"
             )
         return {
             "density_iterations": iters / steps if steps else 0.0,
