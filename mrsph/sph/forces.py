@@ -34,7 +34,7 @@ def viscous_dt(factor: float, h: float, rest_density: float, mu: float) -> float
     hand (as Morris et al. 1997's 0.125 h²/ν with their h, half our support). At the
     scenes' viscosities it is far above the CFL bound; it binds when the viscosity is
     raised live, which would otherwise blow up."""
-    return factor * h * h * rest_density / mu if mu > 0.0 else math.inf
+    return factor * h**2 * rest_density / mu if mu > 0.0 else math.inf
 
 
 @ti.data_oriented
