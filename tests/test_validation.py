@@ -1,15 +1,18 @@
 """tools/validate.py's quick runs against the validation targets (docs/validation.md), a
-representative few in ``-m slow``: every solver at rest in the 2D deep tank (dfsph in 3D too) and on Martin & Moyce's
-2D front, one adaptive run against its uniform twin, and wcsph and dfsph on Lobovsky's 2D wall
-pressure. The rest (3D but dfsph's tank, the other adaptive runs, MARIN's box) is the command's:
-``python3 tools/validate.py --quick`` runs every one and marks each target held or missed in its
-table, and docs/validation.md holds what it gave.
+representative few in ``-m slow``: every solver at rest in the 2D deep tank (dfsph in 3D too)
+and on Martin & Moyce's 2D front, one adaptive run against its uniform twin, and wcsph and dfsph
+on Lobovsky's 2D wall pressure; and dfsph's 2D tank, uniform and adaptive, at the 80 layers the
+validation asks. The rest (3D but dfsph's tank, the other adaptive runs, MARIN's box) is the
+command's: ``python3 tools/validate.py --quick`` runs every one and marks each target held or
+missed in its table, and docs/validation.md holds what it gave.
 
-The quick runs are the scenes at twice their spacing, about five minutes together on one core, so
-that the slow tier stays short; dfsph's deep tank is also held at the scene's spacing, the 80
-layers the validation asks of every solver. A run may take overrides (``SETS``; none today). A
-target a quick run misses for a measured cause that docs/validation.md states as a known
-limitation would be in ``KNOWN`` with the number measured, run as xfail (not strict); none is.
+The quick runs are the scenes at twice their spacing, about five minutes together on one core,
+so that the slow tier stays short. dfsph's adaptive 2D tank is held at the scene's spacing only:
+40 layers deep, its level interface reads 6-8 % of rho0 g H low and its pressure by depth 2.8 %
+or 5.6 % off with the same commit on two machines (docs/validation.md, "Known limitations"). A
+run may take overrides (``SETS``; none today). A target a quick run misses for a measured cause
+that docs/validation.md states as a known limitation would be in ``KNOWN`` with the number
+measured, run as xfail (not strict); none is.
 """
 
 import pytest
@@ -45,7 +48,6 @@ def quick(case: str, dim: int, solver: str, mode: str) -> dict:
 #: the quick runs the slow tier holds, (case, dim, solver, mode): the rest is the command's
 SLOW = [
     *[("tank", 2, s, "uniform") for s in V.SOLVERS],
-    ("tank", 2, "dfsph", "adaptive"),
     ("tank", 3, "dfsph", "uniform"),
     *[("front", 2, s, "uniform") for s in V.SOLVERS],
     ("front", 2, "wcsph", "adaptive"),
@@ -90,15 +92,17 @@ def test_quick_run_holds_its_targets(request, case, dim, solver, mode):
 
 @pytest.mark.slow
 @pytest.mark.xdist_group("validation-tank-2d")
-def test_dfsph_holds_the_80_deep_tank_at_rest():
+@pytest.mark.parametrize("mode", ["uniform", "adaptive"])
+def test_dfsph_holds_the_80_deep_tank_at_rest(mode):
     """The issue's depth: the 2D tank at the scene's spacing, 80 layers, under dfsph (the quick
     runs above are 40 deep), held to the same targets: mean speed after 2 s and the pressure
     by depth (docs/validation.md). The paper's Jacobi density solve read 0.015 sqrt(gH) and
-    26 % here; the Krylov solve 0.0035 and 1-2 % (about 45 s)."""
+    26 % here; the Krylov solve 0.0035 and 1-2 % (about 45 s); adaptive 0.0035 and 1.7 %
+    (2026-12-07, about 90 s)."""
     from mrsph import runtime
 
     runtime.reset()
-    run = V.run_one("tank", 2, "dfsph", "uniform", V.scene_spacing("tank", 2), [])
+    run = V.run_one("tank", 2, "dfsph", mode, V.scene_spacing("tank", 2), [])
     runtime.reset()
     checks = R.checks(run, None)
     print(f"\n{run['key']}: {checks}")
