@@ -9,7 +9,7 @@ missed in its table, and docs/validation.md holds what it gave.
 The quick runs are the scenes at twice their spacing, about five minutes together on one core,
 so that the slow tier stays short. dfsph's adaptive 2D tank is held at the scene's spacing only:
 40 layers deep, its level interface reads 6-8 % of rho0 g H low and its pressure by depth 2.8 %
-or 5.6 % off with the same commit on two machines (docs/validation.md, "Known limitations"). A
+or 5.6 % off on two machines, past the 5 % on one (docs/validation.md, "Known limitations"). A
 run may take overrides (``SETS``; none today). A target a quick run misses for a measured cause
 that docs/validation.md states as a known limitation would be in ``KNOWN`` with the number
 measured, run as xfail (not strict); none is.
