@@ -91,7 +91,6 @@ class PBF(PressureSolver):
         self._damping_c = sound_speed(fl.stiffness, fl.eos)
         self._viscous = lambda mu: viscous_dt(params.physics.viscous_factor, core.lev.h0, self.rest_density, mu)
         self.mu = fl.viscosity if self.scene_viscosity else 0.0
-        self.step_dt = min(self.frame_dt, self._viscous(self.mu))
         self.pairs = PairGradients(core, coupling)
         cap = core.pool.capacity
         self.q = ti.field(float, shape=cap)  # the step's accumulated multiplier
@@ -128,6 +127,11 @@ class PBF(PressureSolver):
         self._correct_images = ImageNeighbours(self.nb, self._correct_image)
 
     # ------------------------------------------------------------------ interface
+    @property
+    def step_dt(self) -> float:
+        """The frame's share, or the viscous bound of the viscosity now set where it is shorter."""
+        return min(self.frame_dt, self._viscous(self.mu))
+
     def bound(self) -> TimeStepBound:
         """dt = the frame's share (``pbf.substeps``) or ``pbf.dt``: no CFL and no force bound."""
         key = "pbf.dt" if self.cfg.dt > 0.0 else "pbf.substeps"
@@ -155,7 +159,6 @@ class PBF(PressureSolver):
         else:
             self.mu = float(value)
             self.knobs[VISC] = self.mu
-            self.step_dt = min(self.frame_dt, self._viscous(self.mu))
 
     def reset_counters(self) -> None:
         self.stats.fill(0.0)
