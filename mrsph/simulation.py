@@ -1,12 +1,9 @@
 """The simulation: ``Simulation`` builds the parts of the method in the order they
 depend on each other, each handed what it uses, and lists the passes of one time step
 in the method's order (``_passes``, METHOD.md §1–6), which ``step()`` runs
-(``sph/step.py``: pass by pass, or as one launch where the solver allows it):
-
-    emit → adapt (criteria, split/merge) → grid → [virtual masses] → density
-      → [virtual state] → [solver: after the density] → forces → [virtual reactions]
-      → time step → kick → [solver: on the kicked velocities] → drift and collide
-      → [solver: on the drifted positions] → virtual advection → stirrers → nozzles
+(``sph/step.py``: pass by pass, or as one launch where the solver allows it). The order
+is written once, there; docs/ARCHITECTURE.md's step table names each pass and is
+checked against it (``tests/test_passes.py``).
 
 Where each part lives (docs/ARCHITECTURE.md draws it): ``sph/`` the SPH core (levels,
 grids, the neighbour visitor, density, forces, integration, walls, the step's runner);

@@ -3,13 +3,8 @@ running it: a pass a launch (each timed when profiling), or, where every pass be
 the host's own is a device function, the whole list as one kernel launch.
 
 ``Simulation`` builds the list once (``simulation.py``, ``_passes``), from the parts' own
-passes in the method's order:
-
-    emit → adapt → grid → [virtual masses] → density → [virtual state] → [solver]
-      → forces → [virtual reactions] → time step → kick → [solver] → drift and collide
-      → [solver] → virtual advection → stirrers → nozzles
-
-and ``docs/ARCHITECTURE.md``'s step table is checked against it (``tests/test_passes.py``).
+passes in the method's order, which ``docs/ARCHITECTURE.md``'s step table names and
+``tests/test_passes.py`` checks.
 
 A step of a few thousand particles is launch-bound: each call from Python into Taichi
 costs 15-30 µs on the CPU (its arguments, its result, the pool's wake-up), and the
