@@ -165,15 +165,30 @@ class Adaptive(Uniform):
     @ti.func
     def hand_on(self, j, r, into: ti.template()):
         """Add the reaction r on virtual particle j to ``into`` of the real particle(s) j
-        stands for, split evenly (METHOD.md §4, thesis Fig. 7): a virtual child's
-        transient parent, or a virtual parent's children."""
+        stands for (METHOD.md §4, thesis Fig. 7): a virtual child's transient parent, or
+        a virtual parent's children in shares of their masses. A virtual parent moves
+        with its children's mass-weighted mean (``follow_owners``), so the mass shares are
+        that map's transpose: the reaction does the same work on the children as on j,
+        and an implicit solve's operator stays symmetric. A split leaves the children's
+        masses equal (even shares); an absorption or a gather can leave them unequal."""
         p = ti.static(self.pool.p)
         if p[j].kind == VIRTUAL_CHILD:
             ti.atomic_add(into[p[j].parent], r)
         else:
-            share = r / ti.max(p[j].nchild, 1)
-            for q in range(p[j].nchild):
-                ti.atomic_add(into[self.pool.children[j, q]], share)
+            n = p[j].nchild
+            first = p[self.pool.children[j, 0]].m
+            m, equal = 0.0, True
+            for q in range(n):
+                mc = p[self.pool.children[j, q]].m
+                m += mc
+                equal = equal and mc == first
+            for q in range(n):
+                ch = self.pool.children[j, q]
+                # equal masses take r / n: exact, where their summed mass need not be
+                share = r / n
+                if not equal:
+                    share = r * (p[ch].m / m)
+                ti.atomic_add(into[ch], share)
 
     @ti.func
     def follow_owners(self, j, vel: ti.template()):
@@ -407,7 +422,7 @@ class SymmetricReactions:
     @ti.func
     def run_func(self, n):
         """Hand the reaction of each real–virtual force to the real particles the virtual
-        one stands for, split evenly (METHOD.md §4, thesis Fig. 7), and interpolate the
+        one stands for (``hand_on``: METHOD.md §4, thesis Fig. 7), and interpolate the
         virtual particle's velocity from the real particles of its level."""
         p = ti.static(self.pool.p)
         mu = self.viscosity.mu[None]

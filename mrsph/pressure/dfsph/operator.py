@@ -10,8 +10,8 @@ and the velocity change per unit time of a pressure κ = p/ρ,
 with the walls and obstacles as mirror images (x_i − x_j' = L(xq − x_j), v_j' = L v_j,
 κ_j' = κ_j) and the level coupling: each level's sums include its virtual particles,
 whose κ is their partner pressure (0 with the variational coupling), whose velocities
-follow their owners', and whose reaction is handed back, split evenly, to the real
-particles they stand for. The Jacobi sweeps (``jacobi.py``) apply the one to the
+follow their owners', and whose reaction is handed back to the real particles they
+stand for (its transpose, ``coupling.hand_on``). The Jacobi sweeps (``jacobi.py``) apply the one to the
 particles' velocities; the Krylov solves (``krylov.py``) also to a field of velocity
 changes, hence the velocity field as an argument.
 """
