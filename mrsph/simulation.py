@@ -366,6 +366,7 @@ class Simulation:
             for k in ("x", "v", "m", "rho", "p", "level", "kind", "parent", "nchild", "lam", "drho")
         }
         out["p"] = self.pressure.reported_pressure(out["p"])
+        out["rho"] = self.pressure.reported_density(out["rho"], out["kind"])
         keep = out["kind"] != DEAD
         if not virtual:
             keep &= out["kind"] < VIRTUAL_CHILD

@@ -159,6 +159,37 @@ def test_dumps_show_the_tensile_corrections_pressure_with_the_multipliers():
     assert np.array_equal(*parts()[1:])
 
 
+def test_dumps_and_stats_read_the_density_the_last_iteration_measured():
+    """The pool's density is the density pass's, at the predicted positions, before the
+    projection: a patch squeezed to 2 rho0 reads so there after a step that brought it
+    within pbf.max_density_error. A reader (the dumps' rho, the stats' max_density_ratio)
+    sees the last iteration's measure, which the step's pressure and error read; after
+    the slots were sorted anew outside a step, the pool's again."""
+    from mrsph.scene.config import load_scene
+    from mrsph.simulation import Simulation
+    from mrsph.sph.particles import VIRTUAL_CHILD
+
+    sim = Simulation(load_scene(_scene(2)), arch="cpu")
+    _squeeze(sim, 2)
+    sim.step()
+
+    def densities():
+        n = sim.pool.count()
+        kind = sim.pool.p.kind.to_numpy()[:n]
+        real = (kind >= 0) & (kind < VIRTUAL_CHILD)
+        seen = sim.particles(virtual=False)["rho"]
+        return seen, sim.pool.p.rho.to_numpy()[:n][real], sim.pressure.rho.to_numpy()[:n][real]
+
+    seen, pooled, measured = densities()
+    assert np.array_equal(seen, measured)
+    ratio = sim.stats()["max_density_ratio"]
+    assert ratio == pytest.approx(float(measured.max()) / 1000.0, rel=1e-6)
+    assert ratio < 1.0 + LIMIT + 0.02 < 1.5 < float(pooled.max()) / 1000.0, (ratio, float(pooled.max()) / 1000.0)
+    sim.run_phases("grid")
+    seen, pooled, _ = densities()
+    assert np.array_equal(seen, pooled)
+
+
 def test_pbf_tunes_its_smoothing_live_and_the_viscosity_only_where_it_acts():
     """pbf has no force pass, so ``fluid.viscosity`` acts only with ``pbf.viscosity =
     "scene"``, in the projection: there it is live, and raised so far that its explicit

@@ -713,7 +713,7 @@ def test_a_refused_pbf_step_leaves_every_particle_where_it_was(dim, by_pass):
     rest over no particle (``step.Segment``'s gate): either way each particle keeps its
     place and velocity (the fused one may have sorted them), and the refused step is not
     counted in the solver's stats."""
-    from mrsph.pressure.pbf.solver import STEPS
+    from mrsph.pressure.pbf.counts import STEPS
     from mrsph.simulation import SimulationError
 
     scene = tank_scene(dim)
@@ -730,7 +730,7 @@ def test_a_refused_pbf_step_leaves_every_particle_where_it_was(dim, by_pass):
         xv = np.hstack([alive_slots(sim, "x"), alive_slots(sim, "v")])
         return xv[np.lexsort(xv.T[::-1])]
 
-    before, steps = rows(), float(sim.pressure.stats[STEPS])
+    before, steps = rows(), float(sim.pressure.counts.stats[STEPS])
     with pytest.raises(SimulationError, match="above physics.max_speed"):
         sim.step()
     after = rows()
@@ -739,7 +739,7 @@ def test_a_refused_pbf_step_leaves_every_particle_where_it_was(dim, by_pass):
         f"{dim}D: {moved.size} of {len(before)} particles moved in a refused step, e.g. "
         f"x, v {before[moved[0]].tolist()} -> {after[moved[0]].tolist()}"
     )
-    assert float(sim.pressure.stats[STEPS]) == steps, f"{dim}D: the refused step was counted in pbf's stats"
+    assert float(sim.pressure.counts.stats[STEPS]) == steps, f"{dim}D: the refused step was counted in pbf's stats"
 
 
 @pytest.mark.parametrize("g", [1e20, 1e31])

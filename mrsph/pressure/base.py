@@ -126,9 +126,16 @@ class PressureSolver:
         keeps part of it apart (pbf: its tensile correction's, outside the warm start)."""
         return p
 
+    def reported_density(self, rho: np.ndarray, kind: np.ndarray) -> np.ndarray:
+        """The density a reader sees (dumps, the stats), of the first len(rho) slots: the
+        pool's, the density pass's, unless the solver measured its own after it (pbf: its
+        last iteration's, at the projected positions)."""
+        return rho
+
     def forget_step(self) -> None:
         """The slots no longer hold the last step's particles (a reset, a restored state,
-        a sort outside a step): drop what ``reported_pressure`` adds."""
+        a sort outside a step): drop what ``reported_pressure`` and ``reported_density``
+        take from the step."""
 
     def set_param(self, key: str, value) -> None:
         raise ValueError(f"{key}: not live-tunable with fluid.solver = {self.name}")

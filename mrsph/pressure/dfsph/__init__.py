@@ -36,7 +36,8 @@ TABLE = (
             0.001,
             "> 0",
             doc="the density solve stops when the average density error it leaves, |rho* - rho0| / rho0 "
-            "over the particles in its system, is within this (0.001 = 0.1 %)",
+            "over the particles in its system, is within this (0.001 = 0.1 %); of an error a particle "
+            "already has, the part that correction_time leaves to later steps is not counted",
         ),
         "rest_tolerance": key(
             "float",

@@ -4,34 +4,39 @@ particle is a constraint C_i = ρ_i/ρ0 − 1 <= 0, projected on the positions b
 Jacobi iterations a step, with a time step tied to the frame (``pbf.substeps`` a frame),
 not to a sound speed or a CFL bound.
 
-The step, in mrsph's order (``simulation.py`` schedules these passes): the force pass
-applies ``pbf.warm_start`` of the last step's pressure, the kick adds gravity and
-disturbances, ``pbf_clamp`` keeps each particle within ``pbf.max_displacement`` of its
-spacing a step (counted), the drift predicts x* = x + dt u; then, on x*, ``pbf_iterate``
-runs ``pbf.iterations`` times
+The step, in mrsph's order (``simulation.py`` schedules these passes; docs/METHOD.md §17):
+there is no force pass. The kick adds gravity and disturbances, ``pbf_clamp`` keeps each
+particle within ``pbf.max_displacement`` of its spacing a step (counted), the drift
+predicts x* = x + dt u, and the pool is sorted and its density measured at x*. Then
+
+0. ``pbf_begin``: the accumulated multiplier q_i (a displacement per unit of Σ m ∇W,
+   q = dt² p / ρ²) starts at ``pbf.warm_start`` of the last step's pressure and its
+   correction is applied, as DFSPH's warm start, so that the iterations correct what it
+   leaves; the same pass smooths the velocities: XSPH (u_i += c Σ_j 2 m_j/(ρ_i + ρ_j)
+   (u_j − u_i) W_ij, symmetric in the pair so that it keeps momentum) and, with
+   ``pbf.viscosity = "scene"``, the scene's viscosity over the step;
+
+and ``pbf_iterate`` runs up to ``pbf.iterations`` times
 
 1. the multipliers: ρ_i and D_i = |Σ_j m_j ∇W_ij|² + m_i Σ_j m_j |∇W_ij|² over i's
    neighbourhood (virtual particles and mirror images included, ``gradients.py``), and
-   the Jacobi step on i's accumulated multiplier q_i (a displacement per unit of
-   Σ m ∇W, q = dt² p / ρ²), kept at q >= 0 (the constraint is one-sided, so a free
+   the Jacobi step on q_i, kept at q >= 0 (the constraint is one-sided, so a free
    surface is never pulled in):  q_i ← max(q_i + ω (ρ_i − ρ0 − δρ_i) / (D_i + ε D_0), 0),
    δq_i its change (δρ: a split child's sampling offset, multires/fade.py);
 2. the corrections: Δx_i = −Σ_j m_j (δq_i + δq'_j + s_corr,ij) ∇W_ij, δq'_j the
    multiplier j shows (the coupling's: 0 for a virtual particle, whose reaction
-   m_i Σ m_j δq_i ∇W_ij is handed back, split evenly, to the real particles it stands
-   for, so that the corrections over the real particles sum to zero); s_corr is the
-   tensile correction (``tensile.py``);
+   m_i Σ m_j δq_i ∇W_ij is handed back to the real particles it stands for,
+   ``coupling.hand_on``, so that the corrections over the real particles sum to zero);
+   s_corr is the tensile correction (``tensile.py``);
 3. x_i += Δx_i and u_i += Δx_i / dt (the velocity from the position change), the walls
    and obstacles (collide), the virtual particles back on their owners;
 
-XSPH smoothing in the last iteration's corrections (u_i += c Σ_j 2 m_j/(ρ_i + ρ_j)
-(u_j − u_i) W_ij, symmetric in the pair so that it keeps momentum),
-and p_i = q_i ρ_i² / dt², the pressure whose force moves x by q in a step: what the next
-step's force pass applies a share of (the pair pressure term of weakly compressible SPH
-with this p). So part of the pressure that carries the water's weight acts as a force and
-the iterations correct the rest: without it, the weight is carried by each step's
-iterations alone and a column H deep compresses by about g H D_0 dt² / (ρ0 iterations),
-30 % at the bottom of demo_2d's 7 mm level. Dumps add the tensile correction's share.
+and ``pbf_end`` sets p_i = q_i ρ_i² / dt², the pressure whose force would move x by q in a
+step: the next step's warm start. So part of the pressure that carries the water's weight
+is carried over and the iterations correct the rest: without it, the weight is carried by
+each step's iterations alone and a column H deep compresses by about
+g H D_0 dt² / (ρ0 iterations), 30 % at the bottom of demo_2d's 7 mm level. Dumps add the
+tensile correction's share to p, and read the last iteration's ρ.
 """
 
 import numpy as np
@@ -40,20 +45,18 @@ import taichi as ti
 from mrsph.sph.forces import viscous_dt
 from mrsph.sph.kernels import poly6
 from mrsph.sph.neighbours import ImageNeighbours
-from mrsph.sph.particles import is_real, is_virtual
+from mrsph.sph.particles import VIRTUAL_CHILD, is_real, is_virtual
 from mrsph.sph.step import Pass
 
 from ..base import PressureSolver, TimeStepBound
 from ..eos import sound_speed
 from ..gradients import PairGradients
+from .counts import StepCounts
 from .tensile import TensileCorrection
 
 # knobs[]: scene values the kernels read from a field, so that changing one does not
 # compile the solver's kernels again
 WARM, OMEGA, EPS, XSPH, AP, CLAMP, VISC = range(7)
-# stats[] (f64): Σ over steps of the average error, the largest step average, the
-# largest particle error, steps, steps above the tolerance, clamped particles, iterations
-ERR_SUM, ERR_WORST, ERR_PEAK, STEPS, UNCONVERGED, CLAMPED, ITERS = range(7)
 
 
 def rest_denominator(s: float, h: float, m: float, spiky: float, dim: int) -> float:
@@ -112,7 +115,8 @@ class PBF(PressureSolver):
         self.err = ti.field(ti.f64, shape=())  # Σ of this iteration's errors
         self.iteration = ti.field(ti.i32, shape=())  # of the step's, the one running
         self.n_real = ti.field(ti.i32, shape=())
-        self.stats = ti.field(ti.f64, shape=7)
+        self.measured = ti.field(ti.i32, shape=())  # the slots whose ρ (``rho``) the last step measured
+        self.counts = StepCounts(warn)
         self.running = ti.field(ti.i32, shape=())  # the step's solve goes on
         self.avg = ti.field(ti.f64, shape=())  # its last measured average error
         self.peak = ti.field(float, shape=())  # and largest
@@ -122,7 +126,6 @@ class PBF(PressureSolver):
         self.tolerance[None] = cfg.tolerance
         self.max_error = ti.field(float, shape=())  # the largest particle error allowed; inf: none
         self.max_error[None] = cfg.max_density_error if cfg.max_density_error > 0.0 else float("inf")
-        self._warned = False
         self._lambda_images = ImageNeighbours(self.nb, self._lambda_pair)
         self._correct_images = ImageNeighbours(self.nb, self._correct_image)
 
@@ -161,35 +164,10 @@ class PBF(PressureSolver):
             self.knobs[VISC] = self.mu
 
     def reset_counters(self) -> None:
-        self.stats.fill(0.0)
-        self._warned = False
+        self.counts.reset()
 
     def take_stats(self) -> dict:
-        """The steps since the last call: the mean of their average density errors (at
-        the last iteration's multipliers, before its corrections), the steps above
-        ``pbf.tolerance`` or with a particle above ``pbf.max_density_error`` (warned about
-        once) and the particles the clamp slowed."""
-        err_sum, worst, peak, steps, unconverged, clamped, iters = self.stats.to_numpy().tolist()
-        self.stats.fill(0.0)
-        if unconverged and not self._warned:
-            self._warned = True
-            largest = ""
-            limit = float(self.max_error[None])  # the bound the steps ran under
-            if np.isfinite(limit):
-                largest = f" or a particle's above pbf.max_density_error = {limit:g} (worst {peak:.3g})"
-            self.warn(
-                f"pbf: {int(unconverged)} of {int(steps)} steps stopped at pbf.iterations = {self.iterations} "
-                f"with an average density error above pbf.tolerance = {self.cfg.tolerance:g} (worst {worst:.3g})"
-                + largest
-                + ": raise pbf.iterations or pbf.substeps (counted in stats as unconverged; warned once a run)"
-            )
-        return {
-            "density_iterations": iters / steps if steps else 0.0,
-            "divergence_iterations": 0.0,
-            "density_error": err_sum / steps if steps else 0.0,
-            "unconverged": int(unconverged),
-            "clamped": int(clamped),
-        }
+        return self.counts.take(self.iterations, self.cfg.tolerance, float(self.max_error[None]))
 
     def after_density(self) -> list:
         """The projection of the predicted positions (this solver predicts first, so the
@@ -212,8 +190,19 @@ class PBF(PressureSolver):
         """p plus the last step's tensile corrections as a pressure, slot by slot."""
         return self.tensile.reported(p, self.rho.to_numpy(), float(self.state.dt[None]))
 
+    def reported_density(self, rho: np.ndarray, kind: np.ndarray) -> np.ndarray:
+        """The real particles' ρ as the last iteration measured it, the density the step's
+        pressure and its error read (its correction after it is not measured): the pool's
+        is the density pass's, at the predicted positions, before the projection."""
+        k = min(int(self.measured[None]), len(rho))
+        out = rho.copy()
+        real = (kind[:k] >= 0) & (kind[:k] < VIRTUAL_CHILD)
+        out[:k][real] = self.rho.to_numpy()[:k][real]
+        return out
+
     def forget_step(self) -> None:
         self.tensile.forget()
+        self.measured[None] = 0
 
     def solving(self) -> bool:
         """Whether the step's solve goes on (its stop is decided on the device)."""
@@ -437,14 +426,10 @@ class PBF(PressureSolver):
                 rho = self.rho[i]
                 p[i].p = self.q[i] * rho * rho / (dt * dt)
         if self.state.go[None]:  # a refused step is not one of the stats' (fused, n = 0 here)
-            avg = self.avg[None]
-            self.stats[ERR_SUM] += avg
-            self.stats[ERR_WORST] = ti.max(self.stats[ERR_WORST], avg)
-            self.stats[ERR_PEAK] = ti.max(self.stats[ERR_PEAK], ti.cast(self.peak[None], ti.f64))
-            self.stats[STEPS] += 1.0
-            self.stats[ITERS] += ti.cast(self.iteration[None], ti.f64)
-            if avg > self.tolerance[None] or self.peak[None] > self.max_error[None]:
-                self.stats[UNCONVERGED] += 1.0
+            self.measured[None] = n
+            avg, peak = self.avg[None], self.peak[None]
+            short = avg > self.tolerance[None] or peak > self.max_error[None]
+            self.counts.step(avg, peak, self.iteration[None], short)
 
     @ti.kernel
     def clamp(self, n: ti.i32):
@@ -462,4 +447,4 @@ class PBF(PressureSolver):
                 speed = p[i].v.norm()
                 if speed > vmax:
                     p[i].v *= vmax / speed
-                    ti.atomic_add(self.stats[CLAMPED], 1.0)
+                    self.counts.clamped()
