@@ -1054,6 +1054,21 @@ def test_toml_syntax_error_is_one_line(scenes_dir):
     found = problems_of("broken")
     assert len(found) == 1
     assert found[0].startswith("scenes/broken.toml: invalid TOML: ") and "line 7" in found[0]
+    assert found[0].endswith(": 'spacing = = 0.05'"), found[0]
+
+
+def test_a_key_given_twice_is_named_by_its_line(scenes_dir):
+    """tomllib says only "Cannot overwrite a value"; the line names the key."""
+    (scenes_dir / "twice.toml").write_text(SCENE_TOML.replace("spacing = 0.05", "spacing = 0.05\nspacing = 0.04"))
+    found = problems_of("twice")
+    assert len(found) == 1 and found[0].endswith(": 'spacing = 0.04'"), found
+
+
+def test_a_byte_order_mark_is_read_past(scenes_dir):
+    """Some editors start a UTF-8 file with a byte-order mark, which tomllib reads as an
+    invalid statement at line 1."""
+    (scenes_dir / "bom.toml").write_bytes(b"\xef\xbb\xbf" + SCENE_TOML.encode("utf-8"))
+    assert load_scene("bom").particles.spacing == 0.05
 
 
 def test_missing_file(scenes_dir):

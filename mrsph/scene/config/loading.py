@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import copy
 import difflib
+import re
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -232,9 +233,20 @@ def load_scene(source: str | Path | dict, overrides: dict | list[str] | None = N
     path = resolve_scene_path(source)
     label = _label(str(path))
     try:
-        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+        text = path.read_text(encoding="utf-8-sig")  # a byte-order mark, as some editors write, is no error
+        raw = tomllib.loads(text)
     except (OSError, UnicodeDecodeError) as e:
         raise SceneError(f"{label}: cannot read the file ({e})") from None
     except tomllib.TOMLDecodeError as e:
-        raise SceneError(f"{label}: invalid TOML: {e}") from None
+        raise SceneError(f"{label}: invalid TOML: {_with_line(str(e), text)}") from None
     return _build(raw, str(path), path.stem, overrides)
+
+
+def _with_line(message: str, text: str) -> str:
+    """tomllib's message with the line it points at, which names the key (a key given
+    twice reads "Cannot overwrite a value" and no more)."""
+    at = re.search(r"at line (\d+)", message)
+    lines = text.splitlines()
+    if at is None or not 1 <= int(at.group(1)) <= len(lines):
+        return message
+    return f"{message}: {lines[int(at.group(1)) - 1].strip()!r}"

@@ -90,7 +90,10 @@ def _check_places(c: Checker, d: dict) -> None:
                     f"fluid.blocks.{i}",
                     "holds no particle",
                     f"min {fmt_value(b['min'])}, max {fmt_value(b['max'])}",
-                    f"at least particles.spacing = {fmt_value(spacing)} m across on every axis (not on axis {thin[0]})",
+                    f"at least particles.spacing = {fmt_value(spacing)} m across on every axis (not on "
+                    + ("axis " if len(thin) == 1 else "axes ")
+                    + ", ".join("xyz"[k] for k in thin)
+                    + ")",
                 )
         for j, ob in enumerate(d["obstacles"]):
             what = ob and _overlap(b, ob)
