@@ -106,7 +106,12 @@ SCENE_ERRORS = {
     "block thinner than the spacing": (
         '[[fluid.blocks]]\nmin = [0.5, 0.0]\nmax = [0.503, 0.3]\n',
         [],
-        ["fluid.blocks.1: holds no particle", "not on axis 0"],
+        ["fluid.blocks.1: holds no particle", "(not on axis x)"],
+    ),
+    "block thinner than the spacing on two axes": (
+        '[[fluid.blocks]]\nmin = [0.5, 0.0]\nmax = [0.503, 0.003]\n',
+        [],
+        ["fluid.blocks.1: holds no particle", "(not on axes x, y)"],
     ),
     "bad --set syntax": ("", ["--set", "fluid.viscosity"], ["--set fluid.viscosity: not KEY=VALUE"]),
     "unknown --set key": (
@@ -193,12 +198,26 @@ def test_unwritable_outputs_are_refused_before_anything_runs(tmp_path):
         (("--headless", "--frames", 1, "--dump", a_file), "--dump", "not a directory"),
         (("--frames", 1, "--out", a_file / "x.gif"), "--out", "not a directory"),
         (("--frames", 1, "--out", a_file / "frames"), "--out", "cannot make the directory"),
+        # found only once the run was made, by an encoder that wrote its log after it
+        (("--frames", 1, "--out", "same.mp4", "--dump", "same.mp4"), "--dump", "the path of --out"),
+        (("--frames", 1, "--out", "v.gif", "--dump", "v.gif/dumps"), "--dump", "the path of --out"),
     ]
     for args, flag, why in cases:
         proc = run(path, *args, cwd=tmp_path)
         assert_usage_error(proc, f"error: {flag} ", why)
         assert len(proc.stderr.strip().splitlines()) == 1, f"{args}: {proc.stderr}"
         assert "Starting on arch" not in proc.stdout + proc.stderr, f"{args}: Taichi was started"
+
+
+def test_an_encoder_that_stops_mid_run_is_one_line():
+    """imageio's error for a video encoder that stopped carries the encoder's whole command
+    line over several lines; the run reports it in one, after the encoder's own reason."""
+    from mrsph.cli.commands import _os_error_line
+
+    log = "[Errno 32] Broken pipe\n\nFFMPEG COMMAND:\n/usr/bin/ffmpeg -y -f rawvideo x.mp4\n\nFFMPEG STDERR OUTPUT:\n"
+    line = _os_error_line(OSError(log))
+    assert line == "the video encoder (ffmpeg) stopped ([Errno 32] Broken pipe); its own message is above"
+    assert _os_error_line(OSError(28, "No space left on device")) == "[Errno 28] No space left on device"
 
 
 def test_a_set_that_breaks_another_key_is_named(tmp_path):

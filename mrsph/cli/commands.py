@@ -267,6 +267,25 @@ def _out_kind_problem(out: str) -> str | None:
     )
 
 
+def _same_path_problem(out: str, dump: str) -> str | None:
+    """--out and --dump at one path, or the dump folder under the recording's file: each
+    would find the other's output in its way only once the run has been made."""
+    o, d = Path(out).resolve(), Path(dump).resolve()
+    if o == d or (o.suffix.lower() in (".mp4", ".gif") and o in d.parents):
+        return f"error: --dump {dump}: the path of --out {out} (expected a directory of its own)"
+    return None
+
+
+def _os_error_line(e: OSError) -> str:
+    """One line for an output that failed mid-run. imageio's message for a video encoder
+    that stopped carries the encoder's whole command; the encoder has printed its own reason."""
+    text = str(e).strip()
+    first = text.splitlines()[0] if text else type(e).__name__
+    if "FFMPEG COMMAND" in text:
+        return f"the video encoder (ffmpeg) stopped ({first}); its own message is above"
+    return first
+
+
 class _Dumper:
     """Frame files and stats.csv rows for --dump, one per rendered frame."""
 
@@ -284,7 +303,7 @@ class _Dumper:
         parts = {"x": snap.x, "v": snap.v, "m": snap.m, "rho": snap.rho, "level": snap.level, "kind": snap.kind}
         if snap.p is not None:  # a stand-in without a pressure dumps zeros
             parts["p"] = snap.p
-        write_frame(self.directory, snap.frame, parts, self.dim, self.fmt)
+        write_frame(self.directory, snap.frame, parts, self.dim, self.fmt, (snap.domain_min, snap.domain_max))
         self.stats.write(snap.stats)
         self.last_row = snap.stats
 
@@ -460,7 +479,11 @@ def _run(args) -> int:
     scene = load_scene(args.scene, args.overrides)
     # a window does not dump: its --dump folder is made only once no window opens
     dumps = args.dump and (args.headless or args.out)
-    for problem in (args.out and _out_kind_problem(args.out), dumps and dir_problem("--dump", Path(args.dump))):
+    for problem in (
+        args.out and dumps and _same_path_problem(args.out, args.dump),
+        args.out and _out_kind_problem(args.out),
+        dumps and dir_problem("--dump", Path(args.dump)),
+    ):
         if problem:
             _err(problem)
             return EXIT_USAGE
@@ -516,7 +539,7 @@ def main(argv=None) -> int:
             return EXIT_INTERRUPTED
         except OSError as e:
             # writing the output failed mid-run (disk full, the video encoder died, ...)
-            _err(f"error: {e}")
+            _err(f"error: {_os_error_line(e)}")
             return EXIT_FAILED
         except Exception as e:
             # only a SimulationError is expected here; the solver is imported by then

@@ -94,11 +94,12 @@ def _pad3(a: np.ndarray) -> np.ndarray:
     return np.concatenate([a, np.zeros((len(a), 3 - a.shape[1]), a.dtype)], axis=1)
 
 
-def write_frame(directory, frame_index: int, parts: dict, dim: int, fmt: str = "npz") -> Path:
+def write_frame(directory, frame_index: int, parts: dict, dim: int, fmt: str = "npz", domain=None) -> Path:
     """Write one frame of particles to ``directory`` (created if needed); returns the path.
 
     ``parts`` is ``Simulation.particles()`` (or a snapshot's arrays): at least x, v, m,
-    rho, level and kind; other arrays are ignored.
+    rho, level and kind; other arrays are ignored. ``domain``: (min, max), the tank whose
+    walls the water's surface (``obj``) reaches and stays within.
     """
     path = frame_path(directory, frame_index, fmt)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -108,7 +109,7 @@ def write_frame(directory, frame_index: int, parts: dict, dim: int, fmt: str = "
     elif fmt == "ply":
         _write_ply(path, a)
     elif fmt == "obj":
-        _write_obj(path, a, int(dim))
+        _write_obj(path, a, int(dim), domain)
     else:
         _write_vtu(path, a)
     return path
@@ -159,10 +160,15 @@ def read_ply(path) -> dict:
     return {name: rec[name].copy() for name, _ in fields}
 
 
-def _write_obj(path: Path, a: dict, dim: int) -> None:
+def _write_obj(path: Path, a: dict, dim: int, domain=None) -> None:
+    """The water's surface. With the particles mirrored at the domain's walls the body
+    reaches them, and the smoothed surface past them by a fraction of a spacing: kept in
+    the domain, it lies on them where the water meets them. Not at the obstacles, whose
+    mirrored water would fill them (demo_3d's post: 7 % of the water's volume)."""
     from .surface import surface
 
-    found = surface(a["x"], a["m"], a["rho"], a["level"], a["kind"], dim)
+    walls = None if domain is None else (*domain, ())
+    found = surface(a["x"], a["m"], a["rho"], a["level"], a["kind"], dim, walls=walls)
     lines = ["# fluid surface written by mrsph (mrsph/io/surface.py)", "o fluid"]
     if found is not None and len(found[1]):
         corners = _pad3(np.asarray(found[1], np.float64))
@@ -171,6 +177,9 @@ def _write_obj(path: Path, a: dict, dim: int) -> None:
         _, first, index = np.unique(key, axis=0, return_index=True, return_inverse=True)
         index = index.reshape(-1)
         verts = corners[first]
+        if domain is not None:
+            lo, hi = (_pad3(np.asarray(b, np.float64)[None, :])[0] for b in domain)
+            verts = np.clip(verts, lo, hi)
         lines += [f"v {x!r} {y!r} {z!r}" for x, y, z in verts.tolist()]
         faces = index.reshape(-1, 3) + 1
         if normals is not None:

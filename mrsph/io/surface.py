@@ -539,10 +539,11 @@ def polygon_area(triangles) -> float:
     return float((e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum() / 2.0)
 
 
-def surface(x, m, rho, level, kind, dim: int, rgb=None):
+def surface(x, m, rho, level, kind, dim: int, rgb=None, walls=None):
     """The fluid's surface from particle arrays: 2D ``("area", triangles, colours,
-    outline)``, 3D ``("mesh", vertices, normals, colours)``; None without fluid."""
-    grid = volume_fraction(x, m, rho, level, kind, rgb)
+    outline)``, 3D ``("mesh", vertices, normals, colours)``; None without fluid.
+    ``walls``: as ``volume_fraction``'s, the body then reaching the walls."""
+    grid = volume_fraction(x, m, rho, level, kind, rgb, walls)
     if grid is None:
         return None
     if dim == 2:
