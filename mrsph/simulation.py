@@ -177,7 +177,7 @@ class Simulation:
             Pass("emit", "emit", self._emit, when=lambda: bool(self.emitters.specs)),
             Pass("adapt", "adapt", self._adapt, when=lambda: self.adaptive and self.steps % adapt_every == 0),
             # a position-based solver predicts first and projects what it predicted; the
-            # forces it ends with (its carried pressure) are the next step's kick
+            # pressure it ends with is the next step's warm start
             *(move + measure if pressure.predicts else measure + move),
             *stirrers,
             Pass("nozzles", "emit", self._nozzles, when=self.emitters.any_on),
@@ -237,6 +237,7 @@ class Simulation:
         stirred = int(self.disturbances.any_active())
         dt = self.stepper.run(self.integrator.step_args(max_dt, stirred, self.time))
         if dt < 0.0:
+            self.pressure.forget_step()  # a refused fused step may have sorted the pool anew
             self.integrator.refuse(self._where())
         self.time += dt
         self.steps += 1

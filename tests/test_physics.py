@@ -711,8 +711,9 @@ def test_a_refused_pbf_step_leaves_every_particle_where_it_was(dim, by_pass):
     """pbf's step predicts, then sorts and projects after the time-step pass. When that
     pass refuses the step, the pass-by-pass step stops there and the fused launch runs the
     rest over no particle (``step.Segment``'s gate): either way each particle keeps its
-    place and velocity (the fused one may have sorted them), and the refused step is not
-    counted in the solver's stats."""
+    place and velocity (the fused one may have sorted them), the refused step is not
+    counted in the solver's stats, and what the last step measured is not read onto the
+    slots as they are now (a reader sees the pool's density)."""
     from mrsph.pressure.pbf.counts import STEPS
     from mrsph.simulation import SimulationError
 
@@ -740,6 +741,9 @@ def test_a_refused_pbf_step_leaves_every_particle_where_it_was(dim, by_pass):
         f"x, v {before[moved[0]].tolist()} -> {after[moved[0]].tolist()}"
     )
     assert float(sim.pressure.counts.stats[STEPS]) == steps, f"{dim}D: the refused step was counted in pbf's stats"
+    real = alive_slots(sim, "kind") < 4
+    seen = sim.particles()["rho"][real]
+    assert np.array_equal(seen, alive_slots(sim, "rho")[real]), f"{dim}D: a refused step's reader saw the last rho"
 
 
 @pytest.mark.parametrize("g", [1e20, 1e31])
