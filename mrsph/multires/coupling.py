@@ -176,15 +176,17 @@ class Adaptive(Uniform):
             ti.atomic_add(into[p[j].parent], r)
         else:
             n = p[j].nchild
-            first = p[self.pool.children[j, 0]].m
-            m, equal = 0.0, True
+            m, first, equal = 0.0, 0.0, True
             for q in range(n):
                 mc = p[self.pool.children[j, q]].m
+                if q == 0:
+                    first = mc
                 m += mc
                 equal = equal and mc == first
             for q in range(n):
                 ch = self.pool.children[j, q]
-                # equal masses take r / n: exact, where their summed mass need not be
+                # equal masses, as a split leaves them, take r / n: the same shares without
+                # the rounding of their summed mass
                 share = r / n
                 if not equal:
                     share = r * (p[ch].m / m)
