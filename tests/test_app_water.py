@@ -166,6 +166,32 @@ def test_obj_dump_reads_back_with_the_fluid_volume(tmp_path):
         assert abs(got / want - 1.0) < 0.03, f"{dim}D: OBJ encloses {got:.5f}, the block {want:.5f}"
 
 
+def test_obj_dump_leaves_out_the_mirror_image_of_a_drop_near_a_wall(tmp_path):
+    """A drop of 3 x 3 x 3 particles 1.5 spacings above the floor: the particles mirrored
+    at the floor make a second drop below it, wholly outside the tank, which the OBJ
+    leaves out (clipped, it was a sheet of 40 % of the mesh's vertices on the floor)."""
+    meshio = pytest.importorskip("meshio")
+    from mrsph.io.output import write_frame
+
+    s = 0.02
+    x = np.stack(np.meshgrid(*[np.arange(3) * s] * 3, indexing="ij"), -1).reshape(-1, 3) + [0.5, 1.5 * s, 0.5]
+    n = len(x)
+    parts = dict(
+        x=x,
+        v=np.zeros_like(x),
+        m=np.full(n, 1000.0 * s**3),
+        rho=np.full(n, 1000.0),
+        level=np.zeros(n),
+        kind=np.zeros(n),
+    )
+    mesh = meshio.read(write_frame(tmp_path, 0, parts, 3, "obj", (np.zeros(3), np.ones(3))))
+    faces = mesh.cells_dict["triangle"]
+    edges = {tuple(sorted(e)) for f in faces.tolist() for e in ((f[0], f[1]), (f[1], f[2]), (f[2], f[0]))}
+    parts_count = (len(mesh.points) - len(edges) + len(faces)) // 2
+    on_floor = int((mesh.points[:, 1] <= 1e-12).sum())
+    assert parts_count == 1 and on_floor == 0, f"{parts_count} closed parts, {on_floor} vertices on the floor"
+
+
 def _filled_top(render, snap) -> float:
     """Share of a patch in the middle of the 3D fluid's top face that is not background."""
     x = np.asarray(snap.x)[~palette.is_virtual(snap.kind)]

@@ -162,10 +162,12 @@ def read_ply(path) -> dict:
 
 def _write_obj(path: Path, a: dict, dim: int, domain=None) -> None:
     """The water's surface. With the particles mirrored at the domain's walls the body
-    reaches them, and the smoothed surface past them by a fraction of a spacing: kept in
-    the domain, it lies on them where the water meets them. Not at the obstacles, whose
-    mirrored water would fill them (demo_3d's post: 7 % of the water's volume)."""
-    from .surface import surface
+    reaches them, and the smoothed surface passes them by up to the mirrored particles'
+    reach (a few spacings): kept in the domain, it lies on them where the water meets
+    them, and a mirror image of water near a wall, wholly beyond it, is left out. Not
+    mirrored at the obstacles, whose mirrored water would fill them (demo_3d's post: 7 %
+    of the water's volume)."""
+    from .surface import _VIRTUAL_KIND, surface
 
     walls = None if domain is None else (*domain, ())
     found = surface(a["x"], a["m"], a["rho"], a["level"], a["kind"], dim, walls=walls)
@@ -175,22 +177,47 @@ def _write_obj(path: Path, a: dict, dim: int, domain=None) -> None:
         normals = _pad3(np.asarray(found[2], np.float64)) if dim == 3 else None
         key = np.round(corners / 1e-9).astype(np.int64)
         _, first, index = np.unique(key, axis=0, return_index=True, return_inverse=True)
-        index = index.reshape(-1)
+        faces = index.reshape(-1, 3)
         verts = corners[first]
         if domain is not None:
             lo, hi = (_pad3(np.asarray(b, np.float64)[None, :])[0] for b in domain)
-            verts = np.clip(verts, lo, hi)
+            water = np.asarray(a["x"], np.float64)[np.asarray(a["kind"]) < _VIRTUAL_KIND]
+            keep = _reaching_in(verts, faces, water)
+            used, faces = np.unique(faces[keep], return_inverse=True)
+            faces = faces.reshape(-1, 3)
+            verts = np.clip(verts[used], lo, hi)
+            if normals is not None:
+                normals = normals.reshape(-1, 3, 3)[keep].reshape(-1, 3)
         lines += [f"v {x!r} {y!r} {z!r}" for x, y, z in verts.tolist()]
-        faces = index.reshape(-1, 3) + 1
         if normals is not None:
             vn = np.zeros_like(verts)
-            np.add.at(vn, index, normals)
+            np.add.at(vn, faces.reshape(-1), normals)
             vn /= np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-12)
             lines += [f"vn {x:.6f} {y:.6f} {z:.6f}" for x, y, z in vn.tolist()]
-            lines += [f"f {i}//{i} {j}//{j} {k}//{k}" for i, j, k in faces.tolist()]
+            lines += [f"f {i}//{i} {j}//{j} {k}//{k}" for i, j, k in (faces + 1).tolist()]
         else:
-            lines += [f"f {i} {j} {k}" for i, j, k in faces.tolist()]
+            lines += [f"f {i} {j} {k}" for i, j, k in (faces + 1).tolist()]
     path.write_text("\n".join(lines) + "\n", encoding="ascii")
+
+
+def _reaching_in(verts: np.ndarray, faces: np.ndarray, water: np.ndarray) -> np.ndarray:
+    """The faces of the mesh's connected parts that hold water, as against a mirror image
+    of water near a wall, wholly beyond it: a part whose bounding box holds a particle of
+    ``water`` (N, d), all of which are within the domain."""
+    label = np.arange(len(verts))
+    while True:  # each part's smallest vertex index, spread along the faces
+        new = label.copy()
+        np.minimum.at(new, faces.reshape(-1), np.repeat(label[faces].min(axis=1), 3))
+        new = new[new]
+        if np.array_equal(new, label):
+            break
+        label = new
+    dim = water.shape[1]
+    keep = np.zeros(len(verts), bool)
+    for part in np.unique(label[faces[:, 0]]):
+        corner = verts[label == part, :dim]
+        keep[part] = np.any(np.all((water >= corner.min(axis=0)) & (water <= corner.max(axis=0)), axis=1))
+    return keep[label[faces[:, 0]]]
 
 
 def _write_vtu(path: Path, a: dict) -> None:
