@@ -1069,6 +1069,19 @@ def test_a_byte_order_mark_is_read_past(scenes_dir):
     invalid statement at line 1."""
     (scenes_dir / "bom.toml").write_bytes(b"\xef\xbb\xbf" + SCENE_TOML.encode("utf-8"))
     assert load_scene("bom").particles.spacing == 0.05
+    assert list_scenes() == [("bom", "a small dam break")]
+
+
+def test_a_toml_error_quotes_its_line_as_tomllib_counts_lines():
+    """tomllib counts lines at newlines only, where str.splitlines also breaks at U+2028
+    (legal in a TOML comment); a long line is cut."""
+    from mrsph.scene.config.loading import _with_line
+
+    text = "# a comment with a \u2028 in it\nspacing = = 1\n"
+    assert _with_line("Invalid value (at line 2, column 11)", text).endswith(": 'spacing = = 1'")
+    long = "x = [" + "1, " * 100 + "\n"
+    quoted = _with_line("Unclosed array (at line 1, column 306)", long)
+    assert len(quoted) < 170 and quoted.endswith("…'"), quoted
 
 
 def test_missing_file(scenes_dir):

@@ -195,7 +195,7 @@ def list_scenes() -> list[tuple[str, str]]:
     scenes = []
     for path in sorted(SCENES_DIR.glob("*.toml")):
         try:
-            description = tomllib.loads(path.read_text(encoding="utf-8")).get("description", "")
+            description = tomllib.loads(read_toml_text(path)).get("description", "")
         except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
             description = f"(unreadable: {e})"
         scenes.append((path.stem, str(description)))
@@ -233,7 +233,7 @@ def load_scene(source: str | Path | dict, overrides: dict | list[str] | None = N
     path = resolve_scene_path(source)
     label = _label(str(path))
     try:
-        text = path.read_text(encoding="utf-8-sig")  # a byte-order mark, as some editors write, is no error
+        text = read_toml_text(path)
         raw = tomllib.loads(text)
     except (OSError, UnicodeDecodeError) as e:
         raise SceneError(f"{label}: cannot read the file ({e})") from None
@@ -242,11 +242,20 @@ def load_scene(source: str | Path | dict, overrides: dict | list[str] | None = N
     return _build(raw, str(path), path.stem, overrides)
 
 
-def _with_line(message: str, text: str) -> str:
+def read_toml_text(path: Path) -> str:
+    """A scene file's text; a byte-order mark, which some editors write, is no error."""
+    return path.read_text(encoding="utf-8-sig")
+
+
+def _with_line(message: str, text: str, width: int = 120) -> str:
     """tomllib's message with the line it points at, which names the key (a key given
-    twice reads "Cannot overwrite a value" and no more)."""
+    twice reads "Cannot overwrite a value" and no more). Lines as tomllib counts them:
+    at newlines only."""
     at = re.search(r"at line (\d+)", message)
-    lines = text.splitlines()
+    lines = text.split("\n")
     if at is None or not 1 <= int(at.group(1)) <= len(lines):
         return message
-    return f"{message}: {lines[int(at.group(1)) - 1].strip()!r}"
+    line = lines[int(at.group(1)) - 1].strip()
+    if len(line) > width:
+        line = line[: width - 1] + "…"
+    return f"{message}: {line!r}"
