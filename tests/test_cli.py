@@ -200,7 +200,7 @@ def test_unwritable_outputs_are_refused_before_anything_runs(tmp_path):
         (("--frames", 1, "--out", a_file / "frames"), "--out", "cannot make the directory"),
         # found only once the run was made, by an encoder that wrote its log after it
         (("--frames", 1, "--out", "same.mp4", "--dump", "same.mp4"), "--dump", "the path of --out"),
-        (("--frames", 1, "--out", "v.gif", "--dump", "v.gif/dumps"), "--dump", "the path of --out"),
+        (("--frames", 1, "--out", "v.gif", "--dump", "v.gif/dumps"), "--dump", "inside --out v.gif, the file"),
     ]
     for args, flag, why in cases:
         proc = run(path, *args, cwd=tmp_path)

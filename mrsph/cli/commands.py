@@ -271,8 +271,12 @@ def _same_path_problem(out: str, dump: str) -> str | None:
     """--out and --dump at one path, or the dump folder under the recording's file: each
     would find the other's output in its way only once the run has been made."""
     o, d = Path(out).resolve(), Path(dump).resolve()
-    if o == d or (o.suffix.lower() in (".mp4", ".gif") and o in d.parents):
+    if o == d:
         return f"error: --dump {dump}: the path of --out {out} (expected a directory of its own)"
+    if o.suffix.lower() in (".mp4", ".gif") and o in d.parents:
+        return (
+            f"error: --dump {dump}: inside --out {out}, the file the recording writes (expected a directory of its own)"
+        )
     return None
 
 
@@ -466,7 +470,8 @@ def _run_window_or_video(scene, args) -> int:
         raise
     except (OSError, RuntimeError) as e:
         out = out.with_suffix(".gif")
-        _err(f"mrsph: writing mp4 failed ({type(e).__name__}: {e}); writing {out} instead")
+        why = _os_error_line(e) if isinstance(e, OSError) else f"{type(e).__name__}: {e}"
+        _err(f"mrsph: writing mp4 failed ({why}); writing {out} instead")
         sim.reset()
         path = _record(sim, out, frames, args)
     print(path)
