@@ -55,9 +55,9 @@ Nothing here touches Taichi at import time.
   user sees them, so they run the optimised kernels that users run (``as_users_run``),
   as do the soaks (``-m soak``, long runs where stepping is the cost), ``tools/validate.py``
   and ``bench``, which warns when the variable is set.
-- Both runs use two processes (pytest-xdist, ``-n auto --dist loadgroup`` in pytest.ini;
-  ``-n 0`` runs in one). Most of a test's time is Taichi compiling, which is one thread,
-  so two processes halve the wall time on two cores. Tests that share an expensive
+- Both runs use a process a core (pytest-xdist, ``-n auto --dist loadgroup`` in
+  pytest.ini; ``-n 0`` runs in one). Most of a test's time is Taichi compiling, which is
+  one thread, so the two processes of a 2-core machine halve the wall time. Tests that share an expensive
   module fixture (one flow run read by several tests, one Xvfb server) are kept in one
   process by an ``xdist_group`` named after their module and fixture case (``GROUPED``).
 """
