@@ -409,6 +409,22 @@ S0 = {2: 0.01, 3: 0.02}  # level-0 spacing
 BAND = {2: 0.04, 3: 0.03}  # adaptivity.band
 
 
+def refined_blob_scene(dim: int) -> dict:
+    """A block of fluid in the middle of a large box, gravity off, with a fixed level-0 box
+    inside it and level 1 around: every kind of particle is present at the interface."""
+    s0 = S0[dim]
+    return {
+        "description": "free blob with a refined core, gravity off",
+        "dim": dim,
+        "domain": {"min": [0.0] * dim, "max": [1.0] * dim},
+        "particles": {"spacing": s0},
+        "fluid": {"viscosity": 1.0, "stiffness": 1000.0, "blocks": [{"min": [0.32] * dim, "max": [0.68] * dim}]},
+        "physics": {"gravity": [0.0] * dim, "cfl": 0.2},
+        "adaptivity": {"enabled": True, "levels": 2, "interval": 1000, "band": BAND[dim]},
+        "criteria": [{"type": "region", "shape": "box", "level": 0, "min": [0.44] * dim, "max": [0.56] * dim}],
+    }
+
+
 def moving_region_scene(dim: int, half_period_steps: int = 30, levels: int = 3) -> dict:
     """A slab of fluid at rest, gravity off, far from the walls; a refinement box (level 0)
     sweeps along x through it and back, so that the fluid keeps splitting ahead of the box

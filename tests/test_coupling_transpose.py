@@ -7,29 +7,9 @@ equal, where even shares are the same; an absorption or a gather leaves them une
 there even shares are not the transpose."""
 
 import numpy as np
-from scenekit import BAND, REAL_KINDS, S0, T_BOTH, T_CHILD, V_PARENT, make_sim
+from scenekit import REAL_KINDS, T_BOTH, T_CHILD, V_PARENT, make_sim, refined_blob_scene, with_solver
 
 from mrsph.sph.particles import is_real
-
-
-def blob_scene(dim: int) -> dict:
-    """A block of dfsph fluid in a large box, gravity off, its core refined: groups of
-    transient children and their virtual parents all round the core."""
-    return {
-        "description": "free blob with a refined core, gravity off",
-        "dim": dim,
-        "domain": {"min": [0.0] * dim, "max": [1.0] * dim},
-        "particles": {"spacing": S0[dim]},
-        "fluid": {
-            "solver": "dfsph",
-            "viscosity": 1.0,
-            "stiffness": 1000.0,
-            "blocks": [{"min": [0.32] * dim, "max": [0.68] * dim}],
-        },
-        "physics": {"gravity": [0.0] * dim},
-        "adaptivity": {"enabled": True, "levels": 2, "interval": 1000, "band": BAND[dim]},
-        "criteria": [{"type": "region", "shape": "box", "level": 0, "min": [0.44] * dim, "max": [0.56] * dim}],
-    }
 
 
 def unequal_groups(sim) -> int:
@@ -55,7 +35,7 @@ def test_dfsph_operator_is_symmetric_with_groups_of_unequal_mass(dim, fresh_prog
     round-off."""
     import taichi as ti
 
-    sim = make_sim(blob_scene(dim), threads=1)
+    sim = make_sim(with_solver(refined_blob_scene(dim), "dfsph"), threads=1)
     for _ in range(3):
         sim.step()
     groups = unequal_groups(sim)

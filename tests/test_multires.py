@@ -44,6 +44,7 @@ from scenekit import (
     real_first_moment,
     real_mass,
     real_momentum,
+    refined_blob_scene,
     watch_solves,
     with_solver,
     worst_leak,
@@ -280,22 +281,6 @@ def test_adaptivity_pass_keeps_momentum(dim, solver):
 
 
 # ================================================================== 4. momentum through coupling
-def refined_blob_scene(dim: int) -> dict:
-    """A block of fluid in the middle of a large box, gravity off, with a fixed level-0 box
-    inside it and level 1 around: every kind of particle is present at the interface."""
-    s0 = S0[dim]
-    return {
-        "description": "free blob with a refined core, gravity off",
-        "dim": dim,
-        "domain": {"min": [0.0] * dim, "max": [1.0] * dim},
-        "particles": {"spacing": s0},
-        "fluid": {"viscosity": 1.0, "stiffness": 1000.0, "blocks": [{"min": [0.32] * dim, "max": [0.68] * dim}]},
-        "physics": {"gravity": [0.0] * dim, "cfl": 0.2},
-        "adaptivity": {"enabled": True, "levels": 2, "interval": 1000, "band": BAND[dim]},
-        "criteria": [{"type": "region", "shape": "box", "level": 0, "min": [0.44] * dim, "max": [0.56] * dim}],
-    }
-
-
 # the quick run: the symmetric coupling under wcsph, the variational one under dfsph
 @pytest.mark.slow_params("2d-variational", "3d-symmetric", "3d-variational", "3d-variational-dfsph")
 @pytest.mark.parametrize(

@@ -182,7 +182,7 @@ def _write_obj(path: Path, a: dict, dim: int, domain=None) -> None:
         if domain is not None:
             lo, hi = (_pad3(np.asarray(b, np.float64)[None, :])[0] for b in domain)
             water = np.asarray(a["x"], np.float64)[np.asarray(a["kind"]) < _VIRTUAL_KIND]
-            keep = _reaching_in(verts, faces, water)
+            keep = _reaching_in(verts, faces, water, lo, hi)
             used, faces = np.unique(faces[keep], return_inverse=True)
             faces = faces.reshape(-1, 3)
             verts = np.clip(verts[used], lo, hi)
@@ -200,10 +200,11 @@ def _write_obj(path: Path, a: dict, dim: int, domain=None) -> None:
     path.write_text("\n".join(lines) + "\n", encoding="ascii")
 
 
-def _reaching_in(verts: np.ndarray, faces: np.ndarray, water: np.ndarray) -> np.ndarray:
+def _reaching_in(verts: np.ndarray, faces: np.ndarray, water: np.ndarray, lo, hi) -> np.ndarray:
     """The faces of the mesh's connected parts that hold water, as against a mirror image
-    of water near a wall, wholly beyond it: a part whose bounding box holds a particle of
-    ``water`` (N, d), all of which are within the domain."""
+    of water near a wall, wholly beyond it: a part with a vertex within (lo, hi), or, for
+    water filling the domain to every wall, whose bounding box holds a particle of
+    ``water`` (N, d)."""
     label = np.arange(len(verts))
     while True:  # each part's smallest vertex index, spread along the faces
         new = label.copy()
@@ -214,7 +215,8 @@ def _reaching_in(verts: np.ndarray, faces: np.ndarray, water: np.ndarray) -> np.
         label = new
     dim = water.shape[1]
     keep = np.zeros(len(verts), bool)
-    for part in np.unique(label[faces[:, 0]]):
+    keep[label[np.all((verts[:, :dim] > lo[:dim]) & (verts[:, :dim] < hi[:dim]), axis=1)]] = True
+    for part in np.setdiff1d(label[faces[:, 0]], np.flatnonzero(keep)):  # few: wholly outside
         corner = verts[label == part, :dim]
         keep[part] = np.any(np.all((water >= corner.min(axis=0)) & (water <= corner.max(axis=0)), axis=1))
     return keep[label[faces[:, 0]]]
